@@ -1,0 +1,49 @@
+#pragma once
+// Closed-form linear precoders. All three transmit at the full budget, ||W||_F^2 = P_max.
+//
+// MRT:  w_k = sqrt(P/K_n) h_k / ||h_k||                       (equal power per user)
+// ZF:   directions v_k = column k of G^+ (= G^H (G G^H)^{-1} when G has full row rank), so
+//       h_j^H v_k = 0 for j != k; w_k = sqrt(p_k) v_k / ||v_k||, and user k's SINR is
+//       p_k / (sigma^2 ||v_k||^2).
+//       Power: "waterfilling" (default) p_k = (mu - sigma^2 ||v_k||^2)^+ with sum p_k = P, the
+//       sum-rate-optimal allocation for ZF directions; "equal" p_k = P / K_n.
+//       When G is rank-deficient (K_n > L, or two users with the same angle cos(theta) = H/d,
+//       whose LoS channels are parallel) interference cannot be nulled: skyloop then keeps the
+//       pseudo-inverse directions (least-squares) with equal power, and the SINR counts the
+//       residual interference.
+// RZF:  W = c G^H (G G^H + (K_n sigma^2 / P) I)^{-1}, c scaling ||W||_F^2 to P (the MMSE
+//       precoder); defined for every K_n.
+#include "skyloop/beamforming/beamformer.hpp"
+
+namespace skyloop {
+
+MatrixXcd mrt(const Cluster& c);
+MatrixXcd zf(const Cluster& c, bool waterfilling = true);
+MatrixXcd rzf(const Cluster& c);
+
+/// Water-filling of `budget` over channels with noise-to-gain ratios `floor` (p_k = (mu - floor_k)^+).
+VectorXd waterfill(const VectorXd& floor, double budget);
+
+class MrtBeamformer final : public Beamformer {
+ public:
+  std::string name() const override { return "mrt"; }
+  MatrixXcd design(const Cluster& c) const override { return mrt(c); }
+};
+
+class ZfBeamformer final : public Beamformer {
+ public:
+  explicit ZfBeamformer(bool waterfilling = true) : waterfilling_(waterfilling) {}
+  std::string name() const override { return "zf"; }
+  MatrixXcd design(const Cluster& c) const override { return zf(c, waterfilling_); }
+
+ private:
+  bool waterfilling_;
+};
+
+class RzfBeamformer final : public Beamformer {
+ public:
+  std::string name() const override { return "rzf"; }
+  MatrixXcd design(const Cluster& c) const override { return rzf(c); }
+};
+
+}  // namespace skyloop

@@ -1,0 +1,49 @@
+#pragma once
+// Beamformers by name, so the CLI, experiments and the environment can be handed any of them, and
+// a user can add their own:
+//
+//   auto& reg = skyloop::builtin_beamformers();          // experiments/builtin.hpp
+//   reg.add("mine", "my precoder", [](const Config& cfg, const std::string& arg) {
+//     return std::make_unique<MyBeamformer>(cfg, arg);
+//   });
+//   auto bf = reg.create("mine=path/to/model", cfg);
+//
+// A spec is "name" or "name=arg" (e.g. "ga=pso", later "gnn=models/gnn/model.pt").
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "skyloop/beamforming/beamformer.hpp"
+#include "skyloop/core/config.hpp"
+
+namespace skyloop {
+
+using BeamformerFactory = std::function<std::unique_ptr<Beamformer>(const Config& cfg, const std::string& arg)>;
+
+class BeamformerRegistry {
+ public:
+  /// Adds (or replaces) a factory.
+  void add(const std::string& name, std::string description, BeamformerFactory factory);
+  /// Builds "name" or "name=arg"; throws InputError naming the spec and the known names.
+  std::unique_ptr<Beamformer> create(const std::string& spec, const Config& cfg) const;
+  bool contains(const std::string& name) const { return entries_.count(name) > 0; }
+  /// (name, description), sorted by name.
+  std::vector<std::pair<std::string, std::string>> list() const;
+
+ private:
+  struct Entry {
+    std::string description;
+    BeamformerFactory factory;
+  };
+  std::map<std::string, Entry> entries_;
+};
+
+/// Registers mrt, zf, rzf and wmmse (the Eigen-only beamformers).
+void register_classical_beamformers(BeamformerRegistry& reg);
+
+/// Splits a comma-separated method list ("mrt,zf,gnn=a/b.pt"), rejecting empty items.
+std::vector<std::string> split_methods(const std::string& list);
+
+}  // namespace skyloop

@@ -1,0 +1,55 @@
+#pragma once
+// WMMSE for the sum rate of one cluster (Shi, Razaviyayn, Luo, He, IEEE TSP 2011), all weights 1.
+// One iteration, with g_k = row k of G (= h_k^H) and T_k = sum_j |g_k w_j|^2 + sigma^2:
+//   u_k     = g_k w_k / T_k                                  (MMSE receiver)
+//   omega_k = 1 / e_k = T_k / (T_k - |g_k w_k|^2)             (MSE weight)
+//   w_k     = omega_k u_k (A + mu I)^{-1} g_k^H,  A = sum_j omega_j |u_j|^2 g_j^H g_j
+// with mu >= 0 the smallest multiplier meeting sum_k ||w_k||^2 <= P, found by bisection on the
+// eigenvalues of A (power(mu) = sum_i c_i / (lambda_i + mu)^2 is decreasing in mu). The sum
+// rate never decreases from one iteration to the next (block-coordinate ascent on an equivalent
+// problem), up to the bisection tolerance.
+#include <cstdint>
+#include <vector>
+
+#include "skyloop/beamforming/beamformer.hpp"
+
+namespace skyloop {
+
+struct WmmseOptions {
+  double tolerance = 1e-6;            // stop when an iteration's relative sum-rate gain is below
+  int max_iterations = 1000;
+  double bisection_tolerance = 1e-10; // relative width of the final mu bracket
+};
+
+struct WmmseTrace {
+  MatrixXcd W;                      // final beamformer [L x K_n]
+  std::vector<double> sum_rates;    // sum rate of the starting point, then after each iteration
+  int iterations = 0;
+  bool converged = false;
+};
+
+/// One WMMSE run from W0 ([L x K_n], any power; it is first scaled to the budget).
+WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& opt);
+
+class WmmseBeamformer final : public Beamformer {
+ public:
+  /// init: "rzf" | "mrt" | "random". `restarts` extra runs from random complex-Gaussian points
+  /// (seeded by `seed` and the cluster); the best final sum rate is kept. The result is scaled
+  /// onto the budget with `scaling`.
+  WmmseBeamformer(WmmseOptions opt, std::string init, int restarts, std::uint64_t seed,
+                  PowerScaling scaling = PowerScaling::Full);
+  std::string name() const override { return "wmmse"; }
+  MatrixXcd design(const Cluster& c) const override;
+
+ private:
+  WmmseOptions opt_;
+  std::string init_;
+  int restarts_;
+  std::uint64_t seed_;
+  PowerScaling scaling_;
+};
+
+/// A complex-Gaussian [L x K] matrix scaled to power P, from `seed`.
+MatrixXcd random_beamformer(Eigen::Index L, Eigen::Index K, double p_max, std::uint64_t seed);
+
+}  // namespace skyloop

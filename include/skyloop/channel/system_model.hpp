@@ -1,0 +1,90 @@
+#pragma once
+// The paper's system model (Section III): LoS channel (eq:channel_model, eq:steering_vector),
+// nearest-UAV association within R_c (eq:cluster_association), and the clusters that the
+// beamformers see.
+//
+// Conventions
+//   UAV n at (x_n, y_n, H), user k at (x_k, y_k, 0); d_{n,k} the 3-D distance.
+//   beta_{n,k}  = beta0 * (d0 / d_{n,k})^2          (the printed exponent -2 is a typo: path loss
+//                                                      must fall with distance)
+//   cos(theta)  = H / d_{n,k}
+//   a_l         = exp(j 2 pi (d_a/lambda) l cos(theta)),  l = 0..L-1
+//   h_{n,k}     = sqrt(beta_{n,k}) a                   [L] complex
+//   A cluster's channel matrix G is [K_n x L] complex with row k = h_k^H, so the received
+//   signal of the cluster is y = G W s + z and (G W)(k, j) = h_k^H w_j.
+#include <cstdint>
+#include <vector>
+
+#include "skyloop/core/config.hpp"
+#include "skyloop/core/types.hpp"
+
+namespace skyloop {
+
+/// Positions of one network snapshot.
+struct Snapshot {
+  Positions uavs;   // [N x 2]
+  Positions users;  // [K x 2]
+};
+
+/// One UAV's cluster: the beamformer's input. Beamformers read G, p_max and noise only.
+struct Cluster {
+  int uav = -1;             // serving UAV index n
+  std::vector<int> users;   // user indices, ascending; row i of G is user users[i]
+  MatrixXcd G;              // [K_n x L] complex, row i = h_{n,users[i]}^H
+  double p_max = 1.0;       // power budget (W)
+  double noise = 1e-12;     // sigma_0^2 (W)
+  int size() const { return static_cast<int>(G.rows()); }
+  int antennas() const { return static_cast<int>(G.cols()); }
+};
+
+/// User association of one snapshot (eq:cluster_association).
+struct Association {
+  std::vector<int> serving;             // [K]: serving UAV of user k, or -1 if no UAV covers it
+  std::vector<std::vector<int>> users;  // [N]: users of UAV n, ascending (may be empty)
+};
+
+class SystemModel {
+ public:
+  explicit SystemModel(const Config& cfg);
+
+  int antennas() const { return antennas_; }
+  double altitude() const { return altitude_; }
+  double p_max() const { return p_max_; }
+  double noise() const { return noise_; }
+  double area_x() const { return area_x_; }
+  double area_y() const { return area_y_; }
+
+  /// 3-D distance between a UAV at altitude H above (ux, uy) and a ground user at (x, y).
+  double distance(double ux, double uy, double x, double y) const;
+  /// beta0 * (d0 / d)^2.
+  double path_loss(double d) const;
+  /// Steering vector for cos(theta) = H / d: [L] complex.
+  VectorXcd steering(double cos_theta) const;
+  /// h_{n,k} = sqrt(beta) a(theta): [L] complex.
+  VectorXcd channel(double ux, double uy, double x, double y) const;
+
+  /// Nearest UAV by 3-D distance (lowest index on ties), served only if that distance <= R_c.
+  Association associate(const Snapshot& s) const;
+  /// The non-empty clusters of a snapshot, ascending UAV index.
+  std::vector<Cluster> clusters(const Snapshot& s) const;
+  std::vector<Cluster> clusters(const Snapshot& s, const Association& a) const;
+  /// Cluster of UAV n at (ux, uy) serving the given users (of `users_xy`).
+  Cluster make_cluster(int uav, double ux, double uy, const Positions& users_xy, const std::vector<int>& users) const;
+
+  /// N UAVs and K users uniform in the area; a pure function of `seed`.
+  Snapshot random_snapshot(int uavs, int users, std::uint64_t seed) const;
+
+ private:
+  int antennas_;
+  double spacing_, altitude_, beta0_, d0_, coverage_, p_max_, noise_, area_x_, area_y_;
+};
+
+/// Snapshots i = 0..count-1 of a run seeded `seed`: snapshot i uses derive_seed(seed, i).
+std::vector<Snapshot> random_snapshots(const SystemModel& model, int uavs, int users, std::uint64_t seed,
+                                       std::size_t count);
+
+/// The clusters of many snapshots, concatenated; `owner[i]` is the snapshot of cluster i.
+std::vector<Cluster> clusters_of(const SystemModel& model, const std::vector<Snapshot>& snapshots,
+                                 std::vector<int>* owner = nullptr);
+
+}  // namespace skyloop

@@ -1,0 +1,124 @@
+#pragma once
+// Typed configuration. Defaults are the paper's Section VI values (configs/paper.toml states the
+// same values explicitly). Every field is described once, in the field table (config_fields()),
+// which drives TOML loading, --set overrides, validation, and `skyloop config show`.
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "skyloop/core/types.hpp"
+
+namespace skyloop {
+
+/// How a beamformer's raw output is scaled onto the power budget (eq:power_constraint).
+enum class PowerScaling {
+  /// alpha = sqrt(P / ||W||_F^2): always transmit at full power. The default, because in this
+  /// model scaling W up by c > 1 multiplies every signal and interference term by c^2 and so
+  /// raises every SINR; the optimum of P2.1 therefore always uses the full budget.
+  Full,
+  /// alpha = min(1, sqrt(P / ||W||_F^2)): the paper's scaling (Section IV); never scales up.
+  Cap,
+};
+
+struct RunConfig {            // [run]
+  std::uint64_t seed = 1;     // base seed; every stochastic stage derives its streams from it
+  int threads = 0;            // worker threads for batch work; 0 = all hardware threads
+};
+
+struct ScenarioConfig {       // [scenario]
+  double area_x_m = 200.0;    // service area [0, area_x] x [0, area_y] (eq:range_x, eq:range_y)
+  double area_y_m = 200.0;
+  double altitude_m = 100.0;  // UAV flight altitude H
+  int uavs = 3;               // N for random snapshots
+  int users = 12;             // K for random snapshots
+};
+
+struct ChannelConfig {                     // [channel]
+  int antennas = 4;                        // ULA size L
+  double antenna_spacing_wavelengths = 0.5;  // d_a / lambda
+  double p_max_dbm = 30.0;                 // per-UAV power budget P_max
+  double noise_dbm = -90.0;                // sigma_0^2
+  double beta0_db = -20.0;                 // channel gain at the reference distance
+  double d0_m = 1.0;                       // reference distance d_0
+  double coverage_radius_m = 150.0;        // R_c, on the 3-D UAV-user distance
+
+  double p_max_w() const { return dbm_to_watt(p_max_dbm); }
+  double noise_w() const { return dbm_to_watt(noise_dbm); }
+};
+
+struct BeamformingConfig {                  // [beamforming]
+  PowerScaling power_scaling = PowerScaling::Full;
+  std::string zf_power_allocation = "waterfilling";  // "waterfilling" | "equal"
+};
+
+struct WmmseConfig {                // [wmmse]
+  double tolerance = 1e-6;          // stop when the relative sum-rate gain of an iteration is below
+  int max_iterations = 1000;        // iteration cap per run
+  int restarts = 0;                 // extra runs from random points; the best sum rate is kept
+  std::string init = "rzf";         // first run's starting point: "rzf" | "mrt" | "random"
+  double bisection_tolerance = 1e-10;  // relative tolerance of the power constraint in the mu bisection
+};
+
+struct GaConfig {                   // [ga]
+  std::string algorithm = "sga";    // pagmo optimiser: sga | de | sade | pso | cmaes | xnes | gwo | bee_colony
+  int population = 100;             // individuals
+  int generations = 2000;           // generations (the paper's 2000)
+};
+
+struct TrajectoryConfig {           // [trajectory] (used by the environment)
+  std::vector<Point2> starts{{20, 20}, {20, 180}, {180, 180}};
+  std::vector<Point2> destinations{{180, 100}, {180, 20}, {20, 100}};
+  double d_fly_m = 20.0;            // distance flown per slot
+  double d_min_m = 25.0;            // minimum UAV separation (eq:collision_constraint)
+  int t_max = 24;                   // mission horizon in slots
+};
+
+struct Config {
+  RunConfig run;
+  ScenarioConfig scenario;
+  ChannelConfig channel;
+  BeamformingConfig beamforming;
+  WmmseConfig wmmse;
+  GaConfig ga;
+  TrajectoryConfig trajectory;
+};
+
+std::string to_string(PowerScaling s);
+
+// ---- the field table -------------------------------------------------------------------------
+
+using FieldValue = std::variant<bool, std::int64_t, double, std::string, std::vector<Point2>>;
+
+struct Field {
+  enum class Type { Boolean, Integer, Real, Text, Points };
+  std::string key;   // "section.name"
+  Type type;
+  std::string help;  // one line: meaning and unit
+  double lo = 0, hi = 0;             // inclusive range for Integer/Real
+  std::vector<std::string> choices;  // allowed values for Text
+  std::function<FieldValue(const Config&)> get;
+  std::function<void(Config&, const FieldValue&)> set;  // assumes a checked value
+
+  /// "[-30, 60]" or "one of: full, cap" etc.
+  std::string allowed() const;
+};
+
+/// All fields, in display order.
+const std::vector<Field>& config_fields();
+/// The field with this key, or nullptr.
+const Field* find_field(const std::string& key);
+
+/// Checks `value` against the field's type and range, converts it (an integer is accepted for a
+/// real) and stores it. Throws InputError: "<key> = <value> is out of range: allowed [lo, hi]".
+void set_field(Config& cfg, const Field& field, const FieldValue& value);
+
+/// Cross-field rules (starts and destinations in the area, same count, R_c >= H, ...).
+/// Throws InputError naming the fields.
+void validate(const Config& cfg);
+
+/// Human text of a value, TOML syntax ("3", "0.5", "\"full\"", "[[20, 20], [20, 180]]").
+std::string format_value(const FieldValue& v);
+
+}  // namespace skyloop

@@ -1,0 +1,28 @@
+#pragma once
+// TOML loading, --set overrides and printing of the Config. Implemented in the skyloop_config
+// target (toml++ stays private to it).
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "skyloop/core/config.hpp"
+
+namespace skyloop {
+
+/// Applies a TOML document to `cfg`. Every key must be a known field ("section.name"); an unknown
+/// key, a wrong type or an out-of-range value throws InputError with one line naming the key,
+/// the value and what is allowed. `source` names the document in messages (a path).
+void apply_toml(Config& cfg, const std::string& toml_text, const std::string& source);
+
+/// Applies one "section.name=value" override. The value is read as a TOML value (numbers, lists
+/// such as [[20,20],[20,180]], quoted strings); a bare word is taken as a string.
+void apply_override(Config& cfg, const std::string& assignment);
+
+/// Defaults, then the file at `path` (if given), then the overrides in order; then validate().
+Config resolve_config(const std::optional<std::string>& path, const std::vector<std::string>& overrides);
+
+/// The whole configuration as TOML, one commented line per field; apply_toml() reads it back
+/// to the same Config.
+std::string to_toml(const Config& cfg);
+
+}  // namespace skyloop

@@ -1,0 +1,71 @@
+#include "skyloop/beamforming/registry.hpp"
+
+#include "skyloop/beamforming/linear.hpp"
+#include "skyloop/beamforming/wmmse.hpp"
+#include "skyloop/core/error.hpp"
+
+namespace skyloop {
+
+void BeamformerRegistry::add(const std::string& name, std::string description, BeamformerFactory factory) {
+  entries_[name] = Entry{std::move(description), std::move(factory)};
+}
+
+std::unique_ptr<Beamformer> BeamformerRegistry::create(const std::string& spec, const Config& cfg) const {
+  const auto eq = spec.find('=');
+  const std::string name = spec.substr(0, eq);
+  const std::string arg = eq == std::string::npos ? "" : spec.substr(eq + 1);
+  const auto it = entries_.find(name);
+  if (it == entries_.end()) {
+    std::string known;
+    for (const auto& [n, e] : entries_) known += (known.empty() ? "" : ", ") + n;
+    throw InputError("method '" + spec + "' is unknown: allowed " + known);
+  }
+  return it->second.factory(cfg, arg);
+}
+
+std::vector<std::pair<std::string, std::string>> BeamformerRegistry::list() const {
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const auto& [n, e] : entries_) out.emplace_back(n, e.description);
+  return out;
+}
+
+void register_classical_beamformers(BeamformerRegistry& reg) {
+  auto no_arg = [](const std::string& name, const std::string& arg) {
+    if (!arg.empty()) throw InputError("method '" + name + "=" + arg + "' takes no argument: allowed '" + name + "'");
+  };
+  reg.add("mrt", "maximum ratio transmission, equal power", [no_arg](const Config&, const std::string& arg) {
+    no_arg("mrt", arg);
+    return std::make_unique<MrtBeamformer>();
+  });
+  reg.add("zf", "zero forcing (pseudo-inverse), beamforming.zf_power_allocation",
+          [no_arg](const Config& cfg, const std::string& arg) {
+            no_arg("zf", arg);
+            return std::make_unique<ZfBeamformer>(cfg.beamforming.zf_power_allocation == "waterfilling");
+          });
+  reg.add("rzf", "regularised zero forcing (MMSE precoder), full power", [no_arg](const Config&, const std::string& arg) {
+    no_arg("rzf", arg);
+    return std::make_unique<RzfBeamformer>();
+  });
+  reg.add("wmmse", "WMMSE sum-rate maximisation, [wmmse] settings", [no_arg](const Config& cfg, const std::string& arg) {
+    no_arg("wmmse", arg);
+    WmmseOptions opt{cfg.wmmse.tolerance, cfg.wmmse.max_iterations, cfg.wmmse.bisection_tolerance};
+    return std::make_unique<WmmseBeamformer>(opt, cfg.wmmse.init, cfg.wmmse.restarts, cfg.run.seed,
+                                             cfg.beamforming.power_scaling);
+  });
+}
+
+std::vector<std::string> split_methods(const std::string& list) {
+  std::vector<std::string> out;
+  std::size_t start = 0;
+  while (true) {
+    const auto comma = list.find(',', start);
+    std::string item = list.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    if (item.empty()) throw InputError("--methods '" + list + "' has an empty item: allowed a comma-separated list such as mrt,zf,wmmse");
+    out.push_back(item);
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  return out;
+}
+
+}  // namespace skyloop

@@ -1,0 +1,250 @@
+#include "skyloop/core/config.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+
+namespace skyloop {
+
+std::string to_string(PowerScaling s) { return s == PowerScaling::Full ? "full" : "cap"; }
+
+namespace {
+
+using Type = Field::Type;
+
+std::string format_number(double x) { return format_double(x); }
+
+template <class Ref>
+Field real(std::string key, std::string help, double lo, double hi, Ref ref) {
+  Field f{std::move(key), Type::Real, std::move(help), lo, hi, {}, {}, {}};
+  f.get = [ref](const Config& c) { return FieldValue(ref(const_cast<Config&>(c))); };
+  f.set = [ref](Config& c, const FieldValue& v) { ref(c) = std::get<double>(v); };
+  return f;
+}
+
+template <class Ref>
+Field integer(std::string key, std::string help, double lo, double hi, Ref ref) {
+  Field f{std::move(key), Type::Integer, std::move(help), lo, hi, {}, {}, {}};
+  f.get = [ref](const Config& c) { return FieldValue(static_cast<std::int64_t>(ref(const_cast<Config&>(c)))); };
+  f.set = [ref](Config& c, const FieldValue& v) {
+    using T = std::remove_reference_t<decltype(ref(c))>;
+    ref(c) = static_cast<T>(std::get<std::int64_t>(v));
+  };
+  return f;
+}
+
+template <class Ref>
+Field text(std::string key, std::string help, std::vector<std::string> choices, Ref ref) {
+  Field f{std::move(key), Type::Text, std::move(help), 0, 0, std::move(choices), {}, {}};
+  f.get = [ref](const Config& c) { return FieldValue(ref(const_cast<Config&>(c))); };
+  f.set = [ref](Config& c, const FieldValue& v) { ref(c) = std::get<std::string>(v); };
+  return f;
+}
+
+template <class Ref>
+Field points(std::string key, std::string help, Ref ref) {
+  Field f{std::move(key), Type::Points, std::move(help), 0, 0, {}, {}, {}};
+  f.get = [ref](const Config& c) { return FieldValue(ref(const_cast<Config&>(c))); };
+  f.set = [ref](Config& c, const FieldValue& v) { ref(c) = std::get<std::vector<Point2>>(v); };
+  return f;
+}
+
+std::vector<Field> make_fields() {
+  std::vector<Field> f;
+  // [run]
+  f.push_back(integer("run.seed", "base seed of every stochastic stage", 0, 4611686018427387904.0,
+                      [](Config& c) -> std::uint64_t& { return c.run.seed; }));
+  f.push_back(integer("run.threads", "worker threads for batch work (0 = all hardware threads)", 0, 1024,
+                      [](Config& c) -> int& { return c.run.threads; }));
+  // [scenario]
+  f.push_back(real("scenario.area_x_m", "service area width, x in [0, area_x_m] (m)", 1, 1e5,
+                   [](Config& c) -> double& { return c.scenario.area_x_m; }));
+  f.push_back(real("scenario.area_y_m", "service area height, y in [0, area_y_m] (m)", 1, 1e5,
+                   [](Config& c) -> double& { return c.scenario.area_y_m; }));
+  f.push_back(real("scenario.altitude_m", "UAV altitude H (m)", 1, 1e4,
+                   [](Config& c) -> double& { return c.scenario.altitude_m; }));
+  f.push_back(integer("scenario.uavs", "number of UAVs N in random snapshots", 1, 64,
+                      [](Config& c) -> int& { return c.scenario.uavs; }));
+  f.push_back(integer("scenario.users", "number of users K in random snapshots", 1, 4096,
+                      [](Config& c) -> int& { return c.scenario.users; }));
+  // [channel]
+  f.push_back(integer("channel.antennas", "ULA antennas per UAV, L", 1, 64,
+                      [](Config& c) -> int& { return c.channel.antennas; }));
+  f.push_back(real("channel.antenna_spacing_wavelengths", "antenna spacing d_a / lambda", 0.01, 10,
+                   [](Config& c) -> double& { return c.channel.antenna_spacing_wavelengths; }));
+  f.push_back(real("channel.p_max_dbm", "per-UAV transmit power budget P_max (dBm)", -30, 80,
+                   [](Config& c) -> double& { return c.channel.p_max_dbm; }));
+  f.push_back(real("channel.noise_dbm", "receiver noise power sigma_0^2 (dBm)", -200, 30,
+                   [](Config& c) -> double& { return c.channel.noise_dbm; }));
+  f.push_back(real("channel.beta0_db", "channel power gain at the reference distance (dB)", -100, 0,
+                   [](Config& c) -> double& { return c.channel.beta0_db; }));
+  f.push_back(real("channel.d0_m", "reference distance d_0 (m)", 0.01, 100,
+                   [](Config& c) -> double& { return c.channel.d0_m; }));
+  f.push_back(real("channel.coverage_radius_m", "coverage radius R_c on the 3-D UAV-user distance (m)", 1, 1e5,
+                   [](Config& c) -> double& { return c.channel.coverage_radius_m; }));
+  // [beamforming]
+  {
+    Field s{"beamforming.power_scaling", Type::Text,
+            "scaling onto the budget: full = sqrt(P/||W||^2), cap = the paper's min(1, sqrt(P/||W||^2))",
+            0, 0, {"full", "cap"}, {}, {}};
+    s.get = [](const Config& c) { return FieldValue(to_string(c.beamforming.power_scaling)); };
+    s.set = [](Config& c, const FieldValue& v) {
+      c.beamforming.power_scaling = std::get<std::string>(v) == "cap" ? PowerScaling::Cap : PowerScaling::Full;
+    };
+    f.push_back(std::move(s));
+  }
+  f.push_back(text("beamforming.zf_power_allocation", "ZF power over the users: waterfilling (optimal for ZF) or equal",
+                   {"waterfilling", "equal"}, [](Config& c) -> std::string& { return c.beamforming.zf_power_allocation; }));
+  // [wmmse]
+  f.push_back(real("wmmse.tolerance", "stop when an iteration raises the sum rate by less than this fraction", 0, 1,
+                   [](Config& c) -> double& { return c.wmmse.tolerance; }));
+  f.push_back(integer("wmmse.max_iterations", "iteration cap per WMMSE run", 1, 1e6,
+                      [](Config& c) -> int& { return c.wmmse.max_iterations; }));
+  f.push_back(integer("wmmse.restarts", "extra WMMSE runs from random starting points (best is kept)", 0, 1000,
+                      [](Config& c) -> int& { return c.wmmse.restarts; }));
+  f.push_back(text("wmmse.init", "starting point of the first WMMSE run", {"rzf", "mrt", "random"},
+                   [](Config& c) -> std::string& { return c.wmmse.init; }));
+  f.push_back(real("wmmse.bisection_tolerance", "relative tolerance on the power budget in the multiplier bisection",
+                   1e-16, 1e-2, [](Config& c) -> double& { return c.wmmse.bisection_tolerance; }));
+  // [ga]
+  f.push_back(text("ga.algorithm", "pagmo2 global optimiser behind the 'ga' beamformer",
+                   {"sga", "de", "sade", "pso", "cmaes", "xnes", "gwo", "bee_colony"},
+                   [](Config& c) -> std::string& { return c.ga.algorithm; }));
+  f.push_back(integer("ga.population", "population size", 8, 100000, [](Config& c) -> int& { return c.ga.population; }));
+  f.push_back(integer("ga.generations", "generations per decision (the paper's 2000)", 1, 1e7,
+                      [](Config& c) -> int& { return c.ga.generations; }));
+  // [trajectory]
+  f.push_back(points("trajectory.starts", "UAV start points [[x, y], ...] (m)",
+                     [](Config& c) -> std::vector<Point2>& { return c.trajectory.starts; }));
+  f.push_back(points("trajectory.destinations", "UAV destinations [[x, y], ...] (m), one per start",
+                     [](Config& c) -> std::vector<Point2>& { return c.trajectory.destinations; }));
+  f.push_back(real("trajectory.d_fly_m", "distance flown per slot D_fly (m)", 0.1, 1e4,
+                   [](Config& c) -> double& { return c.trajectory.d_fly_m; }));
+  f.push_back(real("trajectory.d_min_m", "minimum UAV separation D_min (m)", 0, 1e4,
+                   [](Config& c) -> double& { return c.trajectory.d_min_m; }));
+  f.push_back(integer("trajectory.t_max", "mission horizon T_max (slots)", 1, 10000,
+                      [](Config& c) -> int& { return c.trajectory.t_max; }));
+  return f;
+}
+
+}  // namespace
+
+std::string Field::allowed() const {
+  switch (type) {
+    case Type::Boolean: return "true or false";
+    case Type::Integer:
+      return "an integer in [" + std::to_string(static_cast<long long>(lo)) + ", " +
+             std::to_string(static_cast<long long>(hi)) + "]";
+    case Type::Real: return "a number in [" + format_number(lo) + ", " + format_number(hi) + "]";
+    case Type::Text: {
+      std::string s = "one of ";
+      for (std::size_t i = 0; i < choices.size(); ++i) s += (i ? ", " : "") + choices[i];
+      return s;
+    }
+    case Type::Points: return "a non-empty list of [x, y] pairs";
+  }
+  return {};
+}
+
+const std::vector<Field>& config_fields() {
+  static const std::vector<Field> fields = make_fields();
+  return fields;
+}
+
+const Field* find_field(const std::string& key) {
+  for (const auto& f : config_fields())
+    if (f.key == key) return &f;
+  return nullptr;
+}
+
+std::string format_value(const FieldValue& v) {
+  struct V {
+    std::string operator()(bool b) const { return b ? "true" : "false"; }
+    std::string operator()(std::int64_t i) const { return std::to_string(i); }
+    std::string operator()(double d) const {
+      std::string s = format_double(d);
+      if (s.find_first_of(".eninf") == std::string::npos) s += ".0";
+      return s;
+    }
+    std::string operator()(const std::string& s) const { return "\"" + s + "\""; }
+    std::string operator()(const std::vector<Point2>& p) const {
+      std::string s = "[";
+      for (std::size_t i = 0; i < p.size(); ++i)
+        s += (i ? ", [" : "[") + (*this)(p[i].x) + ", " + (*this)(p[i].y) + "]";
+      return s + "]";
+    }
+  };
+  return std::visit(V{}, v);
+}
+
+void set_field(Config& cfg, const Field& field, const FieldValue& value) {
+  auto fail = [&](const std::string& why) {
+    throw InputError(field.key + " = " + format_value(value) + " " + why + ": allowed " + field.allowed());
+  };
+  switch (field.type) {
+    case Type::Boolean:
+      if (!std::holds_alternative<bool>(value)) fail("has the wrong type");
+      field.set(cfg, value);
+      return;
+    case Type::Integer: {
+      if (!std::holds_alternative<std::int64_t>(value)) fail("has the wrong type");
+      const auto i = static_cast<double>(std::get<std::int64_t>(value));
+      if (i < field.lo || i > field.hi) fail("is out of range");
+      field.set(cfg, value);
+      return;
+    }
+    case Type::Real: {
+      double d;
+      if (std::holds_alternative<double>(value)) d = std::get<double>(value);
+      else if (std::holds_alternative<std::int64_t>(value)) d = static_cast<double>(std::get<std::int64_t>(value));
+      else fail("has the wrong type");
+      if (!std::isfinite(d) || d < field.lo || d > field.hi) fail("is out of range");
+      field.set(cfg, FieldValue(d));
+      return;
+    }
+    case Type::Text: {
+      if (!std::holds_alternative<std::string>(value)) fail("has the wrong type");
+      const auto& s = std::get<std::string>(value);
+      if (std::find(field.choices.begin(), field.choices.end(), s) == field.choices.end()) fail("is not allowed");
+      field.set(cfg, value);
+      return;
+    }
+    case Type::Points: {
+      if (!std::holds_alternative<std::vector<Point2>>(value)) fail("has the wrong type");
+      const auto& p = std::get<std::vector<Point2>>(value);
+      if (p.empty()) fail("is empty");
+      for (const auto& q : p)
+        if (!std::isfinite(q.x) || !std::isfinite(q.y)) fail("has a non-finite coordinate");
+      field.set(cfg, value);
+      return;
+    }
+  }
+}
+
+void validate(const Config& c) {
+  const auto& t = c.trajectory;
+  if (t.starts.size() != t.destinations.size())
+    throw InputError("trajectory.destinations has " + std::to_string(t.destinations.size()) +
+                     " points but trajectory.starts has " + std::to_string(t.starts.size()) +
+                     ": allowed one destination per start");
+  auto check_in_area = [&](const std::vector<Point2>& pts, const std::string& key) {
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      const auto& p = pts[i];
+      if (p.x < 0 || p.x > c.scenario.area_x_m || p.y < 0 || p.y > c.scenario.area_y_m)
+        throw InputError(key + "[" + std::to_string(i) + "] = [" + format_double(p.x) + ", " + format_double(p.y) + "]" +
+                         " is outside the area: allowed x in [0, " + format_double(c.scenario.area_x_m) +
+                         "], y in [0, " + format_double(c.scenario.area_y_m) + "]");
+    }
+  };
+  check_in_area(t.starts, "trajectory.starts");
+  check_in_area(t.destinations, "trajectory.destinations");
+  if (c.channel.coverage_radius_m < c.scenario.altitude_m)
+    throw InputError("channel.coverage_radius_m = " + format_double(c.channel.coverage_radius_m) +
+                     " is below scenario.altitude_m = " + format_double(c.scenario.altitude_m) +
+                     ": no user could ever be covered; allowed coverage_radius_m >= altitude_m");
+}
+
+}  // namespace skyloop

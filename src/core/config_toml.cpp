@@ -1,0 +1,130 @@
+#include <sstream>
+#include <toml++/toml.h>
+
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+
+namespace skyloop {
+namespace {
+
+std::string describe(const toml::node& node) {
+  std::ostringstream ss;
+  if (node.is_string()) ss << '"' << *node.value<std::string>() << '"';
+  else node.visit([&](auto&& n) { ss << n; });
+  return ss.str();
+}
+
+/// Converts a TOML node to the FieldValue the field expects; on a type mismatch returns a value
+/// of another alternative so set_field() reports "has the wrong type" with the field's rule.
+FieldValue to_value(const Field& field, const toml::node& node) {
+  if (auto v = node.value_exact<bool>()) return *v;
+  if (auto v = node.value_exact<std::int64_t>()) return *v;
+  if (auto v = node.value_exact<double>()) return *v;
+  if (auto v = node.value_exact<std::string>()) return *v;
+  if (const auto* arr = node.as_array()) {
+    std::vector<Point2> pts;
+    bool ok = true;
+    for (const auto& item : *arr) {
+      const auto* pair = item.as_array();
+      if (!pair || pair->size() != 2) { ok = false; break; }
+      auto num = [](const toml::node& n) -> std::optional<double> {
+        if (auto d = n.value_exact<double>()) return *d;
+        if (auto i = n.value_exact<std::int64_t>()) return static_cast<double>(*i);
+        return std::nullopt;
+      };
+      auto x = num(*pair->get(0)), y = num(*pair->get(1));
+      if (!x || !y) { ok = false; break; }
+      pts.push_back({*x, *y});
+    }
+    if (ok) return pts;
+  }
+  throw InputError(field.key + " = " + describe(node) + " has the wrong type: allowed " + field.allowed());
+}
+
+[[noreturn]] void throw_unknown_key(const std::string& key) {
+    std::string section = key.substr(0, key.find('.'));
+    std::string known;
+    for (const auto& f : config_fields())
+      if (f.key.rfind(section + ".", 0) == 0) known += (known.empty() ? "" : ", ") + f.key.substr(section.size() + 1);
+    throw InputError("unknown key '" + key + "'" +
+                     (known.empty() ? std::string(": no such section") : ": allowed keys in [" + section + "] are " + known));
+}
+
+void apply_node(Config& cfg, const std::string& key, const toml::node& node) {
+  const Field* field = find_field(key);
+  if (!field) throw_unknown_key(key);
+  set_field(cfg, *field, to_value(*field, node));
+}
+
+void apply_table(Config& cfg, const toml::table& table, const std::string& prefix) {
+  for (const auto& [k, node] : table) {
+    const std::string key = prefix.empty() ? std::string(k.str()) : prefix + "." + std::string(k.str());
+    if (const auto* sub = node.as_table(); sub && prefix.empty()) apply_table(cfg, *sub, key);
+    else apply_node(cfg, key, node);
+  }
+}
+
+std::string one_line(std::string s) {
+  for (auto& ch : s)
+    if (ch == '\n' || ch == '\r') ch = ' ';
+  return s;
+}
+
+}  // namespace
+
+void apply_toml(Config& cfg, const std::string& text, const std::string& source) {
+  toml::table table;
+  try {
+    table = toml::parse(text, source);
+  } catch (const toml::parse_error& e) {
+    const auto& b = e.source().begin;
+    throw InputError(source + ":" + std::to_string(b.line) + ":" + std::to_string(b.column) +
+                     ": invalid TOML: " + one_line(std::string(e.description())));
+  }
+  apply_table(cfg, table, "");
+}
+
+void apply_override(Config& cfg, const std::string& assignment) {
+  const auto eq = assignment.find('=');
+  if (eq == std::string::npos || eq == 0)
+    throw InputError("--set '" + assignment + "' is malformed: allowed section.name=value");
+  const std::string key = assignment.substr(0, eq);
+  const std::string value = assignment.substr(eq + 1);
+  const Field* field = find_field(key);
+  if (!field) throw_unknown_key(key);
+  toml::table parsed;
+  try {
+    parsed = toml::parse("v = " + value);
+  } catch (const toml::parse_error&) {
+    // Not a TOML value: a bare word is a string (e.g. power_scaling=cap).
+    parsed = toml::table{{"v", value}};
+  }
+  set_field(cfg, *field, to_value(*field, *parsed.get("v")));
+}
+
+Config resolve_config(const std::optional<std::string>& path, const std::vector<std::string>& overrides) {
+  Config cfg;
+  if (path) apply_toml(cfg, read_file(*path, "config file"), *path);
+  for (const auto& o : overrides) apply_override(cfg, o);
+  validate(cfg);
+  return cfg;
+}
+
+std::string to_toml(const Config& cfg) {
+  std::ostringstream out;
+  std::string section;
+  for (const auto& f : config_fields()) {
+    const auto dot = f.key.find('.');
+    const std::string sec = f.key.substr(0, dot);
+    if (sec != section) {
+      out << (section.empty() ? "" : "\n") << "[" << sec << "]\n";
+      section = sec;
+    }
+    out << f.key.substr(dot + 1) << " = " << format_value(f.get(cfg)) << "  # " << f.help << "; " << f.allowed()
+        << "\n";
+  }
+  return out.str();
+}
+
+}  // namespace skyloop

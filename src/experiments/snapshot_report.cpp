@@ -1,0 +1,151 @@
+#include "skyloop/experiments/snapshot_report.hpp"
+
+#include <cmath>
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include <toml++/toml.h>
+
+#include "skyloop/channel/rates.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+
+namespace skyloop {
+
+Snapshot load_scenario_file(const std::string& path, const Config& cfg) {
+  const std::string text = read_file(path, "scenario file");
+  toml::table t;
+  try {
+    t = toml::parse(text, path);
+  } catch (const toml::parse_error& e) {
+    std::string d(e.description());
+    for (auto& ch : d)
+      if (ch == '\n') ch = ' ';
+    throw InputError(path + ":" + std::to_string(e.source().begin.line) + ": invalid TOML: " + d);
+  }
+  for (const auto& [k, v] : t)
+    if (k.str() != "uavs" && k.str() != "users")
+      throw InputError(path + ": unknown key '" + std::string(k.str()) + "': allowed uavs, users");
+  auto read = [&](const char* key) {
+    const auto* arr = t.get_as<toml::array>(key);
+    if (!arr || arr->empty())
+      throw InputError(path + ": " + key + " is missing or empty: allowed a non-empty list of [x, y] pairs in metres");
+    Positions p(static_cast<Eigen::Index>(arr->size()), 2);
+    for (std::size_t i = 0; i < arr->size(); ++i) {
+      const auto* pair = arr->get(i)->as_array();
+      auto num = [](const toml::node* n) -> std::optional<double> {
+        if (!n) return std::nullopt;
+        if (auto d = n->value_exact<double>()) return *d;
+        if (auto v = n->value_exact<std::int64_t>()) return static_cast<double>(*v);
+        return std::nullopt;
+      };
+      std::optional<double> x, y;
+      if (pair && pair->size() == 2) x = num(pair->get(0)), y = num(pair->get(1));
+      if (!x || !y)
+        throw InputError(path + ": " + key + "[" + std::to_string(i) + "] is not an [x, y] pair of numbers");
+      if (*x < 0 || *x > cfg.scenario.area_x_m || *y < 0 || *y > cfg.scenario.area_y_m)
+        throw InputError(path + ": " + key + "[" + std::to_string(i) + "] = [" + format_double(*x) + ", " +
+                         format_double(*y) + "] is outside the area: allowed x in [0, " +
+                         format_double(cfg.scenario.area_x_m) + "], y in [0, " + format_double(cfg.scenario.area_y_m) + "]");
+      p(static_cast<Eigen::Index>(i), 0) = *x;
+      p(static_cast<Eigen::Index>(i), 1) = *y;
+    }
+    return p;
+  };
+  return Snapshot{read("uavs"), read("users")};
+}
+
+SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Beamformer& bf) {
+  const SystemModel model(cfg);
+  const Association a = model.associate(s);
+  SnapshotReport r;
+  r.method = bf.name();
+  r.users.resize(static_cast<std::size_t>(s.users.rows()));
+  for (Eigen::Index k = 0; k < s.users.rows(); ++k) {
+    UserReport& u = r.users[static_cast<std::size_t>(k)];
+    u.index = static_cast<int>(k);
+    u.x = s.users(k, 0);
+    u.y = s.users(k, 1);
+    u.serving_uav = a.serving[static_cast<std::size_t>(k)];
+    double nearest = INFINITY;
+    for (Eigen::Index n = 0; n < s.uavs.rows(); ++n)
+      nearest = std::min(nearest, model.distance(s.uavs(n, 0), s.uavs(n, 1), u.x, u.y));
+    u.distance_m = nearest;  // the serving UAV is the nearest one
+    u.path_loss_db = linear_to_db(model.path_loss(nearest));
+  }
+  for (Eigen::Index n = 0; n < s.uavs.rows(); ++n) {
+    ClusterReport c;
+    c.uav = static_cast<int>(n);
+    c.x = s.uavs(n, 0);
+    c.y = s.uavs(n, 1);
+    c.users = a.users[static_cast<std::size_t>(n)];
+    if (!c.users.empty()) {
+      const Cluster cl = model.make_cluster(c.uav, c.x, c.y, s.users, c.users);
+      const MatrixXcd W = bf.design(cl);
+      check_beamformer_output(bf, cl, W);
+      const VectorXd g = sinr(cl, W);
+      for (std::size_t i = 0; i < c.users.size(); ++i) {
+        UserReport& u = r.users[static_cast<std::size_t>(c.users[i])];
+        const auto ii = static_cast<Eigen::Index>(i);
+        u.channel = cl.G.row(ii).adjoint();
+        u.beamformer = W.col(ii);
+        u.sinr = g[ii];
+        u.rate = std::log2(1.0 + g[ii]);
+        c.sum_rate += u.rate;
+      }
+      c.power_w = transmit_power(W);
+    }
+    r.total_sum_rate += c.sum_rate;
+    r.uavs.push_back(std::move(c));
+  }
+  return r;
+}
+
+std::string snapshot_json(const SnapshotReport& r, const Config& cfg) {
+  using nlohmann::json;
+  auto cvec = [](const VectorXcd& v) {
+    json a = json::array();
+    for (Eigen::Index i = 0; i < v.size(); ++i) a.push_back({v[i].real(), v[i].imag()});
+    return a;
+  };
+  json j;
+  j["method"] = r.method;
+  j["units"] = {{"position", "m"}, {"rate", "bit/s/Hz"}, {"power", "W"}, {"complex", "[re, im]"}};
+  j["settings"] = {{"antennas", cfg.channel.antennas},       {"altitude_m", cfg.scenario.altitude_m},
+                   {"p_max_dbm", cfg.channel.p_max_dbm},     {"noise_dbm", cfg.channel.noise_dbm},
+                   {"coverage_radius_m", cfg.channel.coverage_radius_m},
+                   {"power_scaling", to_string(cfg.beamforming.power_scaling)}};
+  j["users"] = json::array();
+  for (const auto& u : r.users) {
+    json ju = {{"index", u.index}, {"x", u.x}, {"y", u.y}, {"distance_m", u.distance_m}, {"path_loss_db", u.path_loss_db}};
+    ju["serving_uav"] = u.serving_uav >= 0 ? json(u.serving_uav) : json(nullptr);
+    ju["channel"] = cvec(u.channel);
+    ju["beamformer"] = cvec(u.beamformer);
+    ju["sinr"] = u.sinr;
+    ju["sinr_db"] = u.serving_uav >= 0 && u.sinr > 0 ? json(linear_to_db(u.sinr)) : json(nullptr);
+    ju["rate"] = u.rate;
+    j["users"].push_back(ju);
+  }
+  j["clusters"] = json::array();
+  for (const auto& c : r.uavs)
+    j["clusters"].push_back({{"uav", c.uav}, {"x", c.x}, {"y", c.y}, {"users", c.users}, {"power_w", c.power_w},
+                             {"sum_rate", c.sum_rate}});
+  j["total_sum_rate"] = r.total_sum_rate;
+  return j.dump(2) + "\n";
+}
+
+std::string snapshot_text(const SnapshotReport& r) {
+  std::string out = fmt::format("method: {}\n\n{:>4} {:>8} {:>8} {:>6} {:>10} {:>10} {:>10} {:>8}\n", r.method, "user",
+                                "x", "y", "uav", "dist (m)", "PL (dB)", "SINR (dB)", "rate");
+  for (const auto& u : r.users)
+    out += fmt::format("{:>4} {:>8.2f} {:>8.2f} {:>6} {:>10.2f} {:>10.2f} {:>10} {:>8.4f}\n", u.index, u.x, u.y,
+                       u.serving_uav >= 0 ? std::to_string(u.serving_uav) : "-", u.distance_m, u.path_loss_db,
+                       u.serving_uav >= 0 && u.sinr > 0 ? fmt::format("{:.2f}", linear_to_db(u.sinr)) : "-", u.rate);
+  out += fmt::format("\n{:>4} {:>8} {:>8} {:>10} {:>12} {:>10}\n", "uav", "x", "y", "users", "power (W)", "sum rate");
+  for (const auto& c : r.uavs)
+    out += fmt::format("{:>4} {:>8.2f} {:>8.2f} {:>10} {:>12.6g} {:>10.4f}\n", c.uav, c.x, c.y, c.users.size(),
+                       c.power_w, c.sum_rate);
+  out += fmt::format("\ntotal sum rate: {:.4f} bit/s/Hz\n", r.total_sum_rate);
+  return out;
+}
+
+}  // namespace skyloop

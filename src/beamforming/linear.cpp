@@ -58,6 +58,63 @@ MatrixXcd zf(const Cluster& c, bool waterfilling) {
   return V;
 }
 
+MatrixXcd zf_select(const Cluster& c, std::vector<int>* selected) {
+  const auto K = c.G.rows(), L = c.G.cols();
+  if (K == 0) {
+    if (selected) selected->clear();
+    return MatrixXcd(L, 0);
+  }
+  // Score a set by its water-filled ZF sum rate, from the diagonal of its inverse Gram matrix:
+  // ||v_k||^2 = [(G_S G_S^H)^{-1}]_kk.
+  const MatrixXcd gram = c.G * c.G.adjoint();
+  auto score = [&](const std::vector<int>& set) {
+    const auto n = static_cast<Eigen::Index>(set.size());
+    MatrixXcd sub(n, n);
+    for (Eigen::Index i = 0; i < n; ++i)
+      for (Eigen::Index j = 0; j < n; ++j) sub(i, j) = gram(set[static_cast<std::size_t>(i)], set[static_cast<std::size_t>(j)]);
+    Eigen::LLT<MatrixXcd> llt(sub);
+    if (llt.info() != Eigen::Success) return -1.0;
+    const MatrixXcd inv = llt.solve(MatrixXcd::Identity(n, n));
+    VectorXd floor(n);
+    for (Eigen::Index i = 0; i < n; ++i) {
+      floor[i] = c.noise * inv(i, i).real();
+      if (!(floor[i] > 0) || !std::isfinite(floor[i])) return -1.0;
+    }
+    const VectorXd p = waterfill(floor, c.p_max);
+    double rate = 0.0;
+    for (Eigen::Index i = 0; i < n; ++i) rate += std::log2(1.0 + p[i] / floor[i]);
+    return rate;
+  };
+  std::vector<int> set;
+  double best = 0.0;
+  while (static_cast<Eigen::Index>(set.size()) < std::min(K, L)) {
+    int pick = -1;
+    double pick_rate = best;
+    for (int k = 0; k < static_cast<int>(K); ++k) {
+      if (std::find(set.begin(), set.end(), k) != set.end()) continue;
+      std::vector<int> trial = set;
+      trial.push_back(k);
+      const double r = score(trial);
+      if (r > pick_rate) pick_rate = r, pick = k;
+    }
+    if (pick < 0) break;
+    set.push_back(pick);
+    best = pick_rate;
+  }
+  std::sort(set.begin(), set.end());
+  if (selected) *selected = set;
+  MatrixXcd W = MatrixXcd::Zero(L, K);
+  if (set.empty()) return W;
+  Cluster sub;
+  sub.p_max = c.p_max;
+  sub.noise = c.noise;
+  sub.G.resize(static_cast<Eigen::Index>(set.size()), L);
+  for (std::size_t i = 0; i < set.size(); ++i) sub.G.row(static_cast<Eigen::Index>(i)) = c.G.row(set[i]);
+  const MatrixXcd Ws = zf(sub, true);
+  for (std::size_t i = 0; i < set.size(); ++i) W.col(set[i]) = Ws.col(static_cast<Eigen::Index>(i));
+  return W;
+}
+
 MatrixXcd rzf(const Cluster& c) {
   const auto K = c.G.rows();
   if (K == 0) return MatrixXcd(c.G.cols(), 0);

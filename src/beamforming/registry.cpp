@@ -42,6 +42,10 @@ void register_classical_beamformers(BeamformerRegistry& reg) {
             no_arg("zf", arg);
             return std::make_unique<ZfBeamformer>(cfg.beamforming.zf_power_allocation == "waterfilling");
           });
+  reg.add("zfsel", "zero forcing with greedy user selection, water-filled", [no_arg](const Config&, const std::string& arg) {
+    no_arg("zfsel", arg);
+    return std::make_unique<ZfSelectBeamformer>();
+  });
   reg.add("rzf", "regularised zero forcing (MMSE precoder), full power", [no_arg](const Config&, const std::string& arg) {
     no_arg("rzf", arg);
     return std::make_unique<RzfBeamformer>();

@@ -105,7 +105,7 @@ std::vector<Field> make_fields() {
                       [](Config& c) -> int& { return c.wmmse.max_iterations; }));
   f.push_back(integer("wmmse.restarts", "extra WMMSE runs from random starting points (best is kept)", 0, 1000,
                       [](Config& c) -> int& { return c.wmmse.restarts; }));
-  f.push_back(text("wmmse.init", "starting point of the first WMMSE run", {"rzf", "mrt", "random"},
+  f.push_back(text("wmmse.init", "starting point of the first WMMSE run", {"zfsel", "rzf", "mrt", "random"},
                    [](Config& c) -> std::string& { return c.wmmse.init; }));
   f.push_back(real("wmmse.bisection_tolerance", "relative tolerance on the power budget in the multiplier bisection",
                    1e-16, 1e-2, [](Config& c) -> double& { return c.wmmse.bisection_tolerance; }));

@@ -8,6 +8,13 @@
 // eigenvalues of A (power(mu) = sum_i c_i / (lambda_i + mu)^2 is decreasing in mu). The sum
 // rate never decreases from one iteration to the next (block-coordinate ascent on an equivalent
 // problem), up to the bisection tolerance.
+//
+// Starting point matters here. In this LoS model a cluster's channels are highly correlated, the
+// optimum often switches a user off, and WMMSE started from RZF needs 10^3-10^4 iterations to
+// drive that user's power to zero and still ends in a worse local optimum (measured: 31.8 vs
+// 37.4 bit/s/Hz mean at K_n = L = 4, 30 dBm). skyloop therefore starts WMMSE from ZF with greedy
+// user selection (zf_select); a user with w_k = 0 stays off (u_k = 0), so WMMSE then refines
+// the selected set. wmmse.init = "rzf" gives the textbook start.
 #include <cstdint>
 #include <vector>
 
@@ -33,7 +40,7 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
 
 class WmmseBeamformer final : public Beamformer {
  public:
-  /// init: "rzf" | "mrt" | "random". `restarts` extra runs from random complex-Gaussian points
+  /// init: "zfsel" (ZF with greedy user selection, the default) | "rzf" | "mrt" | "random". `restarts` extra runs from random complex-Gaussian points
   /// (seeded by `seed` and the cluster); the best final sum rate is kept. The result is scaled
   /// onto the budget with `scaling`.
   WmmseBeamformer(WmmseOptions opt, std::string init, int restarts, std::uint64_t seed,

@@ -57,7 +57,7 @@ struct WmmseConfig {                // [wmmse]
   double tolerance = 1e-6;          // stop when the relative sum-rate gain of an iteration is below
   int max_iterations = 1000;        // iteration cap per run
   int restarts = 0;                 // extra runs from random points; the best sum rate is kept
-  std::string init = "rzf";         // first run's starting point: "rzf" | "mrt" | "random"
+  std::string init = "zfsel";       // first run's starting point: "zfsel" | "rzf" | "mrt" | "random"
   double bisection_tolerance = 1e-10;  // relative tolerance of the power constraint in the mu bisection
 };
 

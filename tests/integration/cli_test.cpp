@@ -1,1 +1,178 @@
+// Runs the skyloop binary as a user would: exit codes, one-line errors, files written.
 #include <gtest/gtest.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <sys/wait.h>
+#include <unistd.h>
+
+namespace {
+
+struct Result {
+  int code = -1;
+  std::string out, err;
+};
+
+std::string slurp(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+std::string tmpdir(const std::string& name) {
+  const auto d = std::filesystem::path(::testing::TempDir()) /
+                 ("skyloop_cli_" + std::to_string(::getpid()) + "_" + name);
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d.string();
+}
+
+Result run(const std::string& args) {
+  static int counter = 0;
+  const std::string base = tmpdir("run" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+  const std::string cmd = std::string(SKYLOOP_BIN) + " " + args + " >" + base + "/out 2>" + base + "/err";
+  const int status = std::system(cmd.c_str());
+  Result r;
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  r.out = slurp(base + "/out");
+  r.err = slurp(base + "/err");
+  return r;
+}
+
+int lines(const std::string& s) {
+  int n = 0;
+  for (char c : s) n += c == '\n';
+  return n;
+}
+
+const std::string kSrc = SKYLOOP_SOURCE_DIR;
+
+}  // namespace
+
+TEST(Cli, HelpAndVersion) {
+  EXPECT_EQ(run("--help").code, 0);
+  const auto v = run("--version");
+  EXPECT_EQ(v.code, 0);
+  EXPECT_NE(v.out.find("skyloop"), std::string::npos);
+}
+
+TEST(Cli, ConfigShowPrintsOverrides) {
+  const auto r = run("config show --config " + kSrc + "/configs/paper.toml --set channel.p_max_dbm=40");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("p_max_dbm = 40.0"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("[trajectory]"), std::string::npos);
+}
+
+TEST(Cli, BadInputIsOneLineAndExitTwo) {
+  for (const std::string args :
+       {"config show --set channel.p_max_dbm=400", "config show --set channel.nosuch=1",
+        "config show --config /nonexistent.toml", "beamform eval --methods mrt,nosuch --samples 2",
+        "beamform eval --uavs 0 --samples 2", "beamform eval --samples 0", "beamform eval --frobnicate",
+        "snapshot --scenario /nonexistent.toml"}) {
+    const auto r = run(args);
+    EXPECT_EQ(r.code, 2) << args << "\n" << r.err;
+    EXPECT_EQ(lines(r.err), 1) << args << "\n" << r.err;
+    EXPECT_EQ(r.err.rfind("skyloop: error: ", 0), 0u) << r.err;
+  }
+  const auto r = run("config show --set channel.p_max_dbm=400");
+  EXPECT_NE(r.err.find("channel.p_max_dbm = 400"), std::string::npos) << r.err;
+  const auto u = run("beamform eval --uavs 0 --samples 2");
+  EXPECT_NE(u.err.find("scenario.uavs = 0"), std::string::npos) << u.err;
+}
+
+TEST(Cli, BeamformEvalWritesTidyCsvAndConfigAndIsSeeded) {
+  const std::string dir = tmpdir("eval");
+  const std::string args = "beamform eval --methods mrt,zf,rzf,wmmse --uavs 3 --users 12 --samples 5 --seed 11 --quiet";
+  const auto a = run(args + " --out " + dir + "/a.csv");
+  ASSERT_EQ(a.code, 0) << a.err;
+  const auto b = run(args + " --out " + dir + "/b.csv --threads 2");
+  ASSERT_EQ(b.code, 0) << b.err;
+  EXPECT_NE(a.out.find("wmmse"), std::string::npos);
+  EXPECT_NE(a.out.find("median latency"), std::string::npos);
+  const std::string csv_a = slurp(dir + "/a.csv"), csv_b = slurp(dir + "/b.csv");
+  EXPECT_EQ(lines(csv_a), 1 + 5 * 4);
+  EXPECT_EQ(csv_a.rfind("seed,sample,method", 0), 0u);
+  // Same seed -> same sum rates (latency, the last column, differs).
+  auto drop_latency = [](const std::string& csv) {
+    std::stringstream in(csv), out;
+    std::string line;
+    while (std::getline(in, line)) out << line.substr(0, line.rfind(',')) << "\n";
+    return out.str();
+  };
+  EXPECT_EQ(drop_latency(csv_a), drop_latency(csv_b));
+  std::stringstream rows(csv_a);
+  std::string line;
+  std::getline(rows, line);
+  while (std::getline(rows, line)) EXPECT_EQ(line.rfind("11,", 0), 0u) << line;
+  EXPECT_NE(slurp(dir + "/a.config.toml").find("[channel]"), std::string::npos);
+  // Another seed gives other snapshots.
+  const auto c = run("beamform eval --methods mrt --samples 5 --seed 12 --quiet --out " + dir + "/c.csv");
+  ASSERT_EQ(c.code, 0);
+  EXPECT_NE(drop_latency(slurp(dir + "/c.csv")).substr(40), drop_latency(csv_a).substr(40));
+}
+
+TEST(Cli, FailedRunLeavesEarlierOutputIntact) {
+  const std::string dir = tmpdir("keep");
+  ASSERT_EQ(run("beamform eval --methods mrt --samples 2 --quiet --out " + dir + "/r.csv").code, 0);
+  const std::string before = slurp(dir + "/r.csv");
+  EXPECT_EQ(run("beamform eval --methods mrt,bogus --samples 2 --quiet --out " + dir + "/r.csv").code, 2);
+  EXPECT_EQ(slurp(dir + "/r.csv"), before);
+  for (const auto& e : std::filesystem::directory_iterator(dir))
+    EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << e.path();
+}
+
+TEST(Cli, SnapshotJsonHasEveryPerUserQuantity) {
+  const auto r = run("snapshot --scenario " + kSrc + "/configs/scenarios/two_uavs.toml --method zf --json");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["users"].size(), 6u);
+  EXPECT_TRUE(j["users"][5]["serving_uav"].is_null());
+  EXPECT_EQ(j["users"][0]["serving_uav"], 0);
+  EXPECT_EQ(j["users"][0]["channel"].size(), 4u);
+  EXPECT_EQ(j["users"][0]["beamformer"].size(), 4u);
+  double total = 0;
+  for (const auto& c : j["clusters"]) {
+    total += c["sum_rate"].get<double>();
+    EXPECT_LE(c["power_w"].get<double>(), 1.0 + 1e-9);
+  }
+  EXPECT_NEAR(total, j["total_sum_rate"].get<double>(), 1e-9);
+  double users_total = 0;
+  for (const auto& u : j["users"]) users_total += u["rate"].get<double>();
+  EXPECT_NEAR(users_total, total, 1e-9);
+}
+
+TEST(Cli, SnapshotSingleUserBelowMatchesHandValue) {
+  const std::string dir = tmpdir("single");
+  std::ofstream(dir + "/s.toml") << "uavs = [[100, 100]]\nusers = [[100, 100]]\n";
+  const auto r = run("snapshot --scenario " + dir + "/s.toml --method mrt --json");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  // d = H = 100 m: beta = 1e-6, ||h||^2 = L beta = 4e-6, P = 1 W, noise 1e-12 W -> SNR 4e6.
+  EXPECT_NEAR(j["total_sum_rate"].get<double>(), std::log2(1 + 4e6), 1e-6);
+  EXPECT_NEAR(j["users"][0]["path_loss_db"].get<double>(), -60.0, 1e-9);
+}
+
+TEST(Cli, SnapshotRejectsBadScenario) {
+  const std::string dir = tmpdir("badscen");
+  std::ofstream(dir + "/a.toml") << "uavs = [[100, 100]]\nusers = [[300, 100]]\n";
+  std::ofstream(dir + "/b.toml") << "uavs = [[100, 100]]\nusers = [[10, 10]]\nextra = 1\n";
+  std::ofstream(dir + "/c.toml") << "uavs = [[100, 100]]\n";
+  for (const auto& [f, needle] : std::vector<std::pair<std::string, std::string>>{
+           {"a", "users[0] = [300, 100]"}, {"b", "'extra'"}, {"c", "users is missing"}}) {
+    const auto r = run("snapshot --scenario " + dir + "/" + f + ".toml");
+    EXPECT_EQ(r.code, 2) << f;
+    EXPECT_NE(r.err.find(needle), std::string::npos) << r.err;
+    EXPECT_EQ(lines(r.err), 1);
+  }
+}
+
+TEST(Cli, BeamformListNamesEveryMethod) {
+  const auto r = run("beamform list");
+  ASSERT_EQ(r.code, 0);
+  for (const char* m : {"mrt", "zf", "zfsel", "rzf", "wmmse"}) EXPECT_NE(r.out.find(m), std::string::npos) << m;
+}

@@ -1,1 +1,84 @@
 #include <gtest/gtest.h>
+
+#include "skyloop/channel/rates.hpp"
+#include "skyloop/experiments/builtin.hpp"
+#include "test_util.hpp"
+
+using namespace skyloop;
+
+// Every registered beamformer meets eq:power_constraint on random clusters of every size,
+// including K_n > L, and with full scaling spends exactly the budget.
+TEST(PowerBudget, EveryBeamformerOnRandomClusters) {
+  for (const char* scaling : {"full", "cap"}) {
+    Config cfg;
+    cfg.ga.generations = 20;
+    cfg.ga.population = 16;
+    cfg.wmmse.restarts = 1;
+    cfg.beamforming.power_scaling = std::string(scaling) == "cap" ? PowerScaling::Cap : PowerScaling::Full;
+    for (const auto& [name, desc] : builtin_beamformers().list()) {
+      const auto bf = builtin_beamformers().create(name, cfg);
+      for (int k = 1; k <= 8; ++k)
+        for (const auto& c : test::clusters_of_size(cfg, k, 3, 100 + k)) {
+          const MatrixXcd W = bf->design(c);
+          ASSERT_EQ(W.rows(), 4);
+          ASSERT_EQ(W.cols(), k);
+          EXPECT_NO_THROW(check_beamformer_output(*bf, c, W)) << name;
+          EXPECT_LE(W.squaredNorm(), c.p_max * (1 + 1e-9)) << name << " K_n=" << k;
+          EXPECT_GT(sum_rate(c, W), 0.0) << name;
+          if (std::string(scaling) == "full") {
+            EXPECT_NEAR(W.squaredNorm(), c.p_max, 1e-9 * c.p_max) << name;
+          }
+        }
+    }
+  }
+}
+
+TEST(PowerBudget, OtherAntennaCountsAndBudgets) {
+  for (int L : {1, 2, 8}) {
+    Config cfg;
+    cfg.channel.antennas = L;
+    cfg.channel.p_max_dbm = 45;
+    cfg.ga.generations = 5;
+    cfg.ga.population = 10;
+    for (const auto& [name, desc] : builtin_beamformers().list()) {
+      const auto bf = builtin_beamformers().create(name, cfg);
+      for (const auto& c : test::clusters_of_size(cfg, 3, 3, 7 + L)) {
+        const MatrixXcd W = bf->design(c);
+        EXPECT_LE(W.squaredNorm(), c.p_max * (1 + 1e-9)) << name << " L=" << L;
+        EXPECT_TRUE(W.allFinite()) << name;
+      }
+    }
+  }
+}
+
+TEST(PowerBudget, ScaleToBudget) {
+  MatrixXcd W = MatrixXcd::Constant(2, 2, cdouble(1, 1));  // power 8
+  EXPECT_NEAR(scale_to_budget(W, 2.0, PowerScaling::Full).squaredNorm(), 2.0, 1e-12);
+  EXPECT_NEAR(scale_to_budget(W, 2.0, PowerScaling::Cap).squaredNorm(), 2.0, 1e-12);
+  EXPECT_NEAR(scale_to_budget(W, 20.0, PowerScaling::Full).squaredNorm(), 20.0, 1e-12);
+  EXPECT_NEAR(scale_to_budget(W, 20.0, PowerScaling::Cap).squaredNorm(), 8.0, 1e-12);  // never scales up
+  EXPECT_EQ(scale_to_budget(MatrixXcd::Zero(2, 2), 1.0, PowerScaling::Full).squaredNorm(), 0.0);
+}
+
+TEST(PowerBudget, CheckerRejectsViolations) {
+  const auto bf = builtin_beamformers().create("mrt", Config{});
+  Cluster c;
+  c.G = MatrixXcd::Ones(2, 4);
+  c.p_max = 1.0;
+  EXPECT_THROW(check_beamformer_output(*bf, c, MatrixXcd::Ones(4, 2)), std::runtime_error);  // power 8
+  EXPECT_THROW(check_beamformer_output(*bf, c, MatrixXcd::Zero(4, 3)), std::runtime_error);  // shape
+  EXPECT_NO_THROW(check_beamformer_output(*bf, c, MatrixXcd::Constant(4, 2, 0.25)));
+}
+
+TEST(Batch, DesignBatchEqualsOneByOneForAnyThreadCount) {
+  Config cfg;
+  cfg.wmmse.init = "random";
+  const auto bf = builtin_beamformers().create("wmmse", cfg);
+  const auto clusters = test::clusters_of_size(cfg, 4, 16, 3);
+  const auto one = bf->design_batch(clusters, 1);
+  const auto two = bf->design_batch(clusters, 2);
+  for (std::size_t i = 0; i < clusters.size(); ++i) {
+    EXPECT_EQ(one[i], bf->design(clusters[i]));
+    EXPECT_EQ(two[i], one[i]);
+  }
+}

@@ -1,0 +1,33 @@
+#pragma once
+// Helpers shared by the unit tests.
+#include <vector>
+
+#include "skyloop/channel/system_model.hpp"
+#include "skyloop/core/rng.hpp"
+
+namespace skyloop::test {
+
+/// Clusters of K users (from random snapshots) served by one UAV at the area's centre, so every
+/// user in range is in the cluster; only clusters of exactly `k` users are kept.
+inline std::vector<Cluster> clusters_of_size(const Config& cfg, int k, int count, std::uint64_t seed) {
+  SystemModel model(cfg);
+  std::vector<Cluster> out;
+  Rng rng(seed);
+  while (static_cast<int>(out.size()) < count) {
+    Positions users(k, 2);
+    for (int i = 0; i < k; ++i) {
+      // Uniform in the disc of horizontal radius sqrt(R_c^2 - H^2) around the centre.
+      const double r_max = std::sqrt(cfg.channel.coverage_radius_m * cfg.channel.coverage_radius_m -
+                                     cfg.scenario.altitude_m * cfg.scenario.altitude_m);
+      const double r = r_max * std::sqrt(rng.uniform()), phi = 2 * M_PI * rng.uniform();
+      users(i, 0) = 100 + r * std::cos(phi);
+      users(i, 1) = 100 + r * std::sin(phi);
+    }
+    std::vector<int> idx(k);
+    for (int i = 0; i < k; ++i) idx[i] = i;
+    out.push_back(model.make_cluster(0, 100, 100, users, idx));
+  }
+  return out;
+}
+
+}  // namespace skyloop::test

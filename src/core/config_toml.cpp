@@ -1,3 +1,5 @@
+#include <algorithm>
+#include <optional>
 #include <sstream>
 #include <toml++/toml.h>
 
@@ -15,30 +17,55 @@ std::string describe(const toml::node& node) {
   return ss.str();
 }
 
-/// Converts a TOML node to the FieldValue the field expects; on a type mismatch returns a value
-/// of another alternative so set_field() reports "has the wrong type" with the field's rule.
+std::optional<double> number(const toml::node* n) {
+  if (!n) return std::nullopt;
+  if (auto d = n->value_exact<double>()) return *d;
+  if (auto i = n->value_exact<std::int64_t>()) return static_cast<double>(*i);
+  return std::nullopt;
+}
+
+/// A TOML array of [x, y] number pairs; `bad` receives the index of the first malformed item.
+std::optional<std::vector<Point2>> points(const toml::node& node, std::size_t* bad = nullptr) {
+  const auto* arr = node.as_array();
+  if (!arr) return std::nullopt;
+  std::vector<Point2> pts;
+  for (std::size_t i = 0; i < arr->size(); ++i) {
+    const auto* pair = arr->get(i)->as_array();
+    std::optional<double> x, y;
+    if (pair && pair->size() == 2) x = number(pair->get(0)), y = number(pair->get(1));
+    if (!x || !y) {
+      if (bad) *bad = i;
+      return std::nullopt;
+    }
+    pts.push_back({*x, *y});
+  }
+  return pts;
+}
+
+std::string one_line(std::string s) {
+  for (auto& ch : s)
+    if (ch == '\n' || ch == '\r') ch = ' ';
+  return s;
+}
+
+toml::table parse_document(const std::string& text, const std::string& source) {
+  try {
+    return toml::parse(text, source);
+  } catch (const toml::parse_error& e) {
+    const auto& b = e.source().begin;
+    throw InputError(source + ":" + std::to_string(b.line) + ":" + std::to_string(b.column) +
+                     ": invalid TOML: " + one_line(std::string(e.description())));
+  }
+}
+
+/// Converts a TOML node to the FieldValue the field expects; a node of no known shape is
+/// rejected here, one of another shape by set_field(), both with the field's rule.
 FieldValue to_value(const Field& field, const toml::node& node) {
   if (auto v = node.value_exact<bool>()) return *v;
   if (auto v = node.value_exact<std::int64_t>()) return *v;
   if (auto v = node.value_exact<double>()) return *v;
   if (auto v = node.value_exact<std::string>()) return *v;
-  if (const auto* arr = node.as_array()) {
-    std::vector<Point2> pts;
-    bool ok = true;
-    for (const auto& item : *arr) {
-      const auto* pair = item.as_array();
-      if (!pair || pair->size() != 2) { ok = false; break; }
-      auto num = [](const toml::node& n) -> std::optional<double> {
-        if (auto d = n.value_exact<double>()) return *d;
-        if (auto i = n.value_exact<std::int64_t>()) return static_cast<double>(*i);
-        return std::nullopt;
-      };
-      auto x = num(*pair->get(0)), y = num(*pair->get(1));
-      if (!x || !y) { ok = false; break; }
-      pts.push_back({*x, *y});
-    }
-    if (ok) return pts;
-  }
+  if (auto p = points(node)) return *p;
   throw InputError(field.key + " = " + describe(node) + " has the wrong type: allowed " + field.allowed());
 }
 
@@ -65,24 +92,32 @@ void apply_table(Config& cfg, const toml::table& table, const std::string& prefi
   }
 }
 
-std::string one_line(std::string s) {
-  for (auto& ch : s)
-    if (ch == '\n' || ch == '\r') ch = ' ';
-  return s;
-}
-
 }  // namespace
 
 void apply_toml(Config& cfg, const std::string& text, const std::string& source) {
-  toml::table table;
-  try {
-    table = toml::parse(text, source);
-  } catch (const toml::parse_error& e) {
-    const auto& b = e.source().begin;
-    throw InputError(source + ":" + std::to_string(b.line) + ":" + std::to_string(b.column) +
-                     ": invalid TOML: " + one_line(std::string(e.description())));
+  apply_table(cfg, parse_document(text, source), "");
+}
+
+std::vector<std::vector<Point2>> read_point_lists(const std::string& text, const std::string& source,
+                                                  const std::vector<std::string>& allowed) {
+  const toml::table t = parse_document(text, source);
+  std::string names;
+  for (const auto& a : allowed) names += (names.empty() ? "" : ", ") + a;
+  for (const auto& [k, v] : t)
+    if (std::find(allowed.begin(), allowed.end(), std::string(k.str())) == allowed.end())
+      throw InputError(source + ": unknown key '" + std::string(k.str()) + "': allowed " + names);
+  std::vector<std::vector<Point2>> out;
+  for (const auto& key : allowed) {
+    const toml::node* node = t.get(key);
+    std::size_t bad = 0;
+    const auto pts = node ? points(*node, &bad) : std::nullopt;
+    if (node && !pts && node->is_array())
+      throw InputError(source + ": " + key + "[" + std::to_string(bad) + "] is not an [x, y] pair of numbers");
+    if (!pts || pts->empty())
+      throw InputError(source + ": " + key + " is missing or empty: allowed a non-empty list of [x, y] pairs in metres");
+    out.push_back(*pts);
   }
-  apply_table(cfg, table, "");
+  return out;
 }
 
 void apply_override(Config& cfg, const std::string& assignment) {

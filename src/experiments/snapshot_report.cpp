@@ -3,55 +3,30 @@
 #include <cmath>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
-#include <toml++/toml.h>
 
 #include "skyloop/channel/rates.hpp"
+#include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 
 namespace skyloop {
 
 Snapshot load_scenario_file(const std::string& path, const Config& cfg) {
-  const std::string text = read_file(path, "scenario file");
-  toml::table t;
-  try {
-    t = toml::parse(text, path);
-  } catch (const toml::parse_error& e) {
-    std::string d(e.description());
-    for (auto& ch : d)
-      if (ch == '\n') ch = ' ';
-    throw InputError(path + ":" + std::to_string(e.source().begin.line) + ": invalid TOML: " + d);
-  }
-  for (const auto& [k, v] : t)
-    if (k.str() != "uavs" && k.str() != "users")
-      throw InputError(path + ": unknown key '" + std::string(k.str()) + "': allowed uavs, users");
-  auto read = [&](const char* key) {
-    const auto* arr = t.get_as<toml::array>(key);
-    if (!arr || arr->empty())
-      throw InputError(path + ": " + key + " is missing or empty: allowed a non-empty list of [x, y] pairs in metres");
-    Positions p(static_cast<Eigen::Index>(arr->size()), 2);
-    for (std::size_t i = 0; i < arr->size(); ++i) {
-      const auto* pair = arr->get(i)->as_array();
-      auto num = [](const toml::node* n) -> std::optional<double> {
-        if (!n) return std::nullopt;
-        if (auto d = n->value_exact<double>()) return *d;
-        if (auto v = n->value_exact<std::int64_t>()) return static_cast<double>(*v);
-        return std::nullopt;
-      };
-      std::optional<double> x, y;
-      if (pair && pair->size() == 2) x = num(pair->get(0)), y = num(pair->get(1));
-      if (!x || !y)
-        throw InputError(path + ": " + key + "[" + std::to_string(i) + "] is not an [x, y] pair of numbers");
-      if (*x < 0 || *x > cfg.scenario.area_x_m || *y < 0 || *y > cfg.scenario.area_y_m)
-        throw InputError(path + ": " + key + "[" + std::to_string(i) + "] = [" + format_double(*x) + ", " +
-                         format_double(*y) + "] is outside the area: allowed x in [0, " +
+  const auto lists = read_point_lists(read_file(path, "scenario file"), path, {"uavs", "users"});
+  auto to_positions = [&](const std::vector<Point2>& pts, const char* key) {
+    Positions p(static_cast<Eigen::Index>(pts.size()), 2);
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      const auto [x, y] = pts[i];
+      if (x < 0 || x > cfg.scenario.area_x_m || y < 0 || y > cfg.scenario.area_y_m)
+        throw InputError(path + ": " + key + "[" + std::to_string(i) + "] = [" + format_double(x) + ", " +
+                         format_double(y) + "] is outside the area: allowed x in [0, " +
                          format_double(cfg.scenario.area_x_m) + "], y in [0, " + format_double(cfg.scenario.area_y_m) + "]");
-      p(static_cast<Eigen::Index>(i), 0) = *x;
-      p(static_cast<Eigen::Index>(i), 1) = *y;
+      p(static_cast<Eigen::Index>(i), 0) = x;
+      p(static_cast<Eigen::Index>(i), 1) = y;
     }
     return p;
   };
-  return Snapshot{read("uavs"), read("users")};
+  return Snapshot{to_positions(lists[0], "uavs"), to_positions(lists[1], "users")};
 }
 
 SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Beamformer& bf) {
@@ -139,7 +114,8 @@ std::string snapshot_text(const SnapshotReport& r) {
   for (const auto& u : r.users)
     out += fmt::format("{:>4} {:>8.2f} {:>8.2f} {:>6} {:>10.2f} {:>10.2f} {:>10} {:>8.4f}\n", u.index, u.x, u.y,
                        u.serving_uav >= 0 ? std::to_string(u.serving_uav) : "-", u.distance_m, u.path_loss_db,
-                       u.serving_uav >= 0 && u.sinr > 0 ? fmt::format("{:.2f}", linear_to_db(u.sinr)) : "-", u.rate);
+                       u.serving_uav < 0 ? "-" : u.sinr > 0 ? fmt::format("{:.2f}", linear_to_db(u.sinr)) : "off",
+                       u.rate);
   out += fmt::format("\n{:>4} {:>8} {:>8} {:>10} {:>12} {:>10}\n", "uav", "x", "y", "users", "power (W)", "sum rate");
   for (const auto& c : r.uavs)
     out += fmt::format("{:>4} {:>8.2f} {:>8.2f} {:>10} {:>12.6g} {:>10.4f}\n", c.uav, c.x, c.y, c.users.size(),

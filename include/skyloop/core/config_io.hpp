@@ -21,6 +21,12 @@ void apply_override(Config& cfg, const std::string& assignment);
 /// Defaults, then the file at `path` (if given), then the overrides in order; then validate().
 Config resolve_config(const std::optional<std::string>& path, const std::vector<std::string>& overrides);
 
+/// Reads a TOML document whose every key is a list of [x, y] pairs (a scenario file). A key not
+/// in `allowed`, a missing or empty list, or an item that is not a pair of numbers throws
+/// InputError naming `source` and the key. Returns the lists in the order of `allowed`.
+std::vector<std::vector<Point2>> read_point_lists(const std::string& toml_text, const std::string& source,
+                                                  const std::vector<std::string>& allowed);
+
 /// The whole configuration as TOML, one commented line per field; apply_toml() reads it back
 /// to the same Config.
 std::string to_toml(const Config& cfg);

@@ -6,6 +6,9 @@
 #include "skyloop/core/io.hpp"
 #include "skyloop/experiments/beamform_eval.hpp"
 #include "skyloop/experiments/builtin.hpp"
+#ifdef SKYLOOP_HAS_TORCH
+#include "skyloop/nn/learned.hpp"
+#endif
 
 namespace skyloop::cli {
 
@@ -51,6 +54,33 @@ int run_eval(const EvalOptions& o) {
   std::cout << format_summary(summarise(rows));
   return 0;
 }
+#ifdef SKYLOOP_HAS_TORCH
+struct TrainCliOptions {
+  ConfigOptions config;
+  std::string model, out, device, seed, threads;
+  bool resume = false;
+};
+
+int run_train(const TrainCliOptions& o) {
+  std::vector<std::string> extra;
+  if (!o.model.empty()) extra.push_back("nn.model=" + o.model);
+  if (!o.device.empty()) extra.push_back("nn.device=" + o.device);
+  if (!o.seed.empty()) extra.push_back("run.seed=" + o.seed);
+  if (!o.threads.empty()) extra.push_back("run.threads=" + o.threads);
+  const Config cfg = o.config.resolve(extra);
+  TrainOptions opt;
+  opt.out_dir = o.out;
+  opt.resume = o.resume;
+  opt.progress = &std::cerr;
+  const TrainResult r = train_beamformer(cfg, opt);
+  std::cout << fmt::format("{}: best validation sum rate {:.3f} bit/s/Hz (epoch {}), test sum rate {:.3f} bit/s/Hz, "
+                           "{} parameters, {:.0f} clusters/s, {:.1f} s\nwrote {}/model.pt, last.pt, metrics.csv, "
+                           "config.toml, test.json\n",
+                           r.info.model, r.info.best_val_sum_rate, r.info.epoch, r.test_sum_rate, r.info.parameters,
+                           r.clusters_per_second, r.wall_seconds, o.out);
+  return 0;
+}
+#endif
 }  // namespace
 
 void add_beamform_command(CLI::App& app, Action& action) {
@@ -69,6 +99,19 @@ void add_beamform_command(CLI::App& app, Action& action) {
   eval->add_flag("--quiet", o->quiet, "no progress lines");
   add_config_options(eval, o->config);
   eval->final_callback([&action, o] { action = [o] { return run_eval(*o); }; });
+
+#ifdef SKYLOOP_HAS_TORCH
+  auto t = std::make_shared<TrainCliOptions>();
+  auto* train = beamform->add_subcommand("train", "train a learned beamformer (unsupervised, on sum rate)");
+  train->add_option("--model", t->model, "gnn | deepsets | mspointnet (sets nn.model)");
+  train->add_option("--out", t->out, "run directory: model.pt, last.pt, metrics.csv, config.toml, test.json")->required();
+  train->add_flag("--resume", t->resume, "continue from OUT/last.pt");
+  train->add_option("--device", t->device, "cpu | cuda (sets nn.device)");
+  train->add_option("--seed", t->seed, "training seed (sets run.seed)");
+  train->add_option("--threads", t->threads, "torch threads, 0 = all (sets run.threads)");
+  add_config_options(train, t->config);
+  train->final_callback([&action, t] { action = [t] { return run_train(*t); }; });
+#endif
 
   auto* list = beamform->add_subcommand("list", "list the available beamformers");
   list->final_callback([&action] {

@@ -127,6 +127,26 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.trajectory.d_min_m; }));
   f.push_back(integer("trajectory.t_max", "mission horizon T_max (slots)", 1, 10000,
                       [](Config& c) -> int& { return c.trajectory.t_max; }));
+  // [nn]
+  f.push_back(text("nn.model", "learned beamformer to train", {"gnn", "deepsets", "mspointnet"},
+                   [](Config& c) -> std::string& { return c.nn.model; }));
+  f.push_back(integer("nn.hidden", "embedding size d_gnn (baselines use twice this width)", 4, 4096,
+                      [](Config& c) -> int& { return c.nn.hidden; }));
+  f.push_back(integer("nn.layers", "message-passing layers L_g (GNN)", 1, 16, [](Config& c) -> int& { return c.nn.layers; }));
+  f.push_back(real("nn.learning_rate", "Adam learning rate", 1e-7, 1, [](Config& c) -> double& { return c.nn.learning_rate; }));
+  f.push_back(real("nn.weight_decay", "Adam weight decay (L2)", 0, 1, [](Config& c) -> double& { return c.nn.weight_decay; }));
+  f.push_back(integer("nn.epochs", "training epochs E_gnn", 1, 100000, [](Config& c) -> int& { return c.nn.epochs; }));
+  f.push_back(integer("nn.batch_samples", "snapshots per mini-batch (all their clusters form the batch)", 1, 1000000,
+                      [](Config& c) -> int& { return c.nn.batch_samples; }));
+  f.push_back(integer("nn.train_samples", "training snapshots", 1, 100000000, [](Config& c) -> int& { return c.nn.train_samples; }));
+  f.push_back(integer("nn.val_samples", "validation snapshots", 1, 100000000, [](Config& c) -> int& { return c.nn.val_samples; }));
+  f.push_back(integer("nn.test_samples", "held-out test snapshots", 1, 100000000, [](Config& c) -> int& { return c.nn.test_samples; }));
+  f.push_back(integer("nn.data_seed", "seed of the train/validation/test sets (disjoint streams)", 0, 4611686018427387904.0,
+                      [](Config& c) -> std::uint64_t& { return c.nn.data_seed; }));
+  f.push_back(text("nn.device", "torch device for training and inference", {"cpu", "cuda"},
+                   [](Config& c) -> std::string& { return c.nn.device; }));
+  f.push_back(real("nn.grad_clip", "max global gradient norm (0 = no clipping)", 0, 1e6,
+                   [](Config& c) -> double& { return c.nn.grad_clip; }));
   return f;
 }
 

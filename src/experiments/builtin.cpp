@@ -3,6 +3,9 @@
 #ifdef SKYLOOP_HAS_GA
 #include "skyloop/beamforming/ga.hpp"
 #endif
+#ifdef SKYLOOP_HAS_TORCH
+#include "skyloop/nn/learned.hpp"
+#endif
 
 namespace skyloop {
 
@@ -12,6 +15,9 @@ BeamformerRegistry& builtin_beamformers() {
     register_classical_beamformers(r);
 #ifdef SKYLOOP_HAS_GA
     register_ga_beamformers(r);
+#endif
+#ifdef SKYLOOP_HAS_TORCH
+    register_learned_beamformers(r, SKYLOOP_MODELS_DIR);
 #endif
     return r;
   }();

@@ -75,6 +75,22 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   int t_max = 24;                   // mission horizon in slots
 };
 
+struct NnConfig {                   // [nn] learned beamformers (Section IV and its baselines)
+  std::string model = "gnn";        // gnn | deepsets | mspointnet
+  int hidden = 128;                 // d_gnn (GNN embedding size); baselines use 2x, see README
+  int layers = 3;                   // L_g message-passing layers (GNN)
+  double learning_rate = 1e-3;      // Adam
+  double weight_decay = 1e-6;       // Adam L2 penalty
+  int epochs = 25;                  // E_gnn
+  int batch_samples = 64;           // snapshots per mini-batch (all their clusters)
+  int train_samples = 10000;        // training snapshots (N = scenario.uavs, K = scenario.users)
+  int val_samples = 1000;           // validation snapshots (model selection)
+  int test_samples = 1000;          // held-out test snapshots (reported figures)
+  std::uint64_t data_seed = 2024;   // seed of the data sets; train/val/test use disjoint streams
+  std::string device = "cpu";       // cpu | cuda
+  double grad_clip = 0.0;           // max global gradient norm; 0 = off
+};
+
 struct Config {
   RunConfig run;
   ScenarioConfig scenario;
@@ -83,6 +99,7 @@ struct Config {
   WmmseConfig wmmse;
   GaConfig ga;
   TrajectoryConfig trajectory;
+  NnConfig nn;
 };
 
 std::string to_string(PowerScaling s);

@@ -1,0 +1,97 @@
+// Learned beamformers: inference latency per decision (one snapshot, N = 3, K = 12, its clusters in
+// one batched call) and per cluster in batches of 1, 64 and 1024; training throughput.
+// Uses the shipped models (models/<name>/model.pt); one torch thread unless SKYLOOP_BENCH_THREADS.
+#include <benchmark/benchmark.h>
+
+#include <cstdlib>
+#include <filesystem>
+
+#include "bench_util.hpp"
+#include "skyloop/nn/learned.hpp"
+
+using namespace skyloop;
+
+namespace {
+
+const std::string kModels = SKYLOOP_MODELS_DIR;
+
+std::unique_ptr<LearnedBeamformer> load(const std::string& name) {
+  const std::string path = kModels + "/" + name + "/model.pt";
+  if (!std::filesystem::exists(path)) return nullptr;
+  return LearnedBeamformer::load(path, Config{});
+}
+
+int bench_threads() {
+  const char* t = std::getenv("SKYLOOP_BENCH_THREADS");
+  return t ? std::atoi(t) : 1;
+}
+
+void per_decision(benchmark::State& state, const std::string& name) {
+  set_torch_threads(bench_threads());
+  const auto bf = load(name);
+  if (!bf) return state.SkipWithError("no shipped model");
+  const Config cfg;
+  const SystemModel model(cfg);
+  std::vector<std::vector<Cluster>> decisions;
+  for (std::uint64_t s = 0; s < 64; ++s) decisions.push_back(model.clusters(model.random_snapshot(3, 12, s)));
+  std::size_t i = 0;
+  for (auto _ : state) {
+    auto W = bf->design_batch(decisions[i++ % decisions.size()]);
+    benchmark::DoNotOptimize(W.data());
+  }
+}
+
+void per_cluster(benchmark::State& state, const std::string& name) {
+  set_torch_threads(bench_threads());
+  const auto bf = load(name);
+  if (!bf) return state.SkipWithError("no shipped model");
+  const Config cfg;
+  const SystemModel model(cfg);
+  const auto batch = static_cast<std::size_t>(state.range(0));
+  std::vector<Cluster> pool;
+  for (std::uint64_t s = 0; pool.size() < batch; ++s)
+    for (auto& c : model.clusters(model.random_snapshot(3, 12, 1000 + s))) pool.push_back(std::move(c));
+  pool.resize(batch);
+  for (auto _ : state) {
+    auto W = bf->design_batch(pool);
+    benchmark::DoNotOptimize(W.data());
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(batch));  // clusters per second
+}
+
+}  // namespace
+
+static void BM_GnnDecision(benchmark::State& s) { per_decision(s, "gnn"); }
+static void BM_DeepSetsDecision(benchmark::State& s) { per_decision(s, "deepsets"); }
+static void BM_MsPointNetDecision(benchmark::State& s) { per_decision(s, "mspointnet"); }
+static void BM_GnnClusters(benchmark::State& s) { per_cluster(s, "gnn"); }
+static void BM_DeepSetsClusters(benchmark::State& s) { per_cluster(s, "deepsets"); }
+static void BM_MsPointNetClusters(benchmark::State& s) { per_cluster(s, "mspointnet"); }
+
+BENCHMARK(BM_GnnDecision)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_DeepSetsDecision)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_MsPointNetDecision)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_GnnClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_DeepSetsClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_MsPointNetClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
+
+// Training throughput: a few optimiser steps of the paper-sized GNN on 64-snapshot batches.
+static void BM_GnnTrainStep(benchmark::State& state) {
+  set_torch_threads(bench_threads());
+  Config cfg;
+  cfg.nn.train_samples = 64 * 4;
+  cfg.nn.val_samples = 8;
+  cfg.nn.test_samples = 8;
+  cfg.nn.epochs = 1;
+  const auto dir = std::filesystem::temp_directory_path() / "skyloop_bench_train";
+  double rate = 0;
+  for (auto _ : state) {
+    TrainOptions opt;
+    opt.out_dir = dir.string();
+    rate = train_beamformer(cfg, opt).clusters_per_second;
+  }
+  state.counters["clusters_per_s"] = rate;
+}
+BENCHMARK(BM_GnnTrainStep)->Unit(benchmark::kMillisecond)->Iterations(2);
+
+BENCHMARK_MAIN();

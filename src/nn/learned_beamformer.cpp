@@ -1,0 +1,94 @@
+#include <filesystem>
+
+#include "checkpoint.hpp"
+#include "data.hpp"
+#include "skyloop/core/error.hpp"
+
+namespace skyloop {
+
+namespace nn {
+torch::Device resolve_device(const std::string& name);
+}
+
+struct LearnedBeamformer::Impl {
+  ModelInfo info;
+  std::shared_ptr<nn::BeamNetImpl> model;
+  torch::Device device{torch::kCPU};
+  PowerScaling scaling = PowerScaling::Full;
+};
+
+LearnedBeamformer::LearnedBeamformer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+LearnedBeamformer::~LearnedBeamformer() = default;
+
+std::unique_ptr<LearnedBeamformer> LearnedBeamformer::load(const std::string& path, const Config& cfg) {
+  auto impl = std::make_unique<Impl>();
+  impl->device = nn::resolve_device(cfg.nn.device);
+  auto ck = nn::load_checkpoint(path, impl->device);
+  if (ck.info.antennas != cfg.channel.antennas)
+    throw InputError("checkpoint '" + path + "' was trained for " + std::to_string(ck.info.antennas) +
+                     " antennas but channel.antennas = " + std::to_string(cfg.channel.antennas) +
+                     ": allowed a model trained for the configured L");
+  ck.model->eval();
+  impl->info = ck.info;
+  impl->model = ck.model;
+  impl->scaling = cfg.beamforming.power_scaling;
+  return std::unique_ptr<LearnedBeamformer>(new LearnedBeamformer(std::move(impl)));
+}
+
+std::string LearnedBeamformer::name() const { return impl_->info.model; }
+const ModelInfo& LearnedBeamformer::info() const { return impl_->info; }
+
+MatrixXcd LearnedBeamformer::design(const Cluster& c) const { return design_batch({c}).front(); }
+
+std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster>& clusters, int) const {
+  std::vector<MatrixXcd> out(clusters.size());
+  std::vector<Cluster> nonempty;
+  std::vector<std::size_t> where;
+  for (std::size_t i = 0; i < clusters.size(); ++i) {
+    if (clusters[i].size() == 0) {
+      out[i] = MatrixXcd(clusters[i].antennas(), 0);
+      continue;
+    }
+    if (clusters[i].antennas() != impl_->info.antennas)
+      throw std::invalid_argument("cluster has " + std::to_string(clusters[i].antennas()) + " antennas; the " +
+                                  impl_->info.model + " model was trained for " + std::to_string(impl_->info.antennas));
+    nonempty.push_back(clusters[i]);
+    where.push_back(i);
+  }
+  if (nonempty.empty()) return out;
+  torch::NoGradGuard no_grad;
+  const std::vector<int> owner(nonempty.size(), 0);
+  const nn::ClusterSet set = nn::make_cluster_set(nonempty, owner, 1);
+  const auto ids = torch::arange(static_cast<int64_t>(nonempty.size()), torch::kInt64);
+  const nn::Batch b = nn::make_batch(set, ids, impl_->info.feature_scale, impl_->device);
+  const auto raw = impl_->model->forward(b.x, b.graph).to(torch::kCPU).to(torch::kFloat64).contiguous();
+  const auto acc = raw.accessor<double, 2>();
+  const int L = impl_->info.antennas;
+  int64_t row = 0;
+  for (std::size_t i = 0; i < nonempty.size(); ++i) {
+    const Cluster& c = nonempty[i];
+    MatrixXcd W(L, c.size());
+    for (int k = 0; k < c.size(); ++k, ++row)
+      for (int l = 0; l < L; ++l) W(l, k) = cdouble(acc[row][l], acc[row][L + l]);
+    out[where[i]] = skyloop::scale_to_budget(std::move(W), c.p_max, impl_->scaling);
+  }
+  return out;
+}
+
+void register_learned_beamformers(BeamformerRegistry& reg, const std::string& models_dir) {
+  for (const char* name : {"gnn", "deepsets", "mspointnet"}) {
+    const std::string n = name;
+    reg.add(n, "learned " + n + " beamformer; '" + n + "=PATH' loads PATH (model.pt or its directory)",
+            [n, models_dir](const Config& cfg, const std::string& arg) {
+              namespace fs = std::filesystem;
+              std::string path = arg.empty() ? (fs::path(models_dir) / n / "model.pt").string() : arg;
+              if (fs::is_directory(path)) path = (fs::path(path) / "model.pt").string();
+              auto bf = LearnedBeamformer::load(path, cfg);
+              if (bf->info().model != n)
+                throw InputError("method '" + n + "=" + arg + "' names a " + bf->info().model + " checkpoint: allowed a " + n + " model");
+              return bf;
+            });
+  }
+}
+
+}  // namespace skyloop

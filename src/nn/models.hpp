@@ -1,0 +1,116 @@
+#pragma once
+// The learned beamformers as torch modules. Every model maps a batch of clusters, flattened to
+// user rows, to raw beamforming vectors [U, 2L] (Re then Im); power scaling and rates are applied
+// outside (batch.hpp), so all three share training and serving.
+//
+// Shapes: U users in the batch, C clusters, d hidden size, L antennas.
+//   x    [U, 2L]  float  user features [Re h_k, Im h_k] * feature_scale   (eq:node_feature)
+//   seg  [U]      int64  cluster of each user row; pos [U] its index inside the cluster
+//   count[C, 1]   float  users per cluster K_n
+#include <memory>
+#include <string>
+
+#include "torch_fwd.hpp"
+
+namespace skyloop::nn {
+
+struct Graph {
+  torch::Tensor seg, pos, count;
+  int64_t clusters = 0, kmax = 0;
+};
+
+/// [U, d] -> [C, Kmax, d], empty slots filled with `fill`; differentiable in x.
+torch::Tensor to_padded(const torch::Tensor& x, const Graph& g, double fill);
+/// Per-cluster mean of user rows: [U, d] -> [C, d].
+torch::Tensor segment_mean(const torch::Tensor& x, const Graph& g);
+/// Per-cluster max of user rows: [U, d] -> [C, d].
+torch::Tensor segment_max(const torch::Tensor& x, const Graph& g);
+/// For each user k, max over the other users j != k of its cluster; zeros for a single-user
+/// cluster (the max over an empty set). [U, d] -> [U, d].
+torch::Tensor max_over_others(const torch::Tensor& x, const Graph& g);
+
+/// GraphNorm (Cai et al. 2021) over the user nodes of each graph instance (cluster):
+/// GN(h) = gamma * (h - alpha * mu) / sqrt(var + eps) + beta, mu and var over the cluster's users,
+/// var of the shifted values; gamma, beta, alpha learnable (init 1, 0, 1).
+class GraphNormImpl : public torch::nn::Module {
+ public:
+  explicit GraphNormImpl(int64_t dim, double eps = 1e-5);
+  torch::Tensor forward(const torch::Tensor& x, const Graph& g);
+
+ private:
+  torch::Tensor gamma_, beta_, alpha_;
+  double eps_;
+};
+TORCH_MODULE(GraphNorm);
+
+/// Normalisation inside an MLP block.
+enum class Norm { Graph, Layer, None };
+
+/// Two-layer MLP block: Linear(in, hidden) -> norm -> ReLU -> Linear(hidden, out) [-> norm -> ReLU
+/// unless `final`]. Graph norm for user-node blocks; Layer norm for the UAV node (GraphNorm over
+/// the one UAV node of a graph instance is degenerate: its centred value is zero).
+class MlpImpl : public torch::nn::Module {
+ public:
+  MlpImpl(int64_t in, int64_t hidden, int64_t out, Norm norm, bool final = false);
+  torch::Tensor forward(const torch::Tensor& x, const Graph& g);
+
+ private:
+  torch::nn::Linear l1_{nullptr}, l2_{nullptr};
+  GraphNorm g1_{nullptr}, g2_{nullptr};
+  torch::nn::LayerNorm n1_{nullptr}, n2_{nullptr};
+  Norm norm_;
+  bool final_;
+};
+TORCH_MODULE(Mlp);
+
+/// Common interface of the three networks.
+class BeamNetImpl : public torch::nn::Module {
+ public:
+  virtual torch::Tensor forward(const torch::Tensor& x, const Graph& g) = 0;
+};
+
+/// The paper's GNN (Section IV): user encoder, UAV encoder on the mean user embedding, L_g
+/// message-passing layers (user: concat(UAV message, max over the other users' messages); UAV:
+/// mean of the user messages; updaters on concat(own, aggregated)), readout to 2L reals.
+class GnnImpl : public BeamNetImpl {
+ public:
+  GnnImpl(int64_t antennas, int64_t hidden, int64_t layers);
+  torch::Tensor forward(const torch::Tensor& x, const Graph& g) override;
+
+ private:
+  Mlp user_enc_{nullptr}, uav_enc_{nullptr}, out_{nullptr};
+  torch::nn::ModuleList user_msg_, uav_msg_, user_upd_, uav_upd_;
+};
+
+/// DeepSets: per-user encoder phi, global max-pool over the cluster, per-user head on
+/// [phi_k, pooled]. No normalisation (a plain set network), width 2 * hidden.
+class DeepSetsImpl : public BeamNetImpl {
+ public:
+  DeepSetsImpl(int64_t antennas, int64_t hidden);
+  torch::Tensor forward(const torch::Tensor& x, const Graph& g) override;
+
+ private:
+  Mlp phi1_{nullptr}, phi2_{nullptr}, head1_{nullptr}, head2_{nullptr};
+};
+
+/// MS-PointNet: per user, parallel 1-D convolutions with kernel sizes 1, 3 and 5 over the antenna
+/// axis (channels Re, Im), concatenated, a 1x1 convolution and a linear projection to the user
+/// feature; global max-pool over the cluster; per-user head on [feature_k, pooled]. Convolving
+/// over antennas rather than over the (unordered) users keeps the network permutation
+/// equivariant, as the paper requires.
+class MsPointNetImpl : public BeamNetImpl {
+ public:
+  MsPointNetImpl(int64_t antennas, int64_t hidden);
+  torch::Tensor forward(const torch::Tensor& x, const Graph& g) override;
+
+ private:
+  int64_t antennas_;
+  torch::nn::Conv1d c1_{nullptr}, c3_{nullptr}, c5_{nullptr}, mix_{nullptr};
+  torch::nn::Linear proj_{nullptr};
+  Mlp head1_{nullptr}, head2_{nullptr};
+};
+
+/// Builds a model by name ("gnn", "deepsets", "mspointnet"); throws std::invalid_argument.
+std::shared_ptr<BeamNetImpl> make_model(const std::string& name, int64_t antennas, int64_t hidden, int64_t layers);
+
+}  // namespace skyloop::nn

@@ -1,0 +1,106 @@
+// Internals of src/nn: checkpoint round trip, segment operations, the batched rate.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "../../src/nn/batch.hpp"
+#include "../../src/nn/checkpoint.hpp"
+#include "skyloop/channel/rates.hpp"
+#include "skyloop/beamforming/linear.hpp"
+#include "test_util.hpp"
+
+using namespace skyloop;
+using namespace skyloop::nn;
+
+namespace {
+Graph graph_of(std::vector<int64_t> sizes) {
+  Graph g;
+  std::vector<int64_t> seg, pos;
+  for (std::size_t c = 0; c < sizes.size(); ++c)
+    for (int64_t k = 0; k < sizes[c]; ++k) seg.push_back(static_cast<int64_t>(c)), pos.push_back(k);
+  g.seg = torch::tensor(seg);
+  g.pos = torch::tensor(pos);
+  g.count = torch::tensor(sizes).to(torch::kFloat32).unsqueeze(1);
+  g.clusters = static_cast<int64_t>(sizes.size());
+  g.kmax = *std::max_element(sizes.begin(), sizes.end());
+  return g;
+}
+}  // namespace
+
+TEST(NnInternal, CheckpointRoundTripsBitForBit) {
+  for (const char* name : {"gnn", "deepsets", "mspointnet"}) {
+    torch::manual_seed(3);
+    auto model = make_model(name, 4, 16, 2);
+    torch::optim::Adam adam(model->parameters(), torch::optim::AdamOptions(1e-3));
+    ModelInfo info;
+    info.model = name;
+    info.antennas = 4;
+    info.hidden = 16;
+    info.layers = 2;
+    info.feature_scale = 1234.5678;
+    info.parameters = count_parameters(*model);
+    info.config_toml = "[run]\nseed = 3\n";
+    TrainingState state{7, 99, 5, 42.25};
+    const std::string path = ::testing::TempDir() + "/skyloop_rt_" + name + ".pt";
+    save_checkpoint(path, info, state, *model, &adam);
+    const auto back = load_checkpoint(path, torch::kCPU);
+    const auto a = model->named_parameters(), b = back.model->named_parameters();
+    ASSERT_EQ(a.size(), b.size());
+    for (const auto& p : a) EXPECT_TRUE(torch::equal(p.value(), b[p.key()])) << name << " " << p.key();
+    EXPECT_EQ(back.info.feature_scale, 1234.5678);
+    EXPECT_EQ(back.info.config_toml, info.config_toml);
+    EXPECT_EQ(back.state.step, 99);
+    EXPECT_EQ(back.state.best_val, 42.25);
+    EXPECT_TRUE(back.has_optimizer);
+  }
+}
+
+TEST(NnInternal, MaxOverOthersHandMade) {
+  const Graph g = graph_of({3, 1, 2});
+  const auto x = torch::tensor({5.0f, 1.0f, 3.0f, 7.0f, -2.0f, -4.0f}).unsqueeze(1);
+  const auto m = max_over_others(x, g).squeeze(1);
+  // cluster 0: {5,1,3} -> others' max {3,5,5}; cluster 1: single user -> 0; cluster 2: {-2,-4} -> {-4,-2}.
+  const auto expect = torch::tensor({3.0f, 5.0f, 5.0f, 0.0f, -4.0f, -2.0f});
+  EXPECT_TRUE(torch::allclose(m, expect)) << m;
+  EXPECT_TRUE(torch::allclose(segment_mean(x, g).squeeze(1), torch::tensor({3.0f, 7.0f, -3.0f})));
+  EXPECT_TRUE(torch::allclose(segment_max(x, g).squeeze(1), torch::tensor({5.0f, 7.0f, -2.0f})));
+}
+
+TEST(NnInternal, GraphNormNormalisesEachCluster) {
+  const Graph g = graph_of({4, 2});
+  GraphNorm gn(3);
+  torch::manual_seed(1);
+  const auto x = torch::randn({6, 3}) * 10 + 5;
+  const auto y = gn(x, g);  // init: gamma 1, beta 0, alpha 1 -> zero mean, unit variance per cluster
+  for (int c = 0; c < 2; ++c) {
+    const auto rows = c == 0 ? y.narrow(0, 0, 4) : y.narrow(0, 4, 2);
+    EXPECT_TRUE(torch::allclose(rows.mean(0), torch::zeros({3}), 1e-4, 1e-4));
+    EXPECT_TRUE(torch::allclose(rows.pow(2).mean(0), torch::ones({3}), 1e-3, 1e-3));
+  }
+}
+
+TEST(NnInternal, BatchedRateEqualsDoublePrecisionRate) {
+  Config cfg;
+  std::vector<Cluster> clusters;
+  for (int k : {1, 3, 4, 6})
+    for (const auto& c : test::clusters_of_size(cfg, k, 2, k)) clusters.push_back(c);
+  const std::vector<int> owner(clusters.size(), 0);
+  const ClusterSet set = make_cluster_set(clusters, owner, 1);
+  const auto ids = torch::arange(static_cast<int64_t>(clusters.size()));
+  const Batch b = make_batch(set, ids, 1.0, torch::kCPU);
+  // Use RZF (full power) as W for every cluster, laid out as the network's [U, 2L] output.
+  std::vector<float> rows;
+  std::vector<double> expect;
+  for (const auto& c : clusters) {
+    const MatrixXcd W = rzf(c);
+    for (int k = 0; k < c.size(); ++k) {
+      for (int l = 0; l < 4; ++l) rows.push_back(static_cast<float>(W(l, k).real()));
+      for (int l = 0; l < 4; ++l) rows.push_back(static_cast<float>(W(l, k).imag()));
+    }
+    expect.push_back(sum_rate(c, W));
+  }
+  const auto w = torch::tensor(rows).view({-1, 8});
+  const auto got = cluster_sum_rates(scale_to_budget(w, b, PowerScaling::Full), b);
+  for (std::size_t i = 0; i < clusters.size(); ++i)
+    EXPECT_NEAR(got[static_cast<int64_t>(i)].item<double>(), expect[i], 2e-3 * expect[i] + 1e-3) << "cluster " << i;
+}

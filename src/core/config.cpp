@@ -147,6 +147,8 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> std::string& { return c.nn.device; }));
   f.push_back(real("nn.grad_clip", "max global gradient norm (0 = no clipping)", 0, 1e6,
                    [](Config& c) -> double& { return c.nn.grad_clip; }));
+  f.push_back(text("nn.readout", "per-user output: direct = 2L reals (the paper), structured = (lambda, power) of the optimal structure",
+                   {"direct", "structured"}, [](Config& c) -> std::string& { return c.nn.readout; }));
   return f;
 }
 

@@ -19,7 +19,7 @@ void save_checkpoint(const std::string& path, const ModelInfo& info, const Train
                      torch::optim::Optimizer* optimizer) {
   nlohmann::json meta = {{"format", kCheckpointFormat},     {"version", kCheckpointVersion},
                          {"model", info.model},             {"antennas", info.antennas},
-                         {"hidden", info.hidden},           {"layers", info.layers},
+                         {"hidden", info.hidden},           {"layers", info.layers}, {"readout", info.readout},
                          {"feature_scale", info.feature_scale}, {"parameters", info.parameters},
                          {"epoch", state.epoch},            {"step", state.step},
                          {"best_epoch", state.best_epoch},  {"best_val_sum_rate", state.best_val},
@@ -78,6 +78,7 @@ LoadedCheckpoint load_checkpoint(const std::string& path, const torch::Device& d
     out.info.antennas = meta.at("antennas").get<int>();
     out.info.hidden = meta.at("hidden").get<int>();
     out.info.layers = meta.at("layers").get<int>();
+    out.info.readout = meta.value("readout", std::string("direct"));
     out.info.feature_scale = meta.at("feature_scale").get<double>();
     out.info.parameters = meta.at("parameters").get<std::int64_t>();
     out.info.config_toml = meta.at("config").get<std::string>();
@@ -91,7 +92,8 @@ LoadedCheckpoint load_checkpoint(const std::string& path, const torch::Device& d
   out.info.epoch = out.state.epoch;
   out.info.best_val_sum_rate = out.state.best_val;
   try {
-    out.model = make_model(out.info.model, out.info.antennas, out.info.hidden, out.info.layers);
+    out.model = make_model(out.info.model, out.info.antennas, out.info.hidden, out.info.layers,
+                           parse_readout(out.info.readout));
     torch::serialize::InputArchive params;
     archive.read("model", params);
     out.model->load(params);

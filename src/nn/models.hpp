@@ -63,10 +63,39 @@ class MlpImpl : public torch::nn::Module {
 };
 TORCH_MODULE(Mlp);
 
+/// How a network's per-user head becomes a beamforming vector.
+///  Direct (the paper): the head emits 2L reals, w~_k = Re + j Im.
+///  Structured (beyond the paper): the head emits 2 reals per user, a regularisation weight
+///    lambda_k = exp(.) and a power logit; w_k = sqrt(p_k) v_k / ||v_k|| with
+///    v_k = (I + sum_j lambda_j h~_j h~_j^H)^{-1} h~_k (h~ the normalised channels) and
+///    p = softmax over the cluster's users. This is the known structure of the sum-rate-optimal
+///    beamformer (it spans MRT, RZF and ZF, and switches users off with p_k -> 0), so the network
+///    only has to choose 2 numbers per user. Solved in double precision.
+enum class Readout { Direct, Structured };
+Readout parse_readout(const std::string& s);
+std::string to_string(Readout r);
+/// Head outputs per user: 2L (direct) or 2 (structured).
+int64_t head_width(Readout r, int64_t antennas);
+/// Structured readout: head [U, 2], x [U, 2L] -> beamformers [U, 2L] with sum_k ||w_k||^2 = 1.
+torch::Tensor structured_beams(const torch::Tensor& head, const torch::Tensor& x, const Graph& g);
+
 /// Common interface of the three networks.
 class BeamNetImpl : public torch::nn::Module {
  public:
-  virtual torch::Tensor forward(const torch::Tensor& x, const Graph& g) = 0;
+  explicit BeamNetImpl(Readout r) : readout_(r) {}
+  /// Raw beamformers [U, 2L] (before scaling onto the budget).
+  torch::Tensor forward(const torch::Tensor& x, const Graph& g) {
+    const auto h = head(x, g);
+    return readout_ == Readout::Structured ? structured_beams(h, x, g) : h;
+  }
+  Readout readout() const { return readout_; }
+
+ protected:
+  /// Per-user head outputs [U, head_width].
+  virtual torch::Tensor head(const torch::Tensor& x, const Graph& g) = 0;
+
+ private:
+  Readout readout_;
 };
 
 /// The paper's GNN (Section IV): user encoder, UAV encoder on the mean user embedding, L_g
@@ -74,8 +103,10 @@ class BeamNetImpl : public torch::nn::Module {
 /// mean of the user messages; updaters on concat(own, aggregated)), readout to 2L reals.
 class GnnImpl : public BeamNetImpl {
  public:
-  GnnImpl(int64_t antennas, int64_t hidden, int64_t layers);
-  torch::Tensor forward(const torch::Tensor& x, const Graph& g) override;
+  GnnImpl(int64_t antennas, int64_t hidden, int64_t layers, Readout readout = Readout::Direct);
+
+ protected:
+  torch::Tensor head(const torch::Tensor& x, const Graph& g) override;
 
  private:
   Mlp user_enc_{nullptr}, uav_enc_{nullptr}, out_{nullptr};
@@ -86,8 +117,10 @@ class GnnImpl : public BeamNetImpl {
 /// [phi_k, pooled]. No normalisation (a plain set network), width 2 * hidden.
 class DeepSetsImpl : public BeamNetImpl {
  public:
-  DeepSetsImpl(int64_t antennas, int64_t hidden);
-  torch::Tensor forward(const torch::Tensor& x, const Graph& g) override;
+  DeepSetsImpl(int64_t antennas, int64_t hidden, Readout readout = Readout::Direct);
+
+ protected:
+  torch::Tensor head(const torch::Tensor& x, const Graph& g) override;
 
  private:
   Mlp phi1_{nullptr}, phi2_{nullptr}, head1_{nullptr}, head2_{nullptr};
@@ -100,8 +133,10 @@ class DeepSetsImpl : public BeamNetImpl {
 /// equivariant, as the paper requires.
 class MsPointNetImpl : public BeamNetImpl {
  public:
-  MsPointNetImpl(int64_t antennas, int64_t hidden);
-  torch::Tensor forward(const torch::Tensor& x, const Graph& g) override;
+  MsPointNetImpl(int64_t antennas, int64_t hidden, Readout readout = Readout::Direct);
+
+ protected:
+  torch::Tensor head(const torch::Tensor& x, const Graph& g) override;
 
  private:
   int64_t antennas_;
@@ -111,6 +146,7 @@ class MsPointNetImpl : public BeamNetImpl {
 };
 
 /// Builds a model by name ("gnn", "deepsets", "mspointnet"); throws std::invalid_argument.
-std::shared_ptr<BeamNetImpl> make_model(const std::string& name, int64_t antennas, int64_t hidden, int64_t layers);
+std::shared_ptr<BeamNetImpl> make_model(const std::string& name, int64_t antennas, int64_t hidden, int64_t layers,
+                                        Readout readout = Readout::Direct);
 
 }  // namespace skyloop::nn

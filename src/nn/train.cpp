@@ -83,11 +83,12 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   info.antennas = cfg.channel.antennas;
   info.hidden = cfg.nn.hidden;
   info.layers = cfg.nn.layers;
+  info.readout = cfg.nn.readout;
   info.feature_scale = 1.0 / nn::channel_rms(train);
   info.config_toml = to_toml(cfg);
 
   torch::manual_seed(cfg.run.seed);
-  auto model = nn::make_model(info.model, info.antennas, info.hidden, info.layers);
+  auto model = nn::make_model(info.model, info.antennas, info.hidden, info.layers, nn::parse_readout(info.readout));
   model->to(device);
   info.parameters = nn::count_parameters(*model);
   torch::optim::Adam adam(model->parameters(),
@@ -98,7 +99,7 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   if (opt.resume) {
     auto ck = nn::load_checkpoint(last_path, device);
     if (ck.info.model != info.model || ck.info.hidden != info.hidden || ck.info.layers != info.layers ||
-        ck.info.antennas != info.antennas)
+        ck.info.antennas != info.antennas || ck.info.readout != info.readout)
       throw InputError("--resume: '" + last_path + "' holds a " + ck.info.model + " (hidden " +
                        std::to_string(ck.info.hidden) + ", layers " + std::to_string(ck.info.layers) + ", L " +
                        std::to_string(ck.info.antennas) + "): allowed the same model and sizes as the config");
@@ -217,6 +218,7 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
                            {"val_sum_rate", best.state.best_val},
                            {"test_sum_rate", result.test_sum_rate},
                            {"parameters", info.parameters},
+                           {"readout", info.readout},
                            {"train_seconds", train_seconds},
                            {"clusters_per_second", result.clusters_per_second},
                            {"references_test_sum_rate", reference_rates(cfg)}};

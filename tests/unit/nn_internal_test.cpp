@@ -104,3 +104,31 @@ TEST(NnInternal, BatchedRateEqualsDoublePrecisionRate) {
   for (std::size_t i = 0; i < clusters.size(); ++i)
     EXPECT_NEAR(got[static_cast<int64_t>(i)].item<double>(), expect[i], 2e-3 * expect[i] + 1e-3) << "cluster " << i;
 }
+
+// The structured readout spans the classical precoders: lambda -> 0 gives MRT directions,
+// lambda -> infinity gives ZF directions (interference nulled).
+TEST(NnInternal, StructuredReadoutLimitsAreMrtAndZf) {
+  Config cfg;
+  const auto clusters = test::clusters_of_size(cfg, 3, 4, 21);
+  const std::vector<int> owner(clusters.size(), 0);
+  const ClusterSet set = make_cluster_set(clusters, owner, 1);
+  const double fs = 1.0 / channel_rms(set);
+  const Batch b = make_batch(set, torch::arange(static_cast<int64_t>(clusters.size())), fs, torch::kCPU);
+  for (double log_lambda : {-25.0, 25.0}) {
+    auto head = torch::zeros({b.x.size(0), 2});
+    head.select(1, 0).fill_(log_lambda);
+    const auto w = structured_beams(head, b.x.to(torch::kFloat64), b.graph).to(torch::kFloat64);
+    for (std::size_t c = 0; c < clusters.size(); ++c) {
+      MatrixXcd W(4, 3);
+      for (int k = 0; k < 3; ++k)
+        for (int l = 0; l < 4; ++l)
+          W(l, k) = cdouble(w[static_cast<int64_t>(3 * c + k)][l].item<double>(), w[static_cast<int64_t>(3 * c + k)][4 + l].item<double>());
+      EXPECT_NEAR(W.squaredNorm(), 1.0, 1e-6);  // power shares come out of a float32 softmax
+      const MatrixXcd ref = log_lambda < 0 ? mrt(clusters[c]) : zf(clusters[c], false);
+      for (int k = 0; k < 3; ++k) {
+        const double cosine = std::abs(W.col(k).dot(ref.col(k))) / (W.col(k).norm() * ref.col(k).norm());
+        EXPECT_NEAR(cosine, 1.0, 1e-4) << (log_lambda < 0 ? "MRT" : "ZF") << " cluster " << c << " user " << k;
+      }
+    }
+  }
+}

@@ -89,6 +89,7 @@ struct NnConfig {                   // [nn] learned beamformers (Section IV and 
   std::uint64_t data_seed = 2024;   // seed of the data sets; train/val/test use disjoint streams
   std::string device = "cpu";       // cpu | cuda
   double grad_clip = 0.0;           // max global gradient norm; 0 = off
+  std::string readout = "direct";   // direct (the paper: 2L reals per user) | structured (beyond the paper)
 };
 
 struct Config {

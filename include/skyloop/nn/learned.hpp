@@ -19,6 +19,7 @@ struct ModelInfo {
   std::string model;            // gnn | deepsets | mspointnet
   int antennas = 0;             // L the model was trained for
   int hidden = 0, layers = 0;
+  std::string readout = "direct";  // direct (the paper) | structured (see src/nn/models.hpp)
   double feature_scale = 1.0;   // input normalisation: x = [Re h, Im h] * feature_scale
   int epoch = 0;                // epochs completed
   double best_val_sum_rate = 0; // mean network sum rate on the validation set (bit/s/Hz)

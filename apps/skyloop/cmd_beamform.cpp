@@ -4,6 +4,7 @@
 
 #include "common.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/rng.hpp"
 #include "skyloop/experiments/beamform_eval.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #ifdef SKYLOOP_HAS_TORCH
@@ -20,6 +21,8 @@ struct EvalOptions {
   std::size_t samples = 200;
   std::string out;
   bool quiet = false;
+  bool test_set = false;
+  bool samples_given = false;
 };
 
 int run_eval(const EvalOptions& o) {
@@ -29,6 +32,9 @@ int run_eval(const EvalOptions& o) {
   if (!o.seed.empty()) extra.push_back("run.seed=" + o.seed);
   if (!o.threads.empty()) extra.push_back("run.threads=" + o.threads);
   const Config cfg = o.config.resolve(extra);
+#ifdef SKYLOOP_HAS_TORCH
+  set_torch_threads(1);  // decisions are timed on one core each; samples run in parallel instead
+#endif
 
   BeamformEvalOptions opt;
   opt.methods = split_methods(o.methods);
@@ -37,6 +43,12 @@ int run_eval(const EvalOptions& o) {
   opt.samples = o.samples;
   opt.seed = cfg.run.seed;
   opt.threads = cfg.run.threads;
+  if (o.test_set) {
+    // The learned models' held-out test split: snapshot i = derive_seed(derive_seed(nn.data_seed, 3), i).
+    opt.seed = derive_seed(cfg.nn.data_seed, 3);
+    if (!o.samples_given) opt.samples = static_cast<std::size_t>(cfg.nn.test_samples);
+    std::cout << "evaluating on the test split of nn.data_seed = " << cfg.nn.data_seed << "\n";
+  }
   std::cout << fmt::format("beamform eval: N = {} UAVs, K = {} users, L = {}, P_max = {} dBm, noise = {} dBm, "
                            "{} samples, seed {}\n",
                            opt.uavs, opt.users, cfg.channel.antennas, cfg.channel.p_max_dbm, cfg.channel.noise_dbm,
@@ -97,8 +109,13 @@ void add_beamform_command(CLI::App& app, Action& action) {
   eval->add_option("--threads", o->threads, "worker threads, 0 = all (sets run.threads)");
   eval->add_option("--out", o->out, "tidy CSV output; the resolved config is written beside it (.config.toml)");
   eval->add_flag("--quiet", o->quiet, "no progress lines");
+  eval->add_flag("--test-set", o->test_set,
+                 "evaluate on the learned models' held-out test snapshots (nn.data_seed, nn.test_samples)");
   add_config_options(eval, o->config);
-  eval->final_callback([&action, o] { action = [o] { return run_eval(*o); }; });
+  eval->final_callback([&action, o, eval] {
+    o->samples_given = eval->count("--samples") > 0;
+    action = [o] { return run_eval(*o); };
+  });
 
 #ifdef SKYLOOP_HAS_TORCH
   auto t = std::make_shared<TrainCliOptions>();

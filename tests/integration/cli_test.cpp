@@ -176,3 +176,33 @@ TEST(Cli, BeamformListNamesEveryMethod) {
   ASSERT_EQ(r.code, 0);
   for (const char* m : {"mrt", "zf", "zfsel", "rzf", "wmmse"}) EXPECT_NE(r.out.find(m), std::string::npos) << m;
 }
+
+TEST(Cli, TrainWritesARunDirectoryAndEvalUsesIt) {
+  const std::string dir = tmpdir("train");
+  const std::string small = " --set nn.hidden=8 --set nn.layers=1 --set nn.epochs=1 --set nn.train_samples=16"
+                            " --set nn.val_samples=4 --set nn.test_samples=4 --set nn.batch_samples=8 --threads 1";
+  const auto t = run("beamform train --model deepsets --out " + dir + "/ds" + small);
+  ASSERT_EQ(t.code, 0) << t.err;
+  for (const char* f : {"model.pt", "last.pt", "metrics.csv", "config.toml", "test.json"})
+    EXPECT_TRUE(std::filesystem::exists(dir + "/ds/" + f)) << f;
+  const auto e = run("beamform eval --methods mrt,deepsets=" + dir + "/ds --samples 3 --quiet");
+  ASSERT_EQ(e.code, 0) << e.err;
+  EXPECT_NE(e.out.find("deepsets="), std::string::npos);
+  // Resume continues to a second epoch.
+  const auto r = run("beamform train --model deepsets --out " + dir + "/ds --resume" + small + " --set nn.epochs=2");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(lines(slurp(dir + "/ds/metrics.csv")), 3);
+}
+
+TEST(Cli, LearnedInputErrors) {
+  const std::string dir = tmpdir("trainbad");
+  for (const std::string& args : std::vector<std::string>{"beamform eval --methods gnn=/nonexistent/model.pt --samples 2",
+                                 "beamform train --model gnn --out " + dir + "/x --resume",
+                                 "beamform train --model transformer --out " + dir + "/y",
+                                 "beamform eval --methods deepsets=" + std::string(SKYLOOP_SOURCE_DIR) +
+                                     "/models/gnn --samples 2"}) {
+    const auto r = run(args);
+    EXPECT_EQ(r.code, 2) << args << "\n" << r.err;
+    EXPECT_EQ(lines(r.err), 1) << args << "\n" << r.err;
+  }
+}

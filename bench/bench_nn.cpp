@@ -75,23 +75,4 @@ BENCHMARK(BM_GnnClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(be
 BENCHMARK(BM_DeepSetsClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_MsPointNetClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
 
-// Training throughput: a few optimiser steps of the paper-sized GNN on 64-snapshot batches.
-static void BM_GnnTrainStep(benchmark::State& state) {
-  set_torch_threads(bench_threads());
-  Config cfg;
-  cfg.nn.train_samples = 64 * 4;
-  cfg.nn.val_samples = 8;
-  cfg.nn.test_samples = 8;
-  cfg.nn.epochs = 1;
-  const auto dir = std::filesystem::temp_directory_path() / "skyloop_bench_train";
-  double rate = 0;
-  for (auto _ : state) {
-    TrainOptions opt;
-    opt.out_dir = dir.string();
-    rate = train_beamformer(cfg, opt).clusters_per_second;
-  }
-  state.counters["clusters_per_s"] = rate;
-}
-BENCHMARK(BM_GnnTrainStep)->Unit(benchmark::kMillisecond)->Iterations(2);
-
 BENCHMARK_MAIN();

@@ -149,6 +149,27 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.nn.grad_clip; }));
   f.push_back(text("nn.readout", "per-user output: direct = 2L reals (the paper), structured = (lambda, power) of the optimal structure",
                    {"direct", "structured"}, [](Config& c) -> std::string& { return c.nn.readout; }));
+  // [env]
+  f.push_back(text("env.oracle", "beamformer behind the environment's sum rate R[t]",
+                   {"gnn", "deepsets", "mspointnet", "wmmse", "zfsel", "zf", "rzf", "mrt"},
+                   [](Config& c) -> std::string& { return c.env.oracle; }));
+  f.push_back(real("env.w_rate", "reward weight of the cumulative average sum rate", 0, 1e6, [](Config& c) -> double& { return c.env.w_rate; }));
+  f.push_back(real("env.w_arr", "reward per newly arrived UAV", 0, 1e6, [](Config& c) -> double& { return c.env.w_arr; }));
+  f.push_back(real("env.w_bud", "penalty per boundary event", 0, 1e6, [](Config& c) -> double& { return c.env.w_bud; }));
+  f.push_back(real("env.w_col", "penalty per UAV in a collision", 0, 1e6, [](Config& c) -> double& { return c.env.w_col; }));
+  f.push_back(real("env.w_fea", "weight of the reachability indicator Phi_n", 0, 1e6, [](Config& c) -> double& { return c.env.w_fea; }));
+  {
+    Field b{"env.resample_users", Type::Boolean, "draw new users at every reset", 0, 0, {}, {}, {}};
+    b.get = [](const Config& c) { return FieldValue(c.env.resample_users); };
+    b.set = [](Config& c, const FieldValue& v) { c.env.resample_users = std::get<bool>(v); };
+    f.push_back(std::move(b));
+  }
+  {
+    Field u{"env.users_file", Type::Text, "TOML file with users = [[x, y], ...] (empty: uniform users from the seed)", 0, 0, {}, {}, {}};
+    u.get = [](const Config& c) { return FieldValue(c.env.users_file); };
+    u.set = [](Config& c, const FieldValue& v) { c.env.users_file = std::get<std::string>(v); };
+    f.push_back(std::move(u));
+  }
   return f;
 }
 
@@ -162,6 +183,7 @@ std::string Field::allowed() const {
              std::to_string(static_cast<long long>(hi)) + "]";
     case Type::Real: return "a number in [" + format_number(lo) + ", " + format_number(hi) + "]";
     case Type::Text: {
+      if (choices.empty()) return "a string";
       std::string s = "one of ";
       for (std::size_t i = 0; i < choices.size(); ++i) s += (i ? ", " : "") + choices[i];
       return s;
@@ -230,7 +252,8 @@ void set_field(Config& cfg, const Field& field, const FieldValue& value) {
     case Type::Text: {
       if (!std::holds_alternative<std::string>(value)) fail("has the wrong type");
       const auto& s = std::get<std::string>(value);
-      if (std::find(field.choices.begin(), field.choices.end(), s) == field.choices.end()) fail("is not allowed");
+      if (!field.choices.empty() && std::find(field.choices.begin(), field.choices.end(), s) == field.choices.end())
+        fail("is not allowed");
       field.set(cfg, value);
       return;
     }

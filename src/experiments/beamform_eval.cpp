@@ -102,11 +102,12 @@ std::vector<MethodSummary> summarise(const std::vector<BeamformEvalRow>& rows) {
 
 std::string format_summary(const std::vector<MethodSummary>& s) {
   double best = 0.0;
-  for (const auto& m : s) best = std::max(best, m.mean);
-  std::string out = fmt::format("{:<16} {:>8} {:>14} {:>10} {:>8} {:>20}\n", "method", "samples", "sum rate mean",
+  std::size_t width = 16;
+  for (const auto& m : s) best = std::max(best, m.mean), width = std::max(width, m.method.size() + 1);
+  std::string out = fmt::format("{:<{}} {:>8} {:>14} {:>10} {:>8} {:>20}\n", "method", width, "samples", "sum rate mean",
                                 "std", "% best", "median latency (ms)");
   for (const auto& m : s)
-    out += fmt::format("{:<16} {:>8} {:>14.3f} {:>10.3f} {:>8.1f} {:>20.4f}\n", m.method, m.samples, m.mean, m.std,
+    out += fmt::format("{:<{}} {:>8} {:>14.3f} {:>10.3f} {:>8.1f} {:>20.4f}\n", m.method, width, m.samples, m.mean, m.std,
                        best > 0 ? 100.0 * m.mean / best : 0.0, m.median_latency_ms);
   return out;
 }

@@ -53,6 +53,7 @@ class SystemModel {
   double noise() const { return noise_; }
   double area_x() const { return area_x_; }
   double area_y() const { return area_y_; }
+  double coverage() const { return coverage_; }
 
   /// 3-D distance between a UAV at altitude H above (ux, uy) and a ground user at (x, y).
   double distance(double ux, double uy, double x, double y) const;

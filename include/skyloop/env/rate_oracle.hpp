@@ -1,0 +1,67 @@
+#pragma once
+// R[t] for UAV positions over fixed users: association, then each cluster's sum rate from a
+// beamformer. With fixed users and the deterministic LoS channel, a cluster's sum rate depends
+// only on its UAV's position and its user set, so it is memoised exactly on that key: a hit
+// returns the identical double the beamformer produced on the miss.
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <unordered_map>
+#include <vector>
+
+#include "skyloop/beamforming/beamformer.hpp"
+#include "skyloop/channel/system_model.hpp"
+
+namespace skyloop {
+
+struct OracleStats {
+  std::uint64_t hits = 0, misses = 0;
+  double hit_rate() const { return hits + misses ? static_cast<double>(hits) / static_cast<double>(hits + misses) : 0.0; }
+};
+
+class RateOracle {
+ public:
+  static constexpr int kMaxUsers = 256;
+  /// `users` [K x 2] (K <= 256). The beamformer is shared, not copied.
+  RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, Positions users);
+
+  /// Network sum rate R for UAV positions [N x 2].
+  double sum_rate(const Positions& uavs);
+  /// R for many position sets; all cache misses go to the beamformer in one batched call.
+  std::vector<double> sum_rates(const std::vector<Positions>& uavs);
+  /// Per-UAV cluster sum rates for one position set (UAVs with no users get 0).
+  std::vector<double> cluster_rates(const Positions& uavs);
+
+  const Positions& users() const { return users_; }
+  const Beamformer& beamformer() const { return *beamformer_; }
+  const SystemModel& model() const { return model_; }
+  const OracleStats& stats() const { return stats_; }
+  std::size_t cache_size() const { return cache_.size(); }
+
+ private:
+  friend std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles,
+                                             const std::vector<const Positions*>& uavs);
+  struct Key {
+    double x, y;
+    std::array<std::uint64_t, kMaxUsers / 64> mask;
+    bool operator==(const Key& o) const { return x == o.x && y == o.y && mask == o.mask; }
+  };
+  struct KeyHash {
+    std::size_t operator()(const Key& k) const;
+  };
+  /// Association of `uavs`: for each UAV its key; fills `members`.
+  void keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const;
+
+  SystemModel model_;
+  std::shared_ptr<const Beamformer> beamformer_;
+  Positions users_;
+  std::unordered_map<Key, double, KeyHash> cache_;
+  OracleStats stats_;
+};
+
+/// R for (oracle i, positions i) pairs, e.g. the M environments of a vector environment (each with
+/// its own users): the cache misses of all of them go to the beamformer in one batched call
+/// (grouped by beamformer when the oracles use different ones).
+std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, const std::vector<const Positions*>& uavs);
+
+}  // namespace skyloop

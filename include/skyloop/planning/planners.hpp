@@ -1,0 +1,102 @@
+#pragma once
+// Trajectory planners over UavEnv: the paper's Random and Greedy baselines (Section VI-C) and,
+// beyond the paper, the exact optimum of P2.2 by dynamic programming.
+#include <cstdint>
+#include <iosfwd>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "skyloop/core/rng.hpp"
+#include "skyloop/env/uav_env.hpp"
+
+namespace skyloop {
+
+class Planner {
+ public:
+  virtual ~Planner() = default;
+  virtual std::string name() const = 0;
+  /// Called after env.reset(), before the first act().
+  virtual void reset(UavEnv& env) {}
+  /// Joint action for the current slot.
+  virtual std::vector<int> act(UavEnv& env) = 0;
+};
+
+/// Uniform over each UAV's feasible actions (in the area, destination still reachable in the
+/// slots left); arrived UAVs STAY. Collisions are not avoided.
+class RandomPlanner final : public Planner {
+ public:
+  explicit RandomPlanner(std::uint64_t seed) : seed_(seed), rng_(seed) {}
+  std::string name() const override { return "random"; }
+  void reset(UavEnv&) override { rng_ = Rng(seed_); }
+  std::vector<int> act(UavEnv& env) override;
+
+ private:
+  std::uint64_t seed_;
+  Rng rng_;
+};
+
+/// Exhaustive search over the 5^N joint actions for the highest next-slot sum rate, among joint
+/// actions that keep every destination reachable, stay in the area and avoid collisions (if none
+/// avoids collisions, the fewest colliding UAVs first). Ties go to the lowest joint index.
+class GreedyPlanner final : public Planner {
+ public:
+  std::string name() const override { return "greedy"; }
+  std::vector<int> act(UavEnv& env) override;
+};
+
+struct OptimalPlan {
+  double objective = 0;                     // (1/T) sum_{t=1}^T R[t]
+  int T = 0;                                // slot of the last arrival
+  std::vector<std::vector<int>> actions;    // joint action of slots 1..T-1
+  int iterations = 0;                       // Dinkelbach iterations
+  std::size_t states = 0;                   // joint grid states (G^N)
+  std::size_t evaluated_states = 0;         // states whose R was needed
+  std::size_t memory_bytes = 0;             // value tables
+  double seconds = 0;
+};
+
+/// Exact optimum of P2.2 for the environment's users and oracle: maximise (1/T) sum_t R[t] over
+/// joint trajectories on the D_fly grid with every UAV at its destination by T <= T_max, arrival
+/// absorbing, no collision and no boundary exit. The ratio objective is solved by Dinkelbach's
+/// method: each iteration maximises sum_t (R[t] - lambda) by backward dynamic programming over
+/// the joint grid state (value tables per slot, the max over the 5^N joint actions taken one UAV
+/// at a time), then lambda <- the objective of the maximiser, until lambda stops increasing.
+/// Throws InputError if starts and destinations are not on one D_fly lattice, the joint grid is
+/// too large (G^N > 5e6), or no feasible joint trajectory exists.
+OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress = nullptr);
+
+/// Replays solve_optimal's plan.
+class OptimalPlanner final : public Planner {
+ public:
+  explicit OptimalPlanner(std::ostream* progress = nullptr) : progress_(progress) {}
+  std::string name() const override { return "optimal"; }
+  void reset(UavEnv& env) override;
+  std::vector<int> act(UavEnv& env) override;
+  const OptimalPlan& plan() const { return plan_; }
+
+ private:
+  std::ostream* progress_;
+  OptimalPlan plan_;
+};
+
+/// Best objective by enumerating every feasible joint action sequence (tiny instances only; the
+/// check of solve_optimal). -1 if no sequence brings every UAV home by T_max.
+double brute_force_optimum(UavEnv& env);
+
+struct EpisodeRecord {
+  std::string planner;
+  std::vector<Positions> positions;         // slots 1..T
+  std::vector<std::vector<int>> actions;    // slots 1..T-1 (as executed: arrived UAVs STAY)
+  std::vector<StepInfo> steps;              // after each action
+  double objective = 0;                     // (1/T) sum_{t=1}^T R[t]
+  int T = 0;
+  bool success = false;                     // every UAV arrived by T_max
+  int arrivals = 0, boundary = 0, collisions = 0;
+  double reward = 0;                        // sum of r[t]
+};
+
+/// Resets the environment and runs one episode with the planner.
+EpisodeRecord run_episode(UavEnv& env, Planner& planner);
+
+}  // namespace skyloop

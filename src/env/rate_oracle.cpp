@@ -1,0 +1,134 @@
+#include "skyloop/env/rate_oracle.hpp"
+
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "skyloop/channel/rates.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/rng.hpp"
+
+namespace skyloop {
+
+std::size_t RateOracle::KeyHash::operator()(const Key& k) const {
+  std::uint64_t h = hash_bytes(&k.x, sizeof k.x);
+  h = hash_bytes(&k.y, sizeof k.y, h);
+  return static_cast<std::size_t>(hash_bytes(k.mask.data(), sizeof(std::uint64_t) * k.mask.size(), h));
+}
+
+RateOracle::RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, Positions users)
+    : model_(cfg), beamformer_(std::move(beamformer)), users_(std::move(users)) {
+  if (users_.rows() > kMaxUsers)
+    throw InputError("the environment has " + std::to_string(users_.rows()) + " users: allowed at most " +
+                     std::to_string(kMaxUsers));
+}
+
+void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const {
+  const auto n = static_cast<int>(uavs.rows());
+  keys.assign(static_cast<std::size_t>(n), Key{0, 0, {}});
+  members.assign(static_cast<std::size_t>(n), {});
+  for (int i = 0; i < n; ++i) keys[static_cast<std::size_t>(i)].x = uavs(i, 0), keys[static_cast<std::size_t>(i)].y = uavs(i, 1);
+  // Nearest UAV by 3-D distance (lowest index on ties), served if within R_c (as SystemModel::associate).
+  const double h2 = model_.altitude() * model_.altitude();
+  for (int k = 0; k < static_cast<int>(users_.rows()); ++k) {
+    int best = -1;
+    double best_d2 = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < n; ++i) {
+      const double dx = uavs(i, 0) - users_(k, 0), dy = uavs(i, 1) - users_(k, 1);
+      const double d2 = dx * dx + dy * dy + h2;
+      if (d2 < best_d2) best_d2 = d2, best = i;
+    }
+    if (best >= 0 && std::sqrt(best_d2) <= model_.coverage()) {
+      keys[static_cast<std::size_t>(best)].mask[static_cast<std::size_t>(k / 64)] |= std::uint64_t{1} << (k % 64);
+      members[static_cast<std::size_t>(best)].push_back(k);
+    }
+  }
+}
+
+std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, const std::vector<const Positions*>& uavs) {
+  using Key = RateOracle::Key;
+  const std::size_t m = oracles.size();
+  std::vector<std::vector<Key>> keys(m);
+  std::vector<std::vector<std::vector<int>>> members(m);
+  // Misses per beamformer: (oracle, key, cluster).
+  struct Miss {
+    RateOracle* oracle;
+    Key key;
+  };
+  std::vector<const Beamformer*> groups;
+  std::vector<std::vector<Miss>> misses;
+  std::vector<std::vector<Cluster>> clusters;
+  std::unordered_map<const RateOracle*, std::unordered_map<Key, char, RateOracle::KeyHash>> pending;
+  for (std::size_t s = 0; s < m; ++s) {
+    RateOracle& o = *oracles[s];
+    o.keys_of(*uavs[s], keys[s], members[s]);
+    for (std::size_t i = 0; i < keys[s].size(); ++i) {
+      if (members[s][i].empty()) continue;
+      const Key& key = keys[s][i];
+      auto& mine = pending[&o];
+      if (o.cache_.count(key) || mine.count(key)) {
+        ++o.stats_.hits;
+        continue;
+      }
+      ++o.stats_.misses;
+      mine.emplace(key, 1);
+      std::size_t g = 0;
+      while (g < groups.size() && groups[g] != o.beamformer_.get()) ++g;
+      if (g == groups.size()) groups.push_back(o.beamformer_.get()), misses.emplace_back(), clusters.emplace_back();
+      misses[g].push_back({&o, key});
+      clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[s][i]));
+    }
+  }
+  for (std::size_t g = 0; g < groups.size(); ++g) {
+    const auto W = groups[g]->design_batch(clusters[g]);
+    for (std::size_t c = 0; c < clusters[g].size(); ++c) {
+      check_beamformer_output(*groups[g], clusters[g][c], W[c]);
+      misses[g][c].oracle->cache_.emplace(misses[g][c].key, sum_rate(clusters[g][c], W[c]));
+    }
+  }
+  std::vector<double> out(m, 0.0);
+  for (std::size_t s = 0; s < m; ++s)
+    for (std::size_t i = 0; i < keys[s].size(); ++i)
+      if (!members[s][i].empty()) out[s] += oracles[s]->cache_.at(keys[s][i]);
+  return out;
+}
+
+std::vector<double> RateOracle::sum_rates(const std::vector<Positions>& all) {
+  std::vector<RateOracle*> self(all.size(), this);
+  std::vector<const Positions*> ptrs;
+  for (const auto& p : all) ptrs.push_back(&p);
+  return batch_sum_rates(self, ptrs);
+}
+
+double RateOracle::sum_rate(const Positions& uavs) {
+  // Fast path without allocation of the batch machinery when everything is cached.
+  thread_local std::vector<Key> keys;
+  thread_local std::vector<std::vector<int>> members;
+  keys_of(uavs, keys, members);
+  double total = 0.0;
+  bool all_cached = true;
+  for (std::size_t i = 0; i < keys.size() && all_cached; ++i) {
+    if (members[i].empty()) continue;
+    const auto it = cache_.find(keys[i]);
+    if (it == cache_.end()) all_cached = false;
+    else total += it->second;
+  }
+  if (all_cached) {
+    for (std::size_t i = 0; i < keys.size(); ++i) stats_.hits += !members[i].empty();
+    return total;
+  }
+  return sum_rates({uavs}).front();
+}
+
+std::vector<double> RateOracle::cluster_rates(const Positions& uavs) {
+  sum_rates({uavs});  // fills the cache
+  std::vector<Key> keys;
+  std::vector<std::vector<int>> members;
+  keys_of(uavs, keys, members);
+  std::vector<double> out(keys.size(), 0.0);
+  for (std::size_t i = 0; i < keys.size(); ++i)
+    if (!members[i].empty()) out[i] = cache_.at(keys[i]);
+  return out;
+}
+
+}  // namespace skyloop

@@ -1,0 +1,284 @@
+#include "skyloop/env/uav_env.hpp"
+
+#include <cmath>
+#include <stdexcept>
+
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+#include "skyloop/core/rng.hpp"
+
+namespace skyloop {
+
+const char* action_name(int a) {
+  static const char* names[] = {"UP", "DOWN", "LEFT", "RIGHT", "STAY"};
+  return a >= 0 && a < kActions ? names[a] : "?";
+}
+
+Positions make_users(const Config& cfg, int users, std::uint64_t seed) {
+  if (!cfg.env.users_file.empty()) {
+    const auto lists = read_point_lists(read_file(cfg.env.users_file, "env.users_file"), cfg.env.users_file, {"users"});
+    Positions p(static_cast<Eigen::Index>(lists[0].size()), 2);
+    for (std::size_t i = 0; i < lists[0].size(); ++i) {
+      const auto [x, y] = lists[0][i];
+      if (x < 0 || x > cfg.scenario.area_x_m || y < 0 || y > cfg.scenario.area_y_m)
+        throw InputError(cfg.env.users_file + ": users[" + std::to_string(i) + "] = [" + format_double(x) + ", " +
+                         format_double(y) + "] is outside the area");
+      p(static_cast<Eigen::Index>(i), 0) = x;
+      p(static_cast<Eigen::Index>(i), 1) = y;
+    }
+    return p;
+  }
+  Rng rng(seed);
+  Positions p(users, 2);
+  for (int k = 0; k < users; ++k) p(k, 0) = rng.uniform(0, cfg.scenario.area_x_m), p(k, 1) = rng.uniform(0, cfg.scenario.area_y_m);
+  return p;
+}
+
+namespace {
+Positions to_positions(const std::vector<Point2>& pts) {
+  Positions p(static_cast<Eigen::Index>(pts.size()), 2);
+  for (std::size_t i = 0; i < pts.size(); ++i) p(static_cast<Eigen::Index>(i), 0) = pts[i].x, p(static_cast<Eigen::Index>(i), 1) = pts[i].y;
+  return p;
+}
+bool same(double a, double b) { return std::abs(a - b) < 1e-6; }
+}  // namespace
+
+UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
+    : n_(static_cast<int>(cfg.trajectory.starts.size())),
+      t_max_(cfg.trajectory.t_max),
+      d_fly_(cfg.trajectory.d_fly_m),
+      d_min_(cfg.trajectory.d_min_m),
+      area_x_(cfg.scenario.area_x_m),
+      area_y_(cfg.scenario.area_y_m),
+      w_rate_(cfg.env.w_rate),
+      w_arr_(cfg.env.w_arr),
+      w_bud_(cfg.env.w_bud),
+      w_col_(cfg.env.w_col),
+      w_fea_(cfg.env.w_fea),
+      start_(to_positions(cfg.trajectory.starts)),
+      dest_(to_positions(cfg.trajectory.destinations)),
+      oracle_(std::move(oracle)) {
+  for (int n = 0; n < n_; ++n)
+    if (min_moves(n, start_(n, 0), start_(n, 1)) > t_max_ - 1)
+      throw InputError("trajectory: UAV " + std::to_string(n) + " needs " +
+                       std::to_string(min_moves(n, start_(n, 0), start_(n, 1))) + " moves from its start to its destination "
+                       "but trajectory.t_max = " + std::to_string(t_max_) + " allows " + std::to_string(t_max_ - 1) +
+                       ": allowed t_max >= moves + 1");
+  reset();
+}
+
+void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle) {
+  oracle_ = std::move(oracle);
+  reset();
+}
+
+void UavEnv::reset() {
+  pos_ = start_;
+  t_ = 1;
+  arrived_.assign(static_cast<std::size_t>(n_), false);
+  prev_action_.assign(static_cast<std::size_t>(n_), kStay);
+  prev_tmin_.assign(static_cast<std::size_t>(n_), 0);
+  bool all = true;
+  for (int n = 0; n < n_; ++n) {
+    arrived_[static_cast<std::size_t>(n)] = same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1));
+    all = all && arrived_[static_cast<std::size_t>(n)];
+    const double d = std::hypot(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1));
+    prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / d_fly_ - 1e-9));
+  }
+  const double r = oracle_->sum_rate(pos_);
+  rates_.assign(1, r);
+  rate_sum_ = r;
+  done_ = all;
+  tot_arr_ = tot_bud_ = tot_col_ = 0;
+}
+
+bool UavEnv::move(double x, double y, int a, double& nx, double& ny) const {
+  nx = x, ny = y;
+  switch (a) {
+    case kUp: ny += d_fly_; break;
+    case kDown: ny -= d_fly_; break;
+    case kLeft: nx -= d_fly_; break;
+    case kRight: nx += d_fly_; break;
+    default: break;
+  }
+  return nx >= -1e-9 && nx <= area_x_ + 1e-9 && ny >= -1e-9 && ny <= area_y_ + 1e-9;
+}
+
+int UavEnv::min_moves(int n, double x, double y) const {
+  const double dx = std::abs(dest_(n, 0) - x), dy = std::abs(dest_(n, 1) - y);
+  return static_cast<int>(std::ceil(dx / d_fly_ - 1e-9)) + static_cast<int>(std::ceil(dy / d_fly_ - 1e-9));
+}
+
+bool UavEnv::feasible(int n, int a) const {
+  if (arrived(n)) return a == kStay;
+  double nx, ny;
+  if (!move(pos_(n, 0), pos_(n, 1), a, nx, ny)) return false;
+  return min_moves(n, nx, ny) <= t_max_ - (t_ + 1);
+}
+
+Positions UavEnv::next_positions(const std::vector<int>& actions) const {
+  Positions next = pos_;
+  for (int n = 0; n < n_; ++n) {
+    const int a = arrived(n) ? kStay : actions[static_cast<std::size_t>(n)];
+    double nx, ny;
+    if (move(pos_(n, 0), pos_(n, 1), a, nx, ny)) next(n, 0) = nx, next(n, 1) = ny;
+  }
+  return next;
+}
+
+int UavEnv::collisions(const Positions& p) const {
+  int count = 0;
+  for (int n = 0; n < n_; ++n)
+    for (int m = 0; m < n_; ++m)
+      if (m != n && std::hypot(p(n, 0) - p(m, 0), p(n, 1) - p(m, 1)) < d_min_ - 1e-9) {
+        ++count;
+        break;
+      }
+  return count;
+}
+
+Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
+  if (done_) throw std::logic_error("UavEnv::step called on a finished episode; call reset()");
+  if (static_cast<int>(actions.size()) != n_)
+    throw std::invalid_argument("UavEnv::step: " + std::to_string(actions.size()) + " actions for " + std::to_string(n_) + " UAVs");
+  Positions next = pos_;
+  for (int n = 0; n < n_; ++n) {
+    const int requested = actions[static_cast<std::size_t>(n)];
+    if (requested < 0 || requested >= kActions)
+      throw std::invalid_argument("UavEnv::step: action " + std::to_string(requested) + " of UAV " + std::to_string(n) +
+                                  " is not one of 0..4 (UP, DOWN, LEFT, RIGHT, STAY)");
+    const int a = arrived(n) ? kStay : requested;  // arrival-aware: arrived UAVs are locked
+    double nx, ny;
+    if (move(pos_(n, 0), pos_(n, 1), a, nx, ny)) next(n, 0) = nx, next(n, 1) = ny;
+    else ++info.boundary;  // cancelled: the UAV stays
+    prev_action_[static_cast<std::size_t>(n)] = a;
+  }
+  info.collisions = collisions(next);
+  return next;
+}
+
+void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
+  pos_ = next;
+  ++t_;
+  bool all = true;
+  for (int n = 0; n < n_; ++n) {
+    auto&& arrived_n = arrived_[static_cast<std::size_t>(n)];
+    if (!arrived_n && same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1))) {
+      arrived_n = true;
+      ++info.arrivals;
+    }
+    all = all && arrived_n;
+    info.feasibility += feasibility_indicator(n, pos_(n, 0), pos_(n, 1), t_);
+  }
+  rates_.push_back(rate);
+  rate_sum_ += rate;
+  info.sum_rate = rate;
+  info.avg_rate = rate_sum_ / static_cast<double>(t_);
+  info.reward = w_rate_ * info.avg_rate + w_arr_ * info.arrivals - w_bud_ * info.boundary - w_col_ * info.collisions +
+                w_fea_ * info.feasibility;
+  info.success = all;
+  info.done = done_ = all || t_ >= t_max_;
+  tot_arr_ += info.arrivals;
+  tot_bud_ += info.boundary;
+  tot_col_ += info.collisions;
+}
+
+int UavEnv::feasibility_indicator(int n, double x, double y, int t) {
+  const double d = std::hypot(dest_(n, 0) - x, dest_(n, 1) - y);
+  const int tmin = static_cast<int>(std::ceil(d / d_fly_ - 1e-9));
+  const int phi = (tmin <= t_max_ - t && tmin <= prev_tmin_[static_cast<std::size_t>(n)]) ? 1 : -1;
+  prev_tmin_[static_cast<std::size_t>(n)] = tmin;
+  return phi;
+}
+
+StepInfo UavEnv::step(const std::vector<int>& actions) {
+  StepInfo info;
+  const Positions next = begin_step(actions, info);
+  end_step(next, oracle_->sum_rate(next), info);
+  return info;
+}
+
+double UavEnv::objective() const { return rate_sum_ / static_cast<double>(t_); }
+
+std::vector<float> UavEnv::observation(int n) const {
+  const auto& users = oracle_->users();
+  double mx = 0, my = 0;
+  for (Eigen::Index k = 0; k < users.rows(); ++k) mx += users(k, 0) - pos_(n, 0), my += users(k, 1) - pos_(n, 1);
+  const double K = static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
+  std::vector<float> o{static_cast<float>(pos_(n, 0) / area_x_), static_cast<float>(pos_(n, 1) / area_y_),
+                       static_cast<float>(mx / K / area_x_),     static_cast<float>(my / K / area_y_),
+                       static_cast<float>((dest_(n, 0) - pos_(n, 0)) / area_x_),
+                       static_cast<float>((dest_(n, 1) - pos_(n, 1)) / area_y_),
+                       0, 0, 0, 0, 0};
+  o[static_cast<std::size_t>(6 + prev_action_[static_cast<std::size_t>(n)])] = 1.0f;
+  return o;
+}
+
+int UavEnv::state_size() const { return 4 * n_ + 2 * static_cast<int>(oracle_->users().rows()); }
+
+std::vector<float> UavEnv::state() const {
+  std::vector<float> s;
+  s.reserve(static_cast<std::size_t>(state_size()));
+  for (int n = 0; n < n_; ++n) s.push_back(static_cast<float>(pos_(n, 0) / area_x_)), s.push_back(static_cast<float>(pos_(n, 1) / area_y_));
+  const auto& users = oracle_->users();
+  for (Eigen::Index k = 0; k < users.rows(); ++k)
+    s.push_back(static_cast<float>(users(k, 0) / area_x_)), s.push_back(static_cast<float>(users(k, 1) / area_y_));
+  for (int n = 0; n < n_; ++n) s.push_back(static_cast<float>(dest_(n, 0) / area_x_)), s.push_back(static_cast<float>(dest_(n, 1) / area_y_));
+  return s;
+}
+
+std::vector<float> UavEnv::agent_state(int n) const {
+  std::vector<float> s = state();
+  for (int m = 0; m < n_; ++m) s.push_back(m == n ? 1.0f : 0.0f);
+  const auto o = observation(n);
+  s.insert(s.end(), o.begin(), o.end());
+  return s;
+}
+
+// ---- VecEnv ---------------------------------------------------------------------------------
+
+VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed)
+    : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(seed), episodes_(static_cast<std::size_t>(count), 0) {
+  for (int i = 0; i < count; ++i) {
+    auto oracle = std::make_shared<RateOracle>(
+        cfg_, beamformer_, make_users(cfg_, cfg_.scenario.users, derive_seed(seed_, static_cast<std::uint64_t>(i))));
+    envs_.push_back(std::make_unique<UavEnv>(cfg_, std::move(oracle)));
+  }
+}
+
+void VecEnv::reset_env(std::size_t i) {
+  ++episodes_[i];
+  if (cfg_.env.resample_users && cfg_.env.users_file.empty()) {
+    auto oracle = std::make_shared<RateOracle>(
+        cfg_, beamformer_, make_users(cfg_, cfg_.scenario.users, derive_seed(seed_, i, episodes_[i])));
+    envs_[i]->set_oracle(std::move(oracle));
+  } else {
+    envs_[i]->reset();
+  }
+}
+
+void VecEnv::reset() {
+  for (std::size_t i = 0; i < envs_.size(); ++i) reset_env(i);
+}
+
+std::vector<StepInfo> VecEnv::step(const std::vector<std::vector<int>>& actions) {
+  const std::size_t m = envs_.size();
+  std::vector<StepInfo> info(m);
+  std::vector<Positions> next(m);
+  std::vector<RateOracle*> oracles(m);
+  std::vector<const Positions*> ptrs(m);
+  for (std::size_t i = 0; i < m; ++i) {
+    next[i] = envs_[i]->begin_step(actions[i], info[i]);
+    oracles[i] = &envs_[i]->oracle();
+    ptrs[i] = &next[i];
+  }
+  const auto rates = batch_sum_rates(oracles, ptrs);
+  for (std::size_t i = 0; i < m; ++i) {
+    envs_[i]->end_step(next[i], rates[i], info[i]);
+    if (info[i].done) reset_env(i);
+  }
+  return info;
+}
+
+}  // namespace skyloop

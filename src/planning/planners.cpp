@@ -1,0 +1,342 @@
+#include "skyloop/planning/planners.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <ostream>
+#include <stdexcept>
+
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+
+namespace skyloop {
+
+namespace {
+constexpr double kNegInf = -std::numeric_limits<double>::infinity();
+
+/// All joint actions of n UAVs, index j -> digit n = (j / 5^n) % 5.
+std::vector<int> joint_action(int j, int n) {
+  std::vector<int> a(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i, j /= kActions) a[static_cast<std::size_t>(i)] = j % kActions;
+  return a;
+}
+int pow5(int n) {
+  int p = 1;
+  for (int i = 0; i < n; ++i) p *= kActions;
+  return p;
+}
+}  // namespace
+
+std::vector<int> RandomPlanner::act(UavEnv& env) {
+  std::vector<int> a(static_cast<std::size_t>(env.uavs()), kStay);
+  for (int n = 0; n < env.uavs(); ++n) {
+    std::vector<int> ok;
+    for (int k = 0; k < kActions; ++k)
+      if (env.feasible(n, k)) ok.push_back(k);
+    if (!ok.empty()) a[static_cast<std::size_t>(n)] = ok[rng_.below(ok.size())];
+  }
+  return a;
+}
+
+std::vector<int> GreedyPlanner::act(UavEnv& env) {
+  const int n = env.uavs(), total = pow5(n);
+  std::vector<std::vector<int>> candidates;
+  std::vector<Positions> next;
+  std::vector<int> colliding;
+  for (int j = 0; j < total; ++j) {
+    auto a = joint_action(j, n);
+    bool ok = true;
+    for (int i = 0; i < n && ok; ++i) ok = env.feasible(i, a[static_cast<std::size_t>(i)]);
+    if (!ok) continue;
+    next.push_back(env.next_positions(a));
+    colliding.push_back(env.collisions(next.back()));
+    candidates.push_back(std::move(a));
+  }
+  if (candidates.empty()) return std::vector<int>(static_cast<std::size_t>(n), kStay);
+  const auto rates = env.oracle().sum_rates(next);
+  std::size_t best = 0;
+  for (std::size_t c = 1; c < candidates.size(); ++c)
+    if (colliding[c] < colliding[best] || (colliding[c] == colliding[best] && rates[c] > rates[best])) best = c;
+  return candidates[best];
+}
+
+// ---- exact optimum --------------------------------------------------------------------------
+
+OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  env.reset();
+  const int N = env.uavs(), Tmax = env.t_max();
+  const double d = env.d_fly();
+  const Positions start = env.positions(), dest = env.destinations();
+  // The D_fly lattice through start 0, clipped to the area.
+  const double ox = std::fmod(start(0, 0), d), oy = std::fmod(start(0, 1), d);
+  const int nx = static_cast<int>(std::floor((env.area_x() - ox) / d + 1e-9)) + 1;
+  const int ny = static_cast<int>(std::floor((env.area_y() - oy) / d + 1e-9)) + 1;
+  const int G = nx * ny;
+  auto cell_of = [&](double x, double y, const std::string& what) {
+    const double fx = (x - ox) / d, fy = (y - oy) / d;
+    const long ix = std::lround(fx), iy = std::lround(fy);
+    if (std::abs(fx - static_cast<double>(ix)) > 1e-6 || std::abs(fy - static_cast<double>(iy)) > 1e-6 || ix < 0 || iy < 0 ||
+        ix >= nx || iy >= ny)
+      throw InputError(what + " = [" + format_double(x) + ", " + format_double(y) +
+                       "] is not on the D_fly grid of trajectory.starts[0]: the optimal planner needs every start and "
+                       "destination on one grid of spacing trajectory.d_fly_m");
+    return static_cast<int>(iy * nx + ix);
+  };
+  std::vector<int> s_cell(static_cast<std::size_t>(N)), d_cell(static_cast<std::size_t>(N));
+  for (int n = 0; n < N; ++n) {
+    s_cell[static_cast<std::size_t>(n)] = cell_of(start(n, 0), start(n, 1), "trajectory.starts[" + std::to_string(n) + "]");
+    d_cell[static_cast<std::size_t>(n)] = cell_of(dest(n, 0), dest(n, 1), "trajectory.destinations[" + std::to_string(n) + "]");
+  }
+  double Sd = 1;
+  for (int n = 0; n < N; ++n) Sd *= G;
+  if (Sd > 5e6)
+    throw InputError("the optimal planner's joint grid has " + format_double(Sd) + " states (" + std::to_string(G) +
+                     " cells ^ " + std::to_string(N) + " UAVs): allowed at most 5e6");
+  const std::size_t S = static_cast<std::size_t>(Sd);
+  std::vector<std::size_t> stride(static_cast<std::size_t>(N));
+  for (int n = 0; n < N; ++n) stride[static_cast<std::size_t>(n)] = n == 0 ? 1 : stride[static_cast<std::size_t>(n - 1)] * static_cast<std::size_t>(G);
+  auto cx = [&](int c) { return ox + d * (c % nx); };
+  auto cy = [&](int c) { return oy + d * (c / nx); };
+  auto manhattan = [&](int a, int b) { return std::abs(a % nx - b % nx) + std::abs(a / nx - b / nx); };
+  // neighbour[c * 5 + a] = cell after action a, or -1 outside the grid.
+  std::vector<int> neighbour(static_cast<std::size_t>(G * kActions), -1);
+  for (int c = 0; c < G; ++c)
+    for (int a = 0; a < kActions; ++a) {
+      const int ix = c % nx, iy = c / nx;
+      const int jx = ix + (a == kRight) - (a == kLeft), jy = iy + (a == kUp) - (a == kDown);
+      if (jx >= 0 && jx < nx && jy >= 0 && jy < ny) neighbour[static_cast<std::size_t>(c * kActions + a)] = jy * nx + jx;
+    }
+  auto cell = [&](std::size_t s, int n) { return static_cast<int>((s / stride[static_cast<std::size_t>(n)]) % static_cast<std::size_t>(G)); };
+  // A state is possible at some slot if each UAV's cell lies on a path start -> dest of length <= T_max - 1,
+  // and no two UAVs are closer than D_min.
+  std::vector<std::vector<char>> useful(static_cast<std::size_t>(N), std::vector<char>(static_cast<std::size_t>(G), 0));
+  for (int n = 0; n < N; ++n)
+    for (int c = 0; c < G; ++c)
+      useful[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] =
+          manhattan(s_cell[static_cast<std::size_t>(n)], c) + manhattan(c, d_cell[static_cast<std::size_t>(n)]) <= Tmax - 1;
+  std::vector<double> R(S, std::numeric_limits<double>::quiet_NaN());
+  {
+    std::vector<std::size_t> need;
+    Positions p(N, 2);
+    for (std::size_t s = 0; s < S; ++s) {
+      bool ok = true;
+      for (int n = 0; n < N && ok; ++n) ok = useful[static_cast<std::size_t>(n)][static_cast<std::size_t>(cell(s, n))];
+      if (!ok) continue;
+      for (int n = 0; n < N; ++n) p(n, 0) = cx(cell(s, n)), p(n, 1) = cy(cell(s, n));
+      if (env.collisions(p) > 0) continue;
+      need.push_back(s);
+    }
+    if (progress) *progress << "optimal: " << need.size() << " feasible joint states of " << S << "; evaluating R\n" << std::flush;
+    const std::size_t chunk = 20000;
+    for (std::size_t first = 0; first < need.size(); first += chunk) {
+      std::vector<Positions> batch;
+      const std::size_t last = std::min(need.size(), first + chunk);
+      for (std::size_t i = first; i < last; ++i) {
+        for (int n = 0; n < N; ++n) p(n, 0) = cx(cell(need[i], n)), p(n, 1) = cy(cell(need[i], n));
+        batch.push_back(p);
+      }
+      const auto r = env.oracle().sum_rates(batch);
+      for (std::size_t i = first; i < last; ++i) R[need[i]] = r[i - first];
+    }
+  }
+  OptimalPlan plan;
+  plan.states = S;
+  for (double r : R) plan.evaluated_states += !std::isnan(r);
+  // Value tables V[t] for slots t = 1..Tmax (index t - 1).
+  std::vector<std::vector<double>> V(static_cast<std::size_t>(Tmax), std::vector<double>(S, kNegInf));
+  plan.memory_bytes = static_cast<std::size_t>(Tmax) * S * sizeof(double) + S * sizeof(double) * 3;
+  std::vector<double> M(S), tmp(S);
+  auto all_home = [&](std::size_t s) {
+    for (int n = 0; n < N; ++n)
+      if (cell(s, n) != d_cell[static_cast<std::size_t>(n)]) return false;
+    return true;
+  };
+  auto alive_at = [&](std::size_t s, int t) {  // reachable from the start by slot t and home by T_max
+    for (int n = 0; n < N; ++n) {
+      const int c = cell(s, n);
+      if (manhattan(s_cell[static_cast<std::size_t>(n)], c) > t - 1 || manhattan(c, d_cell[static_cast<std::size_t>(n)]) > Tmax - t)
+        return false;
+    }
+    return true;
+  };
+  const std::size_t s0 = [&] {
+    std::size_t s = 0;
+    for (int n = 0; n < N; ++n) s += stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(s_cell[static_cast<std::size_t>(n)]);
+    return s;
+  }();
+  if (std::isnan(R[s0])) throw InputError("the start positions collide or cannot reach the destinations by trajectory.t_max");
+
+  double lambda = 0.0;
+  std::vector<std::size_t> path;
+  for (int iter = 1; iter <= 50; ++iter) {
+    plan.iterations = iter;
+    for (int t = Tmax; t >= 1; --t) {
+      auto& Vt = V[static_cast<std::size_t>(t - 1)];
+      if (t < Tmax) {
+        // M(s) = max over joint actions of V[t+1](s'), one UAV at a time (arrived UAVs only STAY).
+        M = V[static_cast<std::size_t>(t)];
+        for (int n = 0; n < N; ++n) {
+          const std::size_t st = stride[static_cast<std::size_t>(n)];
+          for (std::size_t s = 0; s < S; ++s) {
+            const int c = cell(s, n);
+            double best = M[s];
+            if (c != d_cell[static_cast<std::size_t>(n)])
+              for (int a = 0; a < kStay; ++a) {
+                const int c2 = neighbour[static_cast<std::size_t>(c * kActions + a)];
+                if (c2 >= 0) best = std::max(best, M[s + st * static_cast<std::size_t>(c2) - st * static_cast<std::size_t>(c)]);
+              }
+            tmp[s] = best;
+          }
+          M.swap(tmp);
+        }
+      }
+      for (std::size_t s = 0; s < S; ++s) {
+        if (std::isnan(R[s]) || !alive_at(s, t)) {
+          Vt[s] = kNegInf;
+          continue;
+        }
+        if (all_home(s)) Vt[s] = R[s] - lambda;                       // the episode ends: T = t
+        else Vt[s] = t < Tmax ? R[s] - lambda + M[s] : kNegInf;        // not home at T_max: infeasible
+      }
+    }
+    if (!std::isfinite(V[0][s0])) throw InputError("no joint trajectory brings every UAV home by trajectory.t_max without a collision");
+    // Recover the maximiser and its true objective.
+    path.assign(1, s0);
+    std::vector<std::vector<int>> actions;
+    int t = 1;
+    while (!all_home(path.back())) {
+      const std::size_t s = path.back();
+      double best = kNegInf;
+      std::size_t best_s = s;
+      std::vector<int> best_a;
+      for (int j = 0; j < pow5(N); ++j) {
+        const auto a = joint_action(j, N);
+        std::size_t s2 = s;
+        bool ok = true;
+        for (int n = 0; n < N && ok; ++n) {
+          const int c = cell(s, n);
+          const int act = c == d_cell[static_cast<std::size_t>(n)] ? kStay : a[static_cast<std::size_t>(n)];
+          if (act != a[static_cast<std::size_t>(n)]) { ok = false; break; }  // arrived UAVs: STAY only
+          const int c2 = neighbour[static_cast<std::size_t>(c * kActions + act)];
+          if (act != kStay && c2 < 0) ok = false;
+          else if (act != kStay) s2 = s2 + stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(c2) - stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(c);
+        }
+        if (!ok) continue;
+        const double v = V[static_cast<std::size_t>(t)][s2];
+        if (v > best) best = v, best_s = s2, best_a = a;
+      }
+      if (best_a.empty()) throw std::logic_error("optimal planner: no successor on the optimal path");
+      actions.push_back(best_a);
+      path.push_back(best_s);
+      ++t;
+    }
+    double total = 0;
+    for (std::size_t s : path) total += R[s];
+    const double next = total / static_cast<double>(path.size());
+    plan.objective = next;
+    plan.T = static_cast<int>(path.size());
+    plan.actions = actions;
+    if (progress)
+      *progress << "optimal: iteration " << iter << "  lambda " << format_double(lambda) << " -> " << format_double(next)
+                << "  T = " << plan.T << "\n" << std::flush;
+    if (next <= lambda * (1 + 1e-12)) break;
+    lambda = next;
+  }
+  // Arrived UAVs in the plan STAY (their recorded action is whatever index matched: normalise).
+  for (std::size_t k = 0; k < plan.actions.size(); ++k)
+    for (int n = 0; n < N; ++n)
+      if (cell(path[k], n) == d_cell[static_cast<std::size_t>(n)]) plan.actions[k][static_cast<std::size_t>(n)] = kStay;
+  plan.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  env.reset();
+  return plan;
+}
+
+void OptimalPlanner::reset(UavEnv& env) {
+  plan_ = solve_optimal(env, progress_);
+}
+
+std::vector<int> OptimalPlanner::act(UavEnv& env) {
+  const auto k = static_cast<std::size_t>(env.t() - 1);
+  if (k >= plan_.actions.size()) return std::vector<int>(static_cast<std::size_t>(env.uavs()), kStay);
+  return plan_.actions[k];
+}
+
+double brute_force_optimum(UavEnv& env) {
+  env.reset();
+  const int N = env.uavs();
+  double best = -1;
+  // Depth-first over joint actions; the environment cannot be copied cheaply, so positions are
+  // tracked here and R comes from the oracle.
+  struct Frame {
+    Positions pos;
+    std::vector<bool> home;
+    double sum;
+    int t;
+  };
+  const Positions dest = env.destinations();
+  auto is_home = [&](const Positions& p, int n) {
+    return std::abs(p(n, 0) - dest(n, 0)) < 1e-6 && std::abs(p(n, 1) - dest(n, 1)) < 1e-6;
+  };
+  std::vector<Frame> stack;
+  Frame f0{env.positions(), std::vector<bool>(static_cast<std::size_t>(N)), env.rates().front(), 1};
+  for (int n = 0; n < N; ++n) f0.home[static_cast<std::size_t>(n)] = is_home(f0.pos, n);
+  stack.push_back(f0);
+  while (!stack.empty()) {
+    Frame f = std::move(stack.back());
+    stack.pop_back();
+    if (std::all_of(f.home.begin(), f.home.end(), [](bool b) { return b; })) {
+      best = std::max(best, f.sum / f.t);
+      continue;
+    }
+    if (f.t >= env.t_max()) continue;
+    for (int j = 0; j < pow5(N); ++j) {
+      const auto a = joint_action(j, N);
+      Positions next = f.pos;
+      bool ok = true;
+      for (int n = 0; n < N && ok; ++n) {
+        if (f.home[static_cast<std::size_t>(n)]) {
+          ok = a[static_cast<std::size_t>(n)] == kStay;
+          continue;
+        }
+        double nx, ny;
+        ok = env.move(f.pos(n, 0), f.pos(n, 1), a[static_cast<std::size_t>(n)], nx, ny);
+        next(n, 0) = nx, next(n, 1) = ny;
+      }
+      if (!ok || env.collisions(next) > 0) continue;
+      Frame g{next, f.home, f.sum + env.oracle().sum_rate(next), f.t + 1};
+      for (int n = 0; n < N; ++n) g.home[static_cast<std::size_t>(n)] = g.home[static_cast<std::size_t>(n)] || is_home(next, n);
+      stack.push_back(std::move(g));
+    }
+  }
+  return best;
+}
+
+EpisodeRecord run_episode(UavEnv& env, Planner& planner) {
+  env.reset();
+  planner.reset(env);
+  EpisodeRecord r;
+  r.planner = planner.name();
+  r.positions.push_back(env.positions());
+  while (!env.done()) {
+    auto a = planner.act(env);
+    for (int n = 0; n < env.uavs(); ++n)
+      if (env.arrived(n)) a[static_cast<std::size_t>(n)] = kStay;
+    const StepInfo info = env.step(a);
+    r.actions.push_back(a);
+    r.steps.push_back(info);
+    r.positions.push_back(env.positions());
+    r.reward += info.reward;
+    r.success = info.success;
+  }
+  r.T = env.t();
+  r.objective = env.objective();
+  r.arrivals = env.total_arrivals();
+  r.boundary = env.total_boundary();
+  r.collisions = env.total_collisions();
+  return r;
+}
+
+}  // namespace skyloop

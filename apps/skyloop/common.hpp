@@ -24,5 +24,6 @@ using Action = std::function<int()>;
 void add_beamform_command(CLI::App& app, Action& action);
 void add_snapshot_command(CLI::App& app, Action& action);
 void add_config_command(CLI::App& app, Action& action);
+void add_plan_command(CLI::App& app, Action& action);
 
 }  // namespace skyloop::cli

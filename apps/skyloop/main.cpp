@@ -30,6 +30,7 @@ int main(int argc, char** argv) {
   cli::add_beamform_command(app, action);
   cli::add_snapshot_command(app, action);
   cli::add_config_command(app, action);
+  cli::add_plan_command(app, action);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -332,6 +332,7 @@ EpisodeRecord run_episode(UavEnv& env, Planner& planner) {
     r.success = info.success;
   }
   r.T = env.t();
+  r.rates = env.rates();
   r.objective = env.objective();
   r.arrivals = env.total_arrivals();
   r.boundary = env.total_boundary();

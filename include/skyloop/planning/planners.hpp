@@ -89,6 +89,7 @@ struct EpisodeRecord {
   std::vector<Positions> positions;         // slots 1..T
   std::vector<std::vector<int>> actions;    // slots 1..T-1 (as executed: arrived UAVs STAY)
   std::vector<StepInfo> steps;              // after each action
+  std::vector<double> rates;                // R[1..T]
   double objective = 0;                     // (1/T) sum_{t=1}^T R[t]
   int T = 0;
   bool success = false;                     // every UAV arrived by T_max

@@ -1,0 +1,99 @@
+#include "skyloop/experiments/planning_run.hpp"
+
+#include <chrono>
+#include <filesystem>
+#include <fmt/format.h>
+#include <ostream>
+
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+
+namespace skyloop {
+
+std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& opt, const BeamformerRegistry& registry,
+                                        std::ostream* progress, std::vector<double>* seconds) {
+  if (opt.planners.empty()) throw InputError("--planner is empty: allowed random, greedy, optimal");
+  std::vector<std::unique_ptr<Planner>> planners;
+  for (const auto& p : opt.planners) {
+    if (p == "random") planners.push_back(std::make_unique<RandomPlanner>(derive_seed(opt.seed, 0x52414e44ULL)));
+    else if (p == "greedy") planners.push_back(std::make_unique<GreedyPlanner>());
+    else if (p == "optimal") planners.push_back(std::make_unique<OptimalPlanner>(progress));
+    else throw InputError("--planner '" + p + "' is unknown: allowed random, greedy, optimal");
+  }
+  std::shared_ptr<const Beamformer> bf = registry.create(cfg.env.oracle, cfg);
+  auto oracle = std::make_shared<RateOracle>(cfg, bf, make_users(cfg, cfg.scenario.users, opt.seed));
+  UavEnv env(cfg, oracle);
+  std::vector<EpisodeRecord> out;
+  for (auto& p : planners) {
+    const auto t0 = std::chrono::steady_clock::now();
+    out.push_back(run_episode(env, *p));
+    const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (seconds) seconds->push_back(s);
+  }
+  if (!opt.out_dir.empty()) {
+    const std::filesystem::path dir(opt.out_dir);
+    std::vector<double> secs = seconds ? *seconds : std::vector<double>(out.size(), 0.0);
+    write_file_atomic((dir / "config.toml").string(), to_toml(cfg));
+    write_file_atomic((dir / "trajectory.csv").string(), trajectory_csv(out, opt.seed));
+    write_file_atomic((dir / "rates.csv").string(), rates_csv(out, opt.seed));
+    std::string users = "seed,user,x,y\n";
+    for (Eigen::Index k = 0; k < oracle->users().rows(); ++k)
+      users += fmt::format("{},{},{},{}\n", opt.seed, k, format_double(oracle->users()(k, 0)), format_double(oracle->users()(k, 1)));
+    write_file_atomic((dir / "users.csv").string(), users);
+    write_file_atomic((dir / "summary.csv").string(), summary_csv(out, opt.seed, secs));
+  }
+  return out;
+}
+
+std::string trajectory_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t seed) {
+  std::string s = "seed,planner,t,uav,x,y,action\n";
+  for (const auto& r : recs)
+    for (std::size_t t = 0; t < r.positions.size(); ++t)
+      for (Eigen::Index n = 0; n < r.positions[t].rows(); ++n)
+        s += fmt::format("{},{},{},{},{},{},{}\n", seed, r.planner, t + 1, n, format_double(r.positions[t](n, 0)),
+                         format_double(r.positions[t](n, 1)),
+                         t < r.actions.size() ? action_name(r.actions[t][static_cast<std::size_t>(n)]) : "END");
+  return s;
+}
+
+std::string rates_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t seed) {
+  std::string s = "seed,planner,t,sum_rate,avg_rate,reward,arrivals,boundary,collisions,feasibility\n";
+  for (const auto& r : recs) {
+    // Slot 1 is the start: no action led to it, so its reward columns are empty.
+    const double r1 = r.rates.front();
+    s += fmt::format("{},{},1,{},{},,,,,\n", seed, r.planner, format_double(r1), format_double(r1));
+    for (std::size_t t = 0; t < r.steps.size(); ++t) {
+      const auto& st = r.steps[t];
+      s += fmt::format("{},{},{},{},{},{},{},{},{},{}\n", seed, r.planner, t + 2, format_double(st.sum_rate),
+                       format_double(st.avg_rate), format_double(st.reward), st.arrivals, st.boundary, st.collisions,
+                       st.feasibility);
+    }
+  }
+  return s;
+}
+
+std::string summary_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t seed, const std::vector<double>& seconds) {
+  std::string s = "seed,planner,objective,T,success,arrivals,collisions,boundary_events,reward,seconds\n";
+  for (std::size_t i = 0; i < recs.size(); ++i) {
+    const auto& r = recs[i];
+    s += fmt::format("{},{},{},{},{},{},{},{},{},{}\n", seed, r.planner, format_double(r.objective), r.T, r.success ? 1 : 0,
+                     r.arrivals, r.collisions, r.boundary, format_double(r.reward),
+                     format_double(i < seconds.size() ? seconds[i] : 0.0));
+  }
+  return s;
+}
+
+std::string format_plan_summary(const std::vector<EpisodeRecord>& recs, const std::vector<double>& seconds) {
+  std::string s = fmt::format("{:<10} {:>10} {:>4} {:>9} {:>9} {:>11} {:>9} {:>10}\n", "planner", "objective", "T",
+                              "arrived", "collided", "boundary", "reward", "time (s)");
+  for (std::size_t i = 0; i < recs.size(); ++i) {
+    const auto& r = recs[i];
+    s += fmt::format("{:<10} {:>10.3f} {:>4} {:>9} {:>9} {:>11} {:>9.2f} {:>10.2f}\n", r.planner, r.objective, r.T,
+                     fmt::format("{}/{}", r.arrivals, r.positions.front().rows()), r.collisions, r.boundary, r.reward,
+                     i < seconds.size() ? seconds[i] : 0.0);
+  }
+  return s;
+}
+
+}  // namespace skyloop

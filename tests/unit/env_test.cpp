@@ -1,0 +1,286 @@
+// The trajectory environment, the rate oracle and the planners.
+#include <gtest/gtest.h>
+
+#include "skyloop/beamforming/linear.hpp"
+#include "skyloop/channel/rates.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/planning/planners.hpp"
+
+using namespace skyloop;
+
+namespace {
+
+std::shared_ptr<const Beamformer> zf_bf() { return std::make_shared<ZfBeamformer>(); }
+
+/// An environment with explicit starts, destinations, horizon and reward weights.
+std::unique_ptr<UavEnv> make_env(Config cfg, std::uint64_t seed = 1, std::shared_ptr<const Beamformer> bf = zf_bf()) {
+  auto oracle = std::make_shared<RateOracle>(cfg, std::move(bf), make_users(cfg, cfg.scenario.users, seed));
+  return std::make_unique<UavEnv>(cfg, oracle);
+}
+
+Config single(double sx, double sy, double dx, double dy, int t_max) {
+  Config c;
+  c.trajectory.starts = {{sx, sy}};
+  c.trajectory.destinations = {{dx, dy}};
+  c.trajectory.t_max = t_max;
+  c.env.w_rate = c.env.w_arr = c.env.w_bud = c.env.w_col = c.env.w_fea = 0;
+  return c;
+}
+
+}  // namespace
+
+TEST(Env, BoundariesAreNeverCrossedAndCounted) {
+  Config cfg;
+  auto env = make_env(cfg);
+  Rng rng(5);
+  int attempted = 0;
+  for (int episode = 0; episode < 20; ++episode) {
+    env->reset();
+    while (!env->done()) {
+      std::vector<int> a(3);
+      for (auto& x : a) x = static_cast<int>(rng.below(5));
+      for (int n = 0; n < 3; ++n) {
+        double nx, ny;
+        attempted += !env->arrived(n) && !env->move(env->positions()(n, 0), env->positions()(n, 1), a[n], nx, ny);
+      }
+      env->step(a);
+      const auto& p = env->positions();
+      ASSERT_TRUE((p.col(0).array() >= 0).all() && (p.col(0).array() <= 200).all());
+      ASSERT_TRUE((p.col(1).array() >= 0).all() && (p.col(1).array() <= 200).all());
+      for (int n = 0; n < 3; ++n)
+        for (float v : env->observation(n)) ASSERT_LE(std::abs(v), 1.0f);
+    }
+  }
+  EXPECT_GT(attempted, 0);
+}
+
+TEST(Env, BoundaryMoveIsCancelledAndPenalised) {
+  Config cfg = single(0, 20, 100, 20, 12);
+  cfg.env.w_bud = 5;
+  auto env = make_env(cfg);
+  const StepInfo s = env->step({kLeft});
+  EXPECT_EQ(s.boundary, 1);
+  EXPECT_DOUBLE_EQ(env->positions()(0, 0), 0.0);
+  EXPECT_DOUBLE_EQ(s.reward, -5.0);
+  EXPECT_EQ(env->total_boundary(), 1);
+}
+
+TEST(Env, ArrivalLocksAndMasks) {
+  Config cfg = single(80, 20, 100, 20, 6);
+  cfg.env.w_arr = 10;
+  auto env = make_env(cfg);
+  EXPECT_EQ(env->mask(0), 1);
+  const StepInfo s = env->step({kRight});
+  EXPECT_EQ(s.arrivals, 1);
+  EXPECT_TRUE(s.done);  // the only UAV is home: the episode ends, T = 2
+  EXPECT_TRUE(s.success);
+  EXPECT_DOUBLE_EQ(s.reward, 10.0);
+  EXPECT_TRUE(env->arrived(0));
+  EXPECT_EQ(env->mask(0), 0);
+  EXPECT_EQ(env->t(), 2);
+  EXPECT_THROW(env->step({kUp}), std::logic_error);
+
+  // Two UAVs: the arrived one ignores its actions (forced STAY) while the other flies on.
+  Config two;
+  two.trajectory.starts = {{80, 20}, {20, 180}};
+  two.trajectory.destinations = {{100, 20}, {20, 100}};
+  two.trajectory.t_max = 10;
+  two.env.w_rate = two.env.w_bud = two.env.w_col = two.env.w_fea = 0;
+  two.env.w_arr = 1;
+  auto e2 = make_env(two);
+  EXPECT_EQ(e2->step({kRight, kDown}).arrivals, 1);
+  const StepInfo s2 = e2->step({kUp, kDown});
+  EXPECT_EQ(s2.arrivals, 0);
+  EXPECT_DOUBLE_EQ(e2->positions()(0, 1), 20.0);  // did not move up
+  EXPECT_EQ(e2->mask(0), 0);
+  EXPECT_FALSE(e2->feasible(0, kUp));
+  EXPECT_TRUE(e2->feasible(0, kStay));
+  EXPECT_EQ(e2->total_arrivals(), 1);
+}
+
+TEST(Env, CollisionsAreCountedPerUav) {
+  Config cfg;
+  cfg.trajectory.starts = {{60, 100}, {100, 100}, {180, 20}};
+  cfg.trajectory.destinations = {{100, 180}, {60, 180}, {180, 180}};
+  cfg.trajectory.t_max = 20;
+  cfg.env.w_rate = cfg.env.w_arr = cfg.env.w_bud = cfg.env.w_fea = 0;
+  cfg.env.w_col = 10;
+  auto env = make_env(cfg);
+  const StepInfo s = env->step({kRight, kStay, kStay});  // 20 m apart < D_min = 25 m
+  EXPECT_EQ(s.collisions, 2);
+  EXPECT_DOUBLE_EQ(s.reward, -20.0);
+  const StepInfo t = env->step({kUp, kStay, kStay});  // diagonal: 28.3 m, no collision
+  EXPECT_EQ(t.collisions, 0);
+}
+
+TEST(Env, RateTermIsTheCumulativeAverage) {
+  Config cfg = single(20, 20, 100, 20, 12);
+  cfg.env.w_rate = 1;
+  auto env = make_env(cfg);
+  const double r1 = env->rates().front();
+  const StepInfo s = env->step({kRight});
+  Positions p(1, 2);
+  p << 40, 20;
+  EXPECT_DOUBLE_EQ(s.sum_rate, env->oracle().sum_rate(p));
+  EXPECT_DOUBLE_EQ(s.avg_rate, (r1 + s.sum_rate) / 2);
+  EXPECT_DOUBLE_EQ(s.reward, s.avg_rate);
+  EXPECT_DOUBLE_EQ(env->objective(), (r1 + s.sum_rate) / 2);
+}
+
+TEST(Env, ReachabilityIndicatorFourCases) {
+  // Destination 4 moves east; T_max = 10: plenty of time.
+  Config roomy = single(20, 20, 100, 20, 10);
+  roomy.env.w_fea = 1;
+  auto a = make_env(roomy);
+  EXPECT_EQ(a->step({kRight}).feasibility, +1);  // feasible and approaching
+  EXPECT_EQ(a->step({kLeft}).feasibility, -1);   // feasible but moving away
+  // T_max = 5: exactly enough at the start (4 moves in slots 1..5).
+  Config tight = single(20, 20, 100, 20, 5);
+  tight.env.w_fea = 1;
+  auto b = make_env(tight);
+  EXPECT_EQ(b->step({kStay}).feasibility, -1);   // t = 2: T_min 4 > T_res 3 (infeasible, not farther)
+  EXPECT_EQ(b->step({kRight}).feasibility, -1);  // infeasible although approaching (3 > 2)
+  auto c = make_env(tight);
+  c->step({kStay});
+  EXPECT_EQ(c->step({kLeft}).feasibility, -1);   // infeasible and moving away
+  auto d = make_env(tight);
+  EXPECT_EQ(d->step({kRight}).feasibility, +1);  // on schedule: T_min 3 <= T_res 3
+  EXPECT_DOUBLE_EQ(d->step({kRight}).reward, 1.0);
+}
+
+TEST(Env, UsersAreSeededAndEpisodesDeterministic) {
+  Config cfg;
+  auto a = make_env(cfg, 7), b = make_env(cfg, 7), c = make_env(cfg, 8);
+  EXPECT_EQ(a->oracle().users(), b->oracle().users());
+  EXPECT_NE(a->oracle().users(), c->oracle().users());
+  RandomPlanner pa(3), pb(3);
+  const auto ra = run_episode(*a, pa), rb = run_episode(*b, pb);
+  EXPECT_EQ(ra.rates, rb.rates);
+  EXPECT_EQ(ra.actions, rb.actions);
+  RandomPlanner pc(3);
+  EXPECT_NE(run_episode(*c, pc).rates, ra.rates);
+}
+
+TEST(Env, CacheNeverChangesAValue) {
+  Config cfg;
+  auto bf = zf_bf();
+  const Positions users = make_users(cfg, 12, 4);
+  RateOracle cached(cfg, bf, users);
+  SystemModel model(cfg);
+  Rng rng(9);
+  for (int i = 0; i < 200; ++i) {
+    Positions p(3, 2);
+    for (int n = 0; n < 3; ++n) p(n, 0) = 20.0 * static_cast<double>(rng.below(11)), p(n, 1) = 20.0 * static_cast<double>(rng.below(11));
+    const double cold = cached.sum_rate(p);
+    const double warm = cached.sum_rate(p);
+    double direct = 0;
+    for (const auto& c : model.clusters(Snapshot{p, users})) direct += sum_rate(c, bf->design(c));
+    ASSERT_EQ(cold, warm);
+    ASSERT_EQ(cold, direct);
+  }
+  EXPECT_GT(cached.stats().hits, 0u);
+  EXPECT_GT(cached.stats().misses, 0u);
+  EXPECT_GT(cached.stats().hit_rate(), 0.0);
+}
+
+TEST(Env, VectorEnvMatchesSingleEnvs) {
+  Config cfg;
+  VecEnv vec(cfg, zf_bf(), 4, 11);
+  std::vector<std::unique_ptr<UavEnv>> single;
+  for (int i = 0; i < 4; ++i) single.push_back(make_env(cfg, derive_seed(11, static_cast<std::uint64_t>(i))));
+  Rng rng(2);
+  for (int step = 0; step < 30; ++step) {
+    std::vector<std::vector<int>> actions(4, std::vector<int>(3));
+    for (auto& a : actions)
+      for (auto& x : a) x = static_cast<int>(rng.below(5));
+    const auto infos = vec.step(actions);
+    for (int i = 0; i < 4; ++i) {
+      const StepInfo s = single[static_cast<std::size_t>(i)]->step(actions[static_cast<std::size_t>(i)]);
+      EXPECT_EQ(s.reward, infos[static_cast<std::size_t>(i)].reward);
+      EXPECT_EQ(s.sum_rate, infos[static_cast<std::size_t>(i)].sum_rate);
+      if (s.done) single[static_cast<std::size_t>(i)]->reset();
+    }
+  }
+}
+
+TEST(Planners, RandomAndGreedyRespectTheMasks) {
+  Config cfg;
+  auto env = make_env(cfg, 3);
+  for (int seed = 0; seed < 5; ++seed) {
+    RandomPlanner random(static_cast<std::uint64_t>(seed));
+    const auto r = run_episode(*env, random);
+    EXPECT_TRUE(r.success) << "the reachability mask always brings the UAVs home";
+    EXPECT_EQ(r.boundary, 0);
+  }
+  GreedyPlanner greedy;
+  const auto g = run_episode(*env, greedy);
+  EXPECT_TRUE(g.success);
+  EXPECT_EQ(g.boundary, 0);
+}
+
+TEST(Planners, OptimumEqualsBruteForceOnTinyGrids) {
+  for (std::uint64_t seed : {1u, 2u, 3u}) {
+    Config cfg;
+    cfg.scenario.area_x_m = 60;
+    cfg.scenario.area_y_m = 40;
+    cfg.scenario.users = 5;
+    cfg.trajectory.starts = {{0, 0}, {60, 40}};
+    cfg.trajectory.destinations = {{40, 0}, {20, 40}};
+    cfg.trajectory.t_max = 5;
+    auto env = make_env(cfg, seed);
+    const OptimalPlan plan = solve_optimal(*env);
+    const double brute = brute_force_optimum(*env);
+    EXPECT_NEAR(plan.objective, brute, 1e-9 * brute) << "seed " << seed;
+    // Replaying the plan in the environment gives the same objective, home, collision-free.
+    OptimalPlanner optimal;
+    const auto r = run_episode(*env, optimal);
+    EXPECT_NEAR(r.objective, plan.objective, 1e-12 * brute);
+    EXPECT_TRUE(r.success);
+    EXPECT_EQ(r.collisions, 0);
+  }
+  // One UAV with slack: T is free (the best average may come home early or late).
+  Config one = single(0, 0, 40, 0, 6);
+  one.scenario.area_x_m = 60;
+  one.scenario.area_y_m = 40;
+  one.scenario.users = 4;
+  auto env = make_env(one, 4);
+  EXPECT_NEAR(solve_optimal(*env).objective, brute_force_optimum(*env), 1e-9);
+}
+
+TEST(Planners, OptimumIsAtLeastEveryOtherPlanner) {
+  Config cfg;
+  cfg.scenario.area_x_m = 120;
+  cfg.scenario.area_y_m = 120;
+  cfg.trajectory.starts = {{0, 0}, {0, 120}, {120, 120}};
+  cfg.trajectory.destinations = {{120, 60}, {120, 0}, {0, 60}};
+  cfg.trajectory.t_max = 14;
+  for (std::uint64_t seed : {1u, 2u}) {
+    auto env = make_env(cfg, seed);
+    OptimalPlanner optimal;
+    GreedyPlanner greedy;
+    const auto o = run_episode(*env, optimal);
+    const auto g = run_episode(*env, greedy);
+    EXPECT_TRUE(o.success);
+    EXPECT_EQ(o.collisions, 0);
+    EXPECT_GE(o.objective, g.objective - 1e-12);
+    for (std::uint64_t s = 0; s < 5; ++s) {
+      RandomPlanner random(s);
+      const auto r = run_episode(*env, random);
+      if (r.collisions == 0) {
+        EXPECT_GE(o.objective, r.objective - 1e-12);
+      }
+    }
+  }
+}
+
+TEST(Planners, OffGridStartsAreRejected) {
+  Config cfg;
+  cfg.trajectory.starts = {{20, 20}, {25, 180}, {180, 180}};
+  auto env = make_env(cfg);
+  try {
+    solve_optimal(*env);
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("trajectory.starts[1]"), std::string::npos) << e.what();
+  }
+}

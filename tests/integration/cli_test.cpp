@@ -206,3 +206,35 @@ TEST(Cli, LearnedInputErrors) {
     EXPECT_EQ(lines(r.err), 1) << args << "\n" << r.err;
   }
 }
+
+TEST(Cli, PlanWritesTrajectoriesRatesAndSummary) {
+  const std::string dir = tmpdir("plan");
+  // A small area keeps the optimum fast; the oracle is ZF (no model needed).
+  const std::string small =
+      " --set scenario.area_x_m=120 --set scenario.area_y_m=120 --set trajectory.starts=[[0,0],[0,120],[120,120]]"
+      " --set trajectory.destinations=[[120,60],[120,0],[0,60]] --set trajectory.t_max=14 --oracle zf";
+  const auto r = run("plan --planner random,greedy,optimal --users 8 --seed 3 --out " + dir + small);
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* p : {"random", "greedy", "optimal"}) EXPECT_NE(r.out.find(p), std::string::npos) << p;
+  for (const char* f : {"trajectory.csv", "rates.csv", "summary.csv", "users.csv", "config.toml"})
+    EXPECT_TRUE(std::filesystem::exists(dir + "/" + f)) << f;
+  const std::string traj = slurp(dir + "/trajectory.csv");
+  EXPECT_EQ(traj.rfind("seed,planner,t,uav,x,y,action\n", 0), 0u);
+  EXPECT_NE(traj.find("3,optimal,1,0,0,0,"), std::string::npos);
+  EXPECT_EQ(lines(slurp(dir + "/summary.csv")), 4);
+  // Same seed, same files.
+  const std::string dir2 = tmpdir("plan2");
+  ASSERT_EQ(run("plan --planner random,greedy,optimal --users 8 --seed 3 --out " + dir2 + small).code, 0);
+  EXPECT_EQ(slurp(dir2 + "/trajectory.csv"), traj);
+}
+
+TEST(Cli, PlanInputErrors) {
+  for (const std::string& args : std::vector<std::string>{
+           "plan --planner astar --oracle zf", "plan --set trajectory.t_max=5 --oracle zf",
+           "plan --set trajectory.starts=[[20,20],[25,180],[180,180]] --planner optimal --oracle zf",
+           "plan --set env.w_col=-1"}) {
+    const auto r = run(args);
+    EXPECT_EQ(r.code, 2) << args << "\n" << r.err;
+    EXPECT_EQ(lines(r.err), 1) << args << "\n" << r.err;
+  }
+}

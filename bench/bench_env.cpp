@@ -1,0 +1,108 @@
+// Environment throughput on the paper scenario (3 UAVs, K = 12, T_max = 24) with the shipped GNN
+// as the rate oracle, and the exact optimum's solve time. One torch thread.
+#include <benchmark/benchmark.h>
+
+#include <filesystem>
+
+#include "skyloop/experiments/builtin.hpp"
+#include "skyloop/nn/learned.hpp"
+#include "skyloop/planning/planners.hpp"
+
+using namespace skyloop;
+
+namespace {
+std::shared_ptr<const Beamformer> oracle_beamformer(const std::string& name) {
+  set_torch_threads(1);
+  return builtin_beamformers().create(name, Config{});
+}
+
+/// Steps with uniformly random actions (boundary moves included), resetting finished episodes.
+void steps(benchmark::State& state, UavEnv& env, const std::vector<std::vector<int>>& actions) {
+  std::size_t i = 0;
+  std::int64_t n = 0;
+  for (auto _ : state) {
+    if (env.done()) env.reset();
+    benchmark::DoNotOptimize(env.step(actions[i++ % actions.size()]));
+    ++n;
+  }
+  state.SetItemsProcessed(n);  // environment steps per second
+}
+
+std::vector<std::vector<int>> random_actions() {
+  Rng rng(1);
+  std::vector<std::vector<int>> a(4096, std::vector<int>(3));
+  for (auto& x : a)
+    for (auto& y : x) y = static_cast<int>(rng.below(kActions));
+  return a;
+}
+}  // namespace
+
+// Warm cache: the oracle has seen the whole 11 x 11 grid for these users.
+static void BM_EnvStepWarm(benchmark::State& state) {
+  const Config cfg;
+  auto oracle = std::make_shared<RateOracle>(cfg, oracle_beamformer("gnn"), make_users(cfg, 12, 3));
+  UavEnv env(cfg, oracle);
+  {  // warm every joint position the random walk can reach
+    solve_optimal(env);
+  }
+  steps(state, env, random_actions());
+  state.counters["hit_rate"] = oracle->stats().hit_rate();
+}
+BENCHMARK(BM_EnvStepWarm)->Unit(benchmark::kMicrosecond);
+
+// Cold cache: a new oracle (new users) every 24 steps, so most cluster rates are GNN calls.
+static void BM_EnvStepCold(benchmark::State& state) {
+  const Config cfg;
+  const auto bf = oracle_beamformer("gnn");
+  const auto actions = random_actions();
+  std::uint64_t users_seed = 100;
+  std::unique_ptr<UavEnv> env;
+  std::size_t i = 0;
+  std::int64_t n = 0;
+  for (auto _ : state) {
+    if (!env || env->done()) {
+      state.PauseTiming();
+      env = std::make_unique<UavEnv>(cfg, std::make_shared<RateOracle>(cfg, bf, make_users(cfg, 12, users_seed++)));
+      state.ResumeTiming();
+    }
+    benchmark::DoNotOptimize(env->step(actions[i++ % actions.size()]));
+    ++n;
+  }
+  state.SetItemsProcessed(n);
+}
+BENCHMARK(BM_EnvStepCold)->Unit(benchmark::kMicrosecond);
+
+// Vector environment: M environments per batched step (cache misses of all in one GNN call).
+static void BM_VecEnvStep(benchmark::State& state) {
+  const Config cfg;
+  const int m = static_cast<int>(state.range(0));
+  VecEnv vec(cfg, oracle_beamformer("gnn"), m, 5);
+  const auto actions = random_actions();
+  std::size_t i = 0;
+  for (auto _ : state) {
+    std::vector<std::vector<int>> a(static_cast<std::size_t>(m));
+    for (auto& x : a) x = actions[i++ % actions.size()];
+    benchmark::DoNotOptimize(vec.step(a));
+  }
+  state.SetItemsProcessed(state.iterations() * m);
+}
+BENCHMARK(BM_VecEnvStep)->Arg(16)->Arg(64)->ArgName("envs")->Unit(benchmark::kMicrosecond);
+
+// The exact optimum on the paper scenario (K = 12, users seed 3), oracle cold at the start.
+static void BM_OptimalPaper(benchmark::State& state) {
+  const Config cfg;
+  const auto bf = oracle_beamformer(state.range(0) == 0 ? "gnn" : "wmmse");
+  double objective = 0, mem = 0;
+  for (auto _ : state) {
+    auto oracle = std::make_shared<RateOracle>(cfg, bf, make_users(cfg, 12, 3));
+    UavEnv env(cfg, oracle);
+    const auto plan = solve_optimal(env);
+    objective = plan.objective;
+    mem = static_cast<double>(plan.memory_bytes);
+  }
+  state.counters["objective"] = objective;
+  state.counters["table_MiB"] = mem / (1024.0 * 1024.0);
+}
+BENCHMARK(BM_OptimalPaper)->Arg(0)->Arg(1)->ArgName("wmmse")->Unit(benchmark::kSecond)->Iterations(1);
+
+BENCHMARK_MAIN();

@@ -150,9 +150,8 @@ std::vector<Field> make_fields() {
   f.push_back(text("nn.readout", "per-user output: direct = 2L reals (the paper), structured = (lambda, power) of the optimal structure",
                    {"direct", "structured"}, [](Config& c) -> std::string& { return c.nn.readout; }));
   // [env]
-  f.push_back(text("env.oracle", "beamformer behind the environment's sum rate R[t]",
-                   {"gnn", "deepsets", "mspointnet", "wmmse", "zfsel", "zf", "rzf", "mrt"},
-                   [](Config& c) -> std::string& { return c.env.oracle; }));
+  f.push_back(text("env.oracle", "beamformer spec behind the environment's sum rate R[t] (gnn, wmmse, gnn=DIR, ...)",
+                   {}, [](Config& c) -> std::string& { return c.env.oracle; }));
   f.push_back(real("env.w_rate", "reward weight of the cumulative average sum rate", 0, 1e6, [](Config& c) -> double& { return c.env.w_rate; }));
   f.push_back(real("env.w_arr", "reward per newly arrived UAV", 0, 1e6, [](Config& c) -> double& { return c.env.w_arr; }));
   f.push_back(real("env.w_bud", "penalty per boundary event", 0, 1e6, [](Config& c) -> double& { return c.env.w_bud; }));

@@ -21,7 +21,12 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
     else if (p == "optimal") planners.push_back(std::make_unique<OptimalPlanner>(progress));
     else throw InputError("--planner '" + p + "' is unknown: allowed random, greedy, optimal");
   }
-  std::shared_ptr<const Beamformer> bf = registry.create(cfg.env.oracle, cfg);
+  std::shared_ptr<const Beamformer> bf;
+  try {
+    bf = registry.create(cfg.env.oracle, cfg);
+  } catch (const InputError& e) {
+    throw InputError("env.oracle = \"" + cfg.env.oracle + "\": " + e.what());
+  }
   auto oracle = std::make_shared<RateOracle>(cfg, bf, make_users(cfg, cfg.scenario.users, opt.seed));
   UavEnv env(cfg, oracle);
   std::vector<EpisodeRecord> out;

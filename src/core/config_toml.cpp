@@ -146,6 +146,20 @@ Config resolve_config(const std::optional<std::string>& path, const std::vector<
   return cfg;
 }
 
+Positions positions_in_area(const std::vector<Point2>& pts, const Config& cfg, const std::string& what) {
+  Positions p(static_cast<Eigen::Index>(pts.size()), 2);
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    const auto [x, y] = pts[i];
+    if (x < 0 || x > cfg.scenario.area_x_m || y < 0 || y > cfg.scenario.area_y_m)
+      throw InputError(what + "[" + std::to_string(i) + "] = [" + format_double(x) + ", " + format_double(y) +
+                       "] is outside the area: allowed x in [0, " + format_double(cfg.scenario.area_x_m) + "], y in [0, " +
+                       format_double(cfg.scenario.area_y_m) + "]");
+    p(static_cast<Eigen::Index>(i), 0) = x;
+    p(static_cast<Eigen::Index>(i), 1) = y;
+  }
+  return p;
+}
+
 std::string to_toml(const Config& cfg) {
   std::ostringstream out;
   std::string section;

@@ -18,16 +18,7 @@ const char* action_name(int a) {
 Positions make_users(const Config& cfg, int users, std::uint64_t seed) {
   if (!cfg.env.users_file.empty()) {
     const auto lists = read_point_lists(read_file(cfg.env.users_file, "env.users_file"), cfg.env.users_file, {"users"});
-    Positions p(static_cast<Eigen::Index>(lists[0].size()), 2);
-    for (std::size_t i = 0; i < lists[0].size(); ++i) {
-      const auto [x, y] = lists[0][i];
-      if (x < 0 || x > cfg.scenario.area_x_m || y < 0 || y > cfg.scenario.area_y_m)
-        throw InputError(cfg.env.users_file + ": users[" + std::to_string(i) + "] = [" + format_double(x) + ", " +
-                         format_double(y) + "] is outside the area");
-      p(static_cast<Eigen::Index>(i), 0) = x;
-      p(static_cast<Eigen::Index>(i), 1) = y;
-    }
-    return p;
+    return positions_in_area(lists[0], cfg, cfg.env.users_file + ": users");
   }
   Rng rng(seed);
   Positions p(users, 2);
@@ -36,11 +27,6 @@ Positions make_users(const Config& cfg, int users, std::uint64_t seed) {
 }
 
 namespace {
-Positions to_positions(const std::vector<Point2>& pts) {
-  Positions p(static_cast<Eigen::Index>(pts.size()), 2);
-  for (std::size_t i = 0; i < pts.size(); ++i) p(static_cast<Eigen::Index>(i), 0) = pts[i].x, p(static_cast<Eigen::Index>(i), 1) = pts[i].y;
-  return p;
-}
 bool same(double a, double b) { return std::abs(a - b) < 1e-6; }
 }  // namespace
 
@@ -56,8 +42,8 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       w_bud_(cfg.env.w_bud),
       w_col_(cfg.env.w_col),
       w_fea_(cfg.env.w_fea),
-      start_(to_positions(cfg.trajectory.starts)),
-      dest_(to_positions(cfg.trajectory.destinations)),
+      start_(positions_in_area(cfg.trajectory.starts, cfg, "trajectory.starts")),
+      dest_(positions_in_area(cfg.trajectory.destinations, cfg, "trajectory.destinations")),
       oracle_(std::move(oracle)) {
   for (int n = 0; n < n_; ++n)
     if (min_moves(n, start_(n, 0), start_(n, 1)) > t_max_ - 1)

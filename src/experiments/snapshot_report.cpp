@@ -13,20 +13,7 @@ namespace skyloop {
 
 Snapshot load_scenario_file(const std::string& path, const Config& cfg) {
   const auto lists = read_point_lists(read_file(path, "scenario file"), path, {"uavs", "users"});
-  auto to_positions = [&](const std::vector<Point2>& pts, const char* key) {
-    Positions p(static_cast<Eigen::Index>(pts.size()), 2);
-    for (std::size_t i = 0; i < pts.size(); ++i) {
-      const auto [x, y] = pts[i];
-      if (x < 0 || x > cfg.scenario.area_x_m || y < 0 || y > cfg.scenario.area_y_m)
-        throw InputError(path + ": " + key + "[" + std::to_string(i) + "] = [" + format_double(x) + ", " +
-                         format_double(y) + "] is outside the area: allowed x in [0, " +
-                         format_double(cfg.scenario.area_x_m) + "], y in [0, " + format_double(cfg.scenario.area_y_m) + "]");
-      p(static_cast<Eigen::Index>(i), 0) = x;
-      p(static_cast<Eigen::Index>(i), 1) = y;
-    }
-    return p;
-  };
-  return Snapshot{to_positions(lists[0], "uavs"), to_positions(lists[1], "users")};
+  return Snapshot{positions_in_area(lists[0], cfg, path + ": uavs"), positions_in_area(lists[1], cfg, path + ": users")};
 }
 
 SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Beamformer& bf) {

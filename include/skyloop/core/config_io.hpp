@@ -27,6 +27,10 @@ Config resolve_config(const std::optional<std::string>& path, const std::vector<
 std::vector<std::vector<Point2>> read_point_lists(const std::string& toml_text, const std::string& source,
                                                   const std::vector<std::string>& allowed);
 
+/// Points as Positions [n x 2], each checked to lie in the configured area; an outside point throws
+/// InputError "<what>[i] = [x, y] is outside the area: allowed x in [0, ..], y in [0, ..]".
+Positions positions_in_area(const std::vector<Point2>& pts, const Config& cfg, const std::string& what);
+
 /// The whole configuration as TOML, one commented line per field; apply_toml() reads it back
 /// to the same Config.
 std::string to_toml(const Config& cfg);

@@ -31,6 +31,9 @@ int main(int argc, char** argv) {
   cli::add_snapshot_command(app, action);
   cli::add_config_command(app, action);
   cli::add_plan_command(app, action);
+#ifdef SKYLOOP_HAS_TORCH
+  cli::add_marl_commands(app, action);
+#endif
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -149,6 +149,41 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.nn.grad_clip; }));
   f.push_back(text("nn.readout", "per-user output: direct = 2L reals (the paper), structured = (lambda, power) of the optimal structure",
                    {"direct", "structured"}, [](Config& c) -> std::string& { return c.nn.readout; }));
+  // [marl]
+  f.push_back(text("marl.algo", "multi-agent learner", {"mappo", "ippo", "vdn", "qmix"},
+                   [](Config& c) -> std::string& { return c.marl.algo; }));
+  f.push_back(integer("marl.total_steps", "environment steps of a training run", 1, 1e12,
+                      [](Config& c) -> std::int64_t& { return c.marl.total_steps; }));
+  f.push_back(integer("marl.envs", "parallel environments", 1, 4096, [](Config& c) -> int& { return c.marl.envs; }));
+  f.push_back(integer("marl.users_seed", "seed of the scenario's users", 0, 4611686018427387904.0,
+                      [](Config& c) -> std::uint64_t& { return c.marl.users_seed; }));
+  f.push_back(integer("marl.hidden", "width of the actor, critic and Q networks", 4, 4096, [](Config& c) -> int& { return c.marl.hidden; }));
+  f.push_back(real("marl.learning_rate", "Adam learning rate", 1e-8, 1, [](Config& c) -> double& { return c.marl.learning_rate; }));
+  f.push_back(real("marl.gamma", "discount factor", 0, 1, [](Config& c) -> double& { return c.marl.gamma; }));
+  f.push_back(real("marl.gae_lambda", "GAE lambda", 0, 1, [](Config& c) -> double& { return c.marl.gae_lambda; }));
+  f.push_back(real("marl.clip", "PPO clip epsilon", 0, 1, [](Config& c) -> double& { return c.marl.clip; }));
+  f.push_back(real("marl.value_coef", "value loss coefficient c1", 0, 1e3, [](Config& c) -> double& { return c.marl.value_coef; }));
+  f.push_back(real("marl.entropy_coef", "entropy coefficient c2", 0, 1e3, [](Config& c) -> double& { return c.marl.entropy_coef; }));
+  f.push_back(integer("marl.rollout", "steps per environment between PPO updates", 1, 1e6, [](Config& c) -> int& { return c.marl.rollout; }));
+  f.push_back(integer("marl.minibatches", "PPO mini-batches per epoch", 1, 4096, [](Config& c) -> int& { return c.marl.minibatches; }));
+  f.push_back(integer("marl.epochs", "PPO epochs per update", 1, 1000, [](Config& c) -> int& { return c.marl.epochs; }));
+  f.push_back(text("marl.critic_state", "MAPPO critic input: global state or agent-specific state", {"global", "agent"},
+                   [](Config& c) -> std::string& { return c.marl.critic_state; }));
+  {
+    Field b{"marl.value_norm", Type::Boolean, "normalise value targets with running mean and variance", 0, 0, {}, {}, {}};
+    b.get = [](const Config& c) { return FieldValue(c.marl.value_norm); };
+    b.set = [](Config& c, const FieldValue& v) { c.marl.value_norm = std::get<bool>(v); };
+    f.push_back(std::move(b));
+  }
+  f.push_back(real("marl.grad_clip", "max global gradient norm (0 = off)", 0, 1e6, [](Config& c) -> double& { return c.marl.grad_clip; }));
+  f.push_back(integer("marl.buffer_episodes", "VDN/QMIX episode replay buffer size", 1, 1e7, [](Config& c) -> int& { return c.marl.buffer_episodes; }));
+  f.push_back(integer("marl.batch_episodes", "VDN/QMIX episodes per gradient step", 1, 1e5, [](Config& c) -> int& { return c.marl.batch_episodes; }));
+  f.push_back(real("marl.epsilon_start", "initial exploration rate", 0, 1, [](Config& c) -> double& { return c.marl.epsilon_start; }));
+  f.push_back(real("marl.epsilon_end", "final exploration rate", 0, 1, [](Config& c) -> double& { return c.marl.epsilon_end; }));
+  f.push_back(real("marl.epsilon_anneal", "fraction of total_steps to anneal epsilon over", 0, 1, [](Config& c) -> double& { return c.marl.epsilon_anneal; }));
+  f.push_back(integer("marl.target_update", "gradient steps between target-network copies", 1, 1e7, [](Config& c) -> int& { return c.marl.target_update; }));
+  f.push_back(integer("marl.mixer_embed", "QMIX mixing-network width", 1, 4096, [](Config& c) -> int& { return c.marl.mixer_embed; }));
+  f.push_back(integer("marl.checkpoint_every", "updates between checkpoints", 1, 1e7, [](Config& c) -> int& { return c.marl.checkpoint_every; }));
   // [env]
   f.push_back(text("env.oracle", "beamformer spec behind the environment's sum rate R[t] (gnn, wmmse, gnn=DIR, ...)",
                    {}, [](Config& c) -> std::string& { return c.env.oracle; }));

@@ -77,6 +77,7 @@ void UavEnv::reset() {
   rate_sum_ = r;
   done_ = all;
   tot_arr_ = tot_bud_ = tot_col_ = 0;
+  tot_reward_ = 0;
 }
 
 bool UavEnv::move(double x, double y, int a, double& nx, double& ny) const {
@@ -168,6 +169,14 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
   tot_arr_ += info.arrivals;
   tot_bud_ += info.boundary;
   tot_col_ += info.collisions;
+  tot_reward_ += info.reward;
+  info.objective = objective();
+  info.T = t_;
+  info.home = 0;
+  for (int n = 0; n < n_; ++n) info.home += arrived(n);
+  info.episode_collisions = tot_col_;
+  info.episode_boundary = tot_bud_;
+  info.episode_reward = tot_reward_;
 }
 
 int UavEnv::feasibility_indicator(int n, double x, double y, int t) {
@@ -233,9 +242,14 @@ VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, 
   }
 }
 
+VecEnv::VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count)
+    : cfg_(cfg), seed_(0), episodes_(static_cast<std::size_t>(count), 0), shared_(true) {
+  for (int i = 0; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(cfg_, oracle));
+}
+
 void VecEnv::reset_env(std::size_t i) {
   ++episodes_[i];
-  if (cfg_.env.resample_users && cfg_.env.users_file.empty()) {
+  if (!shared_ && cfg_.env.resample_users && cfg_.env.users_file.empty()) {
     auto oracle = std::make_shared<RateOracle>(
         cfg_, beamformer_, make_users(cfg_, cfg_.scenario.users, derive_seed(seed_, i, episodes_[i])));
     envs_[i]->set_oracle(std::move(oracle));

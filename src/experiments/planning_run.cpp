@@ -13,14 +13,15 @@ namespace skyloop {
 
 std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& opt, const BeamformerRegistry& registry,
                                         std::ostream* progress, std::vector<double>* seconds) {
-  if (opt.planners.empty()) throw InputError("--planner is empty: allowed random, greedy, optimal");
-  std::vector<std::unique_ptr<Planner>> planners;
+  if (opt.planners.empty() && opt.extra.empty()) throw InputError("--planner is empty: allowed random, greedy, optimal");
+  std::vector<std::shared_ptr<Planner>> planners;
   for (const auto& p : opt.planners) {
-    if (p == "random") planners.push_back(std::make_unique<RandomPlanner>(derive_seed(opt.seed, 0x52414e44ULL)));
-    else if (p == "greedy") planners.push_back(std::make_unique<GreedyPlanner>());
-    else if (p == "optimal") planners.push_back(std::make_unique<OptimalPlanner>(progress));
+    if (p == "random") planners.push_back(std::make_shared<RandomPlanner>(derive_seed(opt.seed, 0x52414e44ULL)));
+    else if (p == "greedy") planners.push_back(std::make_shared<GreedyPlanner>());
+    else if (p == "optimal") planners.push_back(std::make_shared<OptimalPlanner>(progress));
     else throw InputError("--planner '" + p + "' is unknown: allowed random, greedy, optimal");
   }
+  planners.insert(planners.end(), opt.extra.begin(), opt.extra.end());
   std::shared_ptr<const Beamformer> bf;
   try {
     bf = registry.create(cfg.env.oracle, cfg);

@@ -86,6 +86,35 @@ struct EnvConfig {                  // [env] the trajectory environment (Section
   std::string users_file;           // TOML with users = [[x, y], ...]; empty = uniform from the seed
 };
 
+struct MarlConfig {                 // [marl] trajectory learning (Section V, VI-C)
+  std::string algo = "mappo";       // mappo | ippo | vdn | qmix
+  std::int64_t total_steps = 2000000;  // environment steps (all environments together)
+  int envs = 8;                     // parallel environments (VecEnv, one shared scenario)
+  std::uint64_t users_seed = 3;     // the scenario's users (as `skyloop plan --seed`)
+  int hidden = 64;                  // actor / critic / Q-network width (2 hidden layers)
+  double learning_rate = 3e-4;      // Adam (PPO); the value-decomposition methods use it too
+  double gamma = 0.99;
+  double gae_lambda = 0.95;
+  double clip = 0.2;                // PPO ratio clip epsilon (also the value clip)
+  double value_coef = 0.5;          // c1
+  double entropy_coef = 0.01;       // c2
+  int rollout = 256;                // steps per environment between updates
+  int minibatches = 4;
+  int epochs = 10;
+  std::string critic_state = "agent";  // mappo critic input: global (s[t]) | agent (s[t] + id + o_n)
+  bool value_norm = true;           // normalise value targets with running statistics
+  double grad_clip = 10.0;          // max global gradient norm (0 = off)
+  // value decomposition (VDN / QMIX)
+  int buffer_episodes = 5000;       // episode replay buffer
+  int batch_episodes = 32;
+  double epsilon_start = 1.0;
+  double epsilon_end = 0.05;
+  double epsilon_anneal = 0.25;     // fraction of total_steps over which epsilon anneals linearly
+  int target_update = 200;          // gradient steps between target-network copies
+  int mixer_embed = 32;             // QMIX mixing-network width
+  int checkpoint_every = 50;        // updates between checkpoints
+};
+
 struct NnConfig {                   // [nn] learned beamformers (Section IV and its baselines)
   std::string model = "gnn";        // gnn | deepsets | mspointnet
   int hidden = 128;                 // d_gnn (GNN embedding size); baselines use 2x, see README
@@ -113,6 +142,7 @@ struct Config {
   TrajectoryConfig trajectory;
   NnConfig nn;
   EnvConfig env;
+  MarlConfig marl;
 };
 
 std::string to_string(PowerScaling s);

@@ -40,6 +40,10 @@ struct StepInfo {
   int feasibility = 0;       // sum_n Phi_n
   bool done = false;
   bool success = false;      // every UAV arrived
+  // Episode so far (final values when done): P2.2 objective, slots, UAVs home, totals.
+  double objective = 0;
+  int T = 0, home = 0, episode_collisions = 0, episode_boundary = 0;
+  double episode_reward = 0;
 };
 
 /// Users of an environment: from env.users_file if set, else K uniform users from `seed`.
@@ -123,6 +127,7 @@ class UavEnv {
   int t_ = 1;
   bool done_ = false;
   int tot_arr_ = 0, tot_bud_ = 0, tot_col_ = 0;
+  double tot_reward_ = 0;
 };
 
 /// M environments stepped as one batch: every environment's R[t] in one batched oracle call.
@@ -131,6 +136,8 @@ class UavEnv {
 class VecEnv {
  public:
   VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed);
+  /// M environments on one scenario: they share `oracle` (its users and its cache).
+  VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count);
   int size() const { return static_cast<int>(envs_.size()); }
   UavEnv& env(int i) { return *envs_[static_cast<std::size_t>(i)]; }
   /// actions[i] = joint action of environment i. Finished environments are reset automatically
@@ -145,6 +152,7 @@ class VecEnv {
   std::uint64_t seed_;
   std::vector<std::unique_ptr<UavEnv>> envs_;
   std::vector<std::uint64_t> episodes_;
+  bool shared_ = false;
 };
 
 }  // namespace skyloop

@@ -13,6 +13,7 @@ struct PlanOptions {
   std::vector<std::string> planners;  // random | greedy | optimal
   std::uint64_t seed = 3;             // users (and the random planner) come from this seed
   std::string out_dir;                // trajectory.csv, rates.csv, summary.csv, config.toml
+  std::vector<std::shared_ptr<Planner>> extra;  // further planners (e.g. trained policies), run after `planners`
 };
 
 /// Runs each planner on the same users and oracle; writes the files; returns the records.

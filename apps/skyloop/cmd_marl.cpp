@@ -1,0 +1,95 @@
+// `skyloop train` (MAPPO, IPPO, VDN, QMIX) and `skyloop eval --policy DIR`.
+#include <fmt/format.h>
+#include <iostream>
+
+#include "common.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+#include "skyloop/experiments/builtin.hpp"
+#include "skyloop/experiments/planning_run.hpp"
+#include "skyloop/marl/marl.hpp"
+
+namespace skyloop::cli {
+
+namespace {
+struct TrainOpts {
+  ConfigOptions config;
+  std::string algo, seed, steps, out;
+  bool resume = false;
+};
+struct EvalOpts {
+  ConfigOptions config;
+  std::string policy, users, out, planners;
+  std::string seed;
+};
+}  // namespace
+
+void add_marl_commands(CLI::App& app, Action& action) {
+  auto t = std::make_shared<TrainOpts>();
+  auto* train = app.add_subcommand("train", "train a multi-agent trajectory planner (MAPPO, IPPO, VDN, QMIX)");
+  train->add_option("--algo", t->algo, "mappo | ippo | vdn | qmix (sets marl.algo)");
+  train->add_option("--seed", t->seed, "training seed (sets run.seed)");
+  train->add_option("--steps", t->steps, "environment steps (sets marl.total_steps)");
+  train->add_option("--out", t->out, "run directory: config.toml, metrics.csv, last.pt, policy.pt, summary.csv")->required();
+  train->add_flag("--resume", t->resume, "continue from OUT/last.pt");
+  add_config_options(train, t->config);
+  train->final_callback([&action, t] {
+    action = [t] {
+      std::vector<std::string> extra;
+      if (!t->algo.empty()) extra.push_back("marl.algo=" + t->algo);
+      if (!t->seed.empty()) extra.push_back("run.seed=" + t->seed);
+      if (!t->steps.empty()) extra.push_back("marl.total_steps=" + t->steps);
+      const Config cfg = t->config.resolve(extra);
+      MarlTrainOptions opt;
+      opt.out_dir = t->out;
+      opt.resume = t->resume;
+      opt.progress = &std::cerr;
+      opt.registry = &builtin_beamformers();
+      const auto r = train_marl(cfg, opt);
+      const auto& e = r.evaluation;
+      std::cout << fmt::format("{} (seed {}): {} environment steps in {:.1f} s ({:.0f} steps/s)\n"
+                               "evaluation (deterministic policy, users seed {}): objective {:.3f}, T = {}, arrived {}/{}, "
+                               "collisions {}, boundary events {}\nwrote {}/policy.pt, last.pt, metrics.csv, config.toml\n",
+                               cfg.marl.algo, cfg.run.seed, r.env_steps, r.seconds, r.steps_per_second, cfg.marl.users_seed,
+                               e.objective, e.T, e.arrivals, e.positions.front().rows(), e.collisions, e.boundary, t->out);
+      return 0;
+    };
+  });
+
+  auto v = std::make_shared<EvalOpts>();
+  auto* eval = app.add_subcommand("eval", "run a trained policy (deterministic) and write the same files as `skyloop plan`");
+  eval->add_option("--policy", v->policy, "run directory (or policy.pt) of `skyloop train`")->required();
+  eval->add_option("--users", v->users, "number of users K (default: as trained)");
+  eval->add_option("--seed", v->seed, "users seed (default: the training scenario's marl.users_seed)");
+  eval->add_option("--planner", v->planners, "also run these planners on the same users: random, greedy, optimal");
+  eval->add_option("--out", v->out, "directory for trajectory.csv, rates.csv, summary.csv, users.csv, config.toml");
+  add_config_options(eval, v->config);
+  eval->final_callback([&action, v] {
+    action = [v] {
+      auto policy = MarlPolicy::load(v->policy);
+      // The policy's own configuration, then the command line.
+      Config cfg;
+      apply_toml(cfg, policy->config_toml(), v->policy + " (training config)");
+      ConfigOptions over = v->config;
+      std::vector<std::string> extra;
+      if (!v->users.empty()) extra.push_back("scenario.users=" + v->users);
+      if (!over.path.empty()) apply_toml(cfg, read_file(over.path, "config file"), over.path);
+      for (const auto& s : over.sets) apply_override(cfg, s);
+      for (const auto& s : extra) apply_override(cfg, s);
+      validate(cfg);
+      PlanOptions opt;
+      if (!v->planners.empty()) opt.planners = split_methods(v->planners);
+      opt.seed = v->seed.empty() ? cfg.marl.users_seed : std::stoull(v->seed);
+      opt.out_dir = v->out;
+      opt.extra.push_back(std::shared_ptr<Planner>(std::move(policy)));
+      std::vector<double> seconds;
+      const auto recs = run_planners(cfg, opt, builtin_beamformers(), &std::cerr, &seconds);
+      std::cout << "eval: N = " << cfg.trajectory.starts.size() << " UAVs, K = " << cfg.scenario.users << " users (seed "
+                << opt.seed << "), oracle " << cfg.env.oracle << "\n"
+                << format_plan_summary(recs, seconds);
+      return 0;
+    };
+  });
+}
+
+}  // namespace skyloop::cli

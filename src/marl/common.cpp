@@ -1,0 +1,152 @@
+#include "common.hpp"
+
+#include <filesystem>
+#include <fmt/format.h>
+#include <sstream>
+
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+
+namespace skyloop::marl {
+
+void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt) {
+  torch::serialize::OutputArchive archive;
+  archive.write("skyloop_meta", c10::IValue(meta.dump()));
+  auto put = [&](const char* key, torch::nn::Module* m) {
+    if (!m) return;
+    torch::serialize::OutputArchive sub;
+    m->save(sub);
+    archive.write(key, sub);
+  };
+  put("actor", nets.actor ? nets.actor.get() : nullptr);
+  put("critic", nets.critic ? nets.critic.get() : nullptr);
+  put("q", nets.q ? nets.q.get() : nullptr);
+  put("mixer", nets.mixer ? nets.mixer.get() : nullptr);
+  if (opt) {
+    torch::serialize::OutputArchive sub;
+    opt->save(sub);
+    archive.write("optimizer", sub);
+  }
+  std::ostringstream bytes;
+  archive.save_to(bytes);
+  write_file_atomic(path, bytes.str());
+}
+
+namespace {
+torch::serialize::InputArchive open(const std::string& path) {
+  if (!std::filesystem::is_regular_file(path))
+    throw InputError("policy '" + path + "' does not exist: allowed a policy.pt written by `skyloop train`");
+  torch::serialize::InputArchive a;
+  try {
+    a.load_from(path);
+  } catch (const std::exception&) {
+    throw InputError("policy '" + path + "' is corrupt or not a torch archive: allowed a policy.pt written by `skyloop train`");
+  }
+  return a;
+}
+}  // namespace
+
+nlohmann::json read_meta(const std::string& path) {
+  auto a = open(path);
+  c10::IValue raw;
+  if (!a.try_read("skyloop_meta", raw) || !raw.isString()) throw InputError("policy '" + path + "' has no skyloop header");
+  nlohmann::json meta;
+  try {
+    meta = nlohmann::json::parse(raw.toStringRef());
+  } catch (const std::exception&) {
+    throw InputError("policy '" + path + "' has a corrupt header");
+  }
+  if (meta.value("format", "") != kFormat || meta.value("version", 0) != kVersion)
+    throw InputError("policy '" + path + "' has format '" + meta.value("format", "") + "' version " +
+                     std::to_string(meta.value("version", 0)) + ": allowed " + kFormat + " version " + std::to_string(kVersion));
+  return meta;
+}
+
+void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt) {
+  auto a = open(path);
+  auto get = [&](const char* key, torch::nn::Module* m) {
+    if (!m) return;
+    torch::serialize::InputArchive sub;
+    if (!a.try_read(key, sub)) throw InputError("policy '" + path + "' has no '" + key + "' network");
+    try {
+      m->load(sub);
+    } catch (const std::exception& e) {
+      std::string w = e.what();
+      throw InputError("policy '" + path + "' does not match its header: " + w.substr(0, w.find('\n')));
+    }
+  };
+  get("actor", nets.actor ? nets.actor.get() : nullptr);
+  get("critic", nets.critic ? nets.critic.get() : nullptr);
+  get("q", nets.q ? nets.q.get() : nullptr);
+  get("mixer", nets.mixer ? nets.mixer.get() : nullptr);
+  if (opt) {
+    torch::serialize::InputArchive sub;
+    if (!a.try_read("optimizer", sub)) throw InputError("policy '" + path + "' holds no optimiser state: cannot resume from it");
+    opt->load(sub);
+  }
+}
+
+std::shared_ptr<RateOracle> make_oracle(const Config& cfg, const BeamformerRegistry& registry) {
+  std::shared_ptr<const Beamformer> bf;
+  try {
+    bf = registry.create(cfg.env.oracle, cfg);
+  } catch (const InputError& e) {
+    throw InputError("env.oracle = \"" + cfg.env.oracle + "\": " + e.what());
+  }
+  return std::make_shared<RateOracle>(cfg, bf, make_users(cfg, cfg.scenario.users, cfg.marl.users_seed));
+}
+
+void RunningStats::update(const torch::Tensor& x) {
+  const double n = static_cast<double>(x.numel());
+  if (n == 0) return;
+  const double m = x.mean().item<double>(), v = x.var(false).item<double>();
+  const double delta = m - mean, total = count + n;
+  mean += delta * n / total;
+  var = (var * count + v * n + delta * delta * count * n / total) / total;
+  count = total;
+}
+
+void EpisodeStats::add(const StepInfo& s, int uavs) {
+  ++episodes;
+  reward += s.episode_reward;
+  objective += s.objective;
+  home += static_cast<double>(s.home) / uavs;
+  collisions += s.episode_collisions;
+  boundary += s.episode_boundary;
+}
+
+std::string metrics_header() {
+  return "seed,env_steps,episodes,charts/episode_reward,charts/sum_rate,charts/arrival_rate,charts/collisions,"
+         "charts/boundary_events,losses/policy,losses/value,losses/entropy,charts/epsilon,charts/steps_per_s\n";
+}
+
+std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, double pl, double vl, double ent,
+                        double eps, double sps) {
+  const double n = std::max(1, e.episodes);
+  auto f = [&](double x) { return e.episodes ? format_double(x / n) : std::string(""); };
+  return fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, steps, e.episodes, f(e.reward), f(e.objective),
+                     f(e.home), f(e.collisions), f(e.boundary), format_double(pl), format_double(vl), format_double(ent),
+                     format_double(eps), format_double(sps));
+}
+
+EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner) {
+  UavEnv env(cfg, make_oracle(cfg, registry));
+  return run_episode(env, planner);
+}
+
+std::vector<float> obs_with_id(const UavEnv& env, int n) {
+  auto o = env.observation(n);
+  for (int m = 0; m < env.uavs(); ++m) o.push_back(m == n ? 1.0f : 0.0f);
+  return o;
+}
+
+torch::Device device_of(const Config& cfg) {
+  if (cfg.nn.device == "cuda") {
+    if (!torch::cuda::is_available())
+      throw InputError("nn.device = \"cuda\" is not available (this LibTorch has no CUDA, or no GPU is visible): allowed cpu");
+    return torch::Device(torch::kCUDA);
+  }
+  return torch::Device(torch::kCPU);
+}
+
+}  // namespace skyloop::marl

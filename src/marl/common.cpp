@@ -6,6 +6,7 @@
 
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/nn/learned.hpp"
 
 namespace skyloop::marl {
 
@@ -138,6 +139,28 @@ std::vector<float> obs_with_id(const UavEnv& env, int n) {
   auto o = env.observation(n);
   for (int m = 0; m < env.uavs(); ++m) o.push_back(m == n ? 1.0f : 0.0f);
   return o;
+}
+
+Run::Run(const Config& cfg, const MarlTrainOptions& opt)
+    : dir(opt.out_dir),
+      last((dir / "last.pt").string()),
+      final_path((dir / "policy.pt").string()),
+      device(device_of(cfg)),
+      oracle(make_oracle(cfg, *opt.registry)),
+      vec(cfg, oracle, cfg.marl.envs) {
+  set_torch_threads(cfg.run.threads);
+  if (opt.resume && !std::filesystem::exists(last))
+    throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");
+}
+
+MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, std::int64_t steps, std::int64_t start_steps) const {
+  MarlTrainResult result;
+  result.env_steps = steps;
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  result.steps_per_second = static_cast<double>(steps - start_steps) / std::max(result.seconds, 1e-9);
+  auto policy = MarlPolicy::load(final_path);
+  result.evaluation = evaluate(cfg, *opt.registry, *policy);
+  return result;
 }
 
 torch::Device device_of(const Config& cfg) {

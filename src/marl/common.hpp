@@ -1,6 +1,7 @@
 #pragma once
 // Shared pieces of the learners: checkpoints, environment set-up, metrics, evaluation.
 #include <chrono>
+#include <filesystem>
 #include <nlohmann/json.hpp>
 #include <string>
 
@@ -56,5 +57,19 @@ EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Pl
 std::vector<float> obs_with_id(const UavEnv& env, int n);
 
 torch::Device device_of(const Config& cfg);
+
+/// What every learner needs before its loop: torch threads set, the run's paths (checked for
+/// --resume), the device, and M environments on the shared training scenario.
+struct Run {
+  Run(const Config& cfg, const MarlTrainOptions& opt);
+  std::filesystem::path dir;
+  std::string last, final_path;
+  torch::Device device{torch::kCPU};
+  std::shared_ptr<RateOracle> oracle;
+  VecEnv vec;
+  std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  /// After the loop: timings and the deterministic evaluation of final_path.
+  MarlTrainResult finish(const Config& cfg, const MarlTrainOptions& opt, std::int64_t steps, std::int64_t start_steps) const;
+};
 
 }  // namespace skyloop::marl

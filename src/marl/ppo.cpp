@@ -51,15 +51,11 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   namespace fs = std::filesystem;
   using Clock = std::chrono::steady_clock;
   const auto& m = cfg.marl;
-  const torch::Device device = device_of(cfg);
-  set_torch_threads(cfg.run.threads);
-  const fs::path dir(opt.out_dir);
-  const std::string last = (dir / "last.pt").string(), final_path = (dir / "policy.pt").string();
-  if (opt.resume && !fs::exists(last))
-    throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");
-
-  auto oracle = make_oracle(cfg, *opt.registry);
-  VecEnv vec(cfg, oracle, m.envs);
+  Run run(cfg, opt);
+  const auto& dir = run.dir;
+  const auto& last = run.last;
+  const auto& device = run.device;
+  VecEnv& vec = run.vec;
   const int N = vec.env(0).uavs(), M = vec.size(), obs_dim = UavEnv::observation_size();
   const CriticInput critic_in{m.algo == "ippo" ? "local" : m.critic_state};
   const int cin = critic_in.size(vec.env(0));
@@ -102,7 +98,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
 
   const int T = m.rollout;
   const std::int64_t per_update = static_cast<std::int64_t>(T) * M;
-  const auto t_start = Clock::now();
+  const auto t_start = run.start;
   const std::int64_t start_steps = steps;
   std::unique_ptr<Progress> bar;
   if (opt.progress)
@@ -261,16 +257,9 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     if (bar) bar->advance();
   }
   if (bar) bar->finish();
-  save(final_path, meta(), nets, nullptr);
+  save(run.final_path, meta(), nets, nullptr);
   write_file_atomic((dir / "metrics.csv").string(), metrics);
-
-  MarlTrainResult result;
-  result.env_steps = steps;
-  result.seconds = std::chrono::duration<double>(Clock::now() - t_start).count();
-  result.steps_per_second = static_cast<double>(steps - start_steps) / std::max(result.seconds, 1e-9);
-  auto policy = MarlPolicy::load(final_path);
-  result.evaluation = evaluate(cfg, *opt.registry, *policy);
-  return result;
+  return run.finish(cfg, opt, steps, start_steps);
 }
 
 }  // namespace marl

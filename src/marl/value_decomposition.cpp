@@ -49,15 +49,11 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   using Clock = std::chrono::steady_clock;
   const auto& m = cfg.marl;
   const bool qmix = m.algo == "qmix";
-  const torch::Device device = device_of(cfg);
-  set_torch_threads(cfg.run.threads);
-  const fs::path dir(opt.out_dir);
-  const std::string last = (dir / "last.pt").string(), final_path = (dir / "policy.pt").string();
-  if (opt.resume && !fs::exists(last))
-    throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");
-
-  auto oracle = make_oracle(cfg, *opt.registry);
-  VecEnv vec(cfg, oracle, m.envs);
+  Run run(cfg, opt);
+  const auto& dir = run.dir;
+  const auto& last = run.last;
+  const auto& device = run.device;
+  VecEnv& vec = run.vec;
   const int N = vec.env(0).uavs(), M = vec.size(), Tm = vec.env(0).t_max();
   const int D = UavEnv::observation_size() + N, S = vec.env(0).state_size();
 
@@ -178,7 +174,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
     return loss.item<double>();
   };
 
-  const auto t_start = Clock::now();
+  const auto t_start = run.start;
   const std::int64_t start_steps = steps;
   std::unique_ptr<Progress> bar;
   const std::int64_t log_every = static_cast<std::int64_t>(M) * 256;
@@ -254,17 +250,10 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
     }
   }
   if (bar) bar->finish();
-  save(final_path, meta(), nets, nullptr);
+  save(run.final_path, meta(), nets, nullptr);
   save(last, meta(), nets, &adam);
   write_file_atomic((dir / "metrics.csv").string(), metrics);
-
-  MarlTrainResult result;
-  result.env_steps = steps;
-  result.seconds = std::chrono::duration<double>(Clock::now() - t_start).count();
-  result.steps_per_second = static_cast<double>(steps - start_steps) / std::max(result.seconds, 1e-9);
-  auto policy = MarlPolicy::load(final_path);
-  result.evaluation = evaluate(cfg, *opt.registry, *policy);
-  return result;
+  return run.finish(cfg, opt, steps, start_steps);
 }
 
 }  // namespace skyloop::marl

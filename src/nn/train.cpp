@@ -186,12 +186,12 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
     write_file_atomic((dir / "metrics.csv").string(), metrics);
     if (opt.progress) {
       const double elapsed = std::chrono::duration<double>(Clock::now() - t_start).count();
-      const int done = state.epoch, todo = cfg.nn.epochs - state.epoch;
+      const int done = state.epoch, remaining = cfg.nn.epochs - state.epoch;
       *opt.progress << fmt::format("epoch {}/{}  loss {:.4f}  val sum rate {:.3f} (best {:.3f} @ {})  {:.0f} clusters/s  "
                                    "{:.1f}s  ETA {:.0f}s\n",
                                    done, cfg.nn.epochs, epoch_steps ? loss_sum / epoch_steps : 0.0, val_rate,
                                    state.best_val, state.best_epoch, rate, epoch_s,
-                                   todo * elapsed / std::max(1, done - start_epoch))
+                                   remaining * elapsed / std::max(1, done - start_epoch))
                      << std::flush;
     }
   }

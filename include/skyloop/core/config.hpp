@@ -77,10 +77,11 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
 
 struct EnvConfig {                  // [env] the trajectory environment (Sections III-A, V-B)
   std::string oracle = "gnn";       // beamformer spec behind R[t] (gnn = the shipped paper GNN)
-  double w_rate = 0.1;              // weight of the cumulative average sum rate R-bar[t]
-  double w_arr = 10.0;              // per UAV newly arrived
+  // Not given in the paper; chosen so that MAPPO brings every UAV home (README, MARL status).
+  double w_rate = 0.02;             // weight of the cumulative average sum rate R-bar[t]
+  double w_arr = 30.0;              // per UAV newly arrived
   double w_bud = 5.0;               // per boundary event (a move out of the area, cancelled)
-  double w_col = 10.0;              // per UAV closer than D_min to another
+  double w_col = 2.0;               // per UAV closer than D_min to another
   double w_fea = 1.0;               // per UAV reachability indicator Phi_n[t] (+1 / -1)
   bool resample_users = false;      // draw new users at every reset (else fixed per environment)
   std::string users_file;           // TOML with users = [[x, y], ...]; empty = uniform from the seed

@@ -153,6 +153,17 @@ Run::Run(const Config& cfg, const MarlTrainOptions& opt)
     throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");
 }
 
+nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int size, Nets& nets,
+                           torch::optim::Optimizer& opt, std::string& metrics) const {
+  const auto old = read_meta(last);
+  if (old.value("algo", "") != cfg.marl.algo || old.value("hidden", 0) != cfg.marl.hidden || old.value(size_key, 0) != size)
+    throw InputError("--resume: '" + last + "' holds a " + old.value("algo", std::string("?")) +
+                     " run of other sizes: allowed the same algo, hidden size and scenario as the config");
+  load(last, nets, &opt);
+  if (std::filesystem::exists(dir / "metrics.csv")) metrics = read_file((dir / "metrics.csv").string());
+  return old;
+}
+
 MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, std::int64_t steps, std::int64_t start_steps) const {
   MarlTrainResult result;
   result.env_steps = steps;

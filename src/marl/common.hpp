@@ -68,6 +68,11 @@ struct Run {
   std::shared_ptr<RateOracle> oracle;
   VecEnv vec;
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  /// For --resume: checks that last.pt holds a run of the same algo, hidden size and
+  /// `size_key` = `size`, loads its networks and optimiser and the earlier metrics.csv into
+  /// `metrics`, and returns its header.
+  nlohmann::json resume(const Config& cfg, const std::string& size_key, int size, Nets& nets, torch::optim::Optimizer& opt,
+                        std::string& metrics) const;
   /// After the loop: timings and the deterministic evaluation of final_path.
   MarlTrainResult finish(const Config& cfg, const MarlTrainOptions& opt, std::int64_t steps, std::int64_t start_steps) const;
 };

@@ -81,17 +81,12 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
                           {"config", to_toml(cfg)}};
   };
   if (opt.resume) {
-    const auto old = read_meta(last);
-    if (old.value("algo", "") != m.algo || old.value("hidden", 0) != m.hidden || old.value("critic_dim", 0) != cin)
-      throw InputError("--resume: '" + last + "' holds a " + old.value("algo", std::string("?")) +
-                       " run of other sizes: allowed the same algo, hidden size and scenario as the config");
-    load(last, nets, &adam);
+    const auto old = run.resume(cfg, "critic_dim", cin, nets, adam, metrics);
     steps = old.value("env_steps", std::int64_t{0});
     updates = old.value("updates", std::int64_t{0});
     vnorm.mean = old.value("value_mean", 0.0);
     vnorm.var = old.value("value_var", 1.0);
     vnorm.count = old.value("value_count", 1e-4);
-    if (fs::exists(dir / "metrics.csv")) metrics = read_file((dir / "metrics.csv").string());
     if (opt.progress) *opt.progress << "resuming " << m.algo << " at " << steps << " environment steps\n";
   }
   write_file_atomic((dir / "config.toml").string(), to_toml(cfg));

@@ -84,15 +84,10 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
                           {"episodes", episodes}, {"config", to_toml(cfg)}};
   };
   if (opt.resume) {
-    const auto old = read_meta(last);
-    if (old.value("algo", "") != m.algo || old.value("hidden", 0) != m.hidden || old.value("state_dim", 0) != S)
-      throw InputError("--resume: '" + last + "' holds a " + old.value("algo", std::string("?")) +
-                       " run of other sizes: allowed the same algo, hidden size and scenario as the config");
-    load(last, nets, &adam);
+    const auto old = run.resume(cfg, "state_dim", S, nets, adam, metrics);
     steps = old.value("env_steps", std::int64_t{0});
     grad_steps = old.value("grad_steps", std::int64_t{0});
     episodes = old.value("episodes", std::int64_t{0});
-    if (fs::exists(dir / "metrics.csv")) metrics = read_file((dir / "metrics.csv").string());
     if (opt.progress) *opt.progress << "resuming " << m.algo << " at " << steps << " environment steps (replay buffer restarts empty)\n";
   }
   sync_target();

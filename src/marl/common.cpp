@@ -164,6 +164,11 @@ nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int s
   return old;
 }
 
+void Run::checkpoint(const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer& opt, const std::string& metrics) const {
+  save(last, meta, nets, &opt);
+  write_file_atomic((dir / "metrics.csv").string(), metrics);
+}
+
 MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, std::int64_t steps, std::int64_t start_steps) const {
   MarlTrainResult result;
   result.env_steps = steps;

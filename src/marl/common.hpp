@@ -73,6 +73,8 @@ struct Run {
   /// `metrics`, and returns its header.
   nlohmann::json resume(const Config& cfg, const std::string& size_key, int size, Nets& nets, torch::optim::Optimizer& opt,
                         std::string& metrics) const;
+  /// Resumable checkpoint: last.pt (networks and optimiser) and metrics.csv, both atomically.
+  void checkpoint(const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer& opt, const std::string& metrics) const;
   /// After the loop: timings and the deterministic evaluation of final_path.
   MarlTrainResult finish(const Config& cfg, const MarlTrainOptions& opt, std::int64_t steps, std::int64_t start_steps) const;
 };

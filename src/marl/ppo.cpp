@@ -53,7 +53,6 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   const auto& m = cfg.marl;
   Run run(cfg, opt);
   const auto& dir = run.dir;
-  const auto& last = run.last;
   const auto& device = run.device;
   VecEnv& vec = run.vec;
   const int N = vec.env(0).uavs(), M = vec.size(), obs_dim = UavEnv::observation_size();
@@ -245,15 +244,12 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
       metrics += metrics_row(cfg.run.seed, steps, stats, last_pl, last_vl, last_ent, 0.0, sps);
       stats.clear();
     }
-    if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) {
-      save(last, meta(), nets, &adam);
-      write_file_atomic((dir / "metrics.csv").string(), metrics);
-    }
+    if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) run.checkpoint(meta(), nets, adam, metrics);
     if (bar) bar->advance();
   }
   if (bar) bar->finish();
   save(run.final_path, meta(), nets, nullptr);
-  write_file_atomic((dir / "metrics.csv").string(), metrics);
+  run.checkpoint(meta(), nets, adam, metrics);
   return run.finish(cfg, opt, steps, start_steps);
 }
 

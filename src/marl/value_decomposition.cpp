@@ -51,7 +51,6 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   const bool qmix = m.algo == "qmix";
   Run run(cfg, opt);
   const auto& dir = run.dir;
-  const auto& last = run.last;
   const auto& device = run.device;
   VecEnv& vec = run.vec;
   const int N = vec.env(0).uavs(), M = vec.size(), Tm = vec.env(0).t_max();
@@ -237,17 +236,13 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
       stats.clear();
       loss_sum = 0;
       loss_count = 0;
-      if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) {
-        save(last, meta(), nets, &adam);
-        write_file_atomic((dir / "metrics.csv").string(), metrics);
-      }
+      if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) run.checkpoint(meta(), nets, adam, metrics);
       if (bar) bar->advance();
     }
   }
   if (bar) bar->finish();
   save(run.final_path, meta(), nets, nullptr);
-  save(last, meta(), nets, &adam);
-  write_file_atomic((dir / "metrics.csv").string(), metrics);
+  run.checkpoint(meta(), nets, adam, metrics);
   return run.finish(cfg, opt, steps, start_steps);
 }
 

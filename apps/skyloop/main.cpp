@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
   cli::add_plan_command(app, action);
 #ifdef SKYLOOP_HAS_TORCH
   cli::add_marl_commands(app, action);
+  cli::add_reproduce_command(app, action);
 #endif
   try {
     app.parse(argc, argv);

@@ -98,7 +98,7 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   double gae_lambda = 0.95;
   double clip = 0.2;                // PPO ratio clip epsilon (also the value clip)
   double value_coef = 0.5;          // c1
-  double entropy_coef = 0.01;       // c2
+  double entropy_coef = 0.03;       // c2 (the paper uses 0.01; see README "Multi-agent trajectory learning")
   int rollout = 256;                // steps per environment between updates
   int minibatches = 4;
   int epochs = 10;

@@ -1,0 +1,71 @@
+#pragma once
+// `skyloop reproduce`: the paper's Section VI end to end. Every figure is one experiment file
+// under configs/experiments/ (see the README there); a profile (quick, paper, tiny) picks its
+// budget. Work is cached by the hash of its resolved configuration, so a re-run skips what is done
+// and an interrupted run resumes.
+#include <cstdint>
+#include <iosfwd>
+#include <string>
+#include <vector>
+
+namespace skyloop {
+
+/// One experiment file after its profile has been applied.
+struct ExperimentSpec {
+  std::string path;     // the file it came from
+  std::string name;     // output directory under the run directory
+  std::string kind;     // models | beamform_sweep | marl_training | planning_users | trajectories
+  std::string figure;   // the paper's \label, e.g. fig:power_sweep
+  std::string title;
+  std::vector<std::string> set;  // config overrides ("section.key=value"), base then profile
+
+  // models: labels gnn, deepsets, mspointnet, gnn_structured
+  std::vector<std::string> models;
+  bool reuse_shipped = true;     // use models/<label> when it was trained with the same settings
+
+  // beamform_sweep
+  std::string sweep;                 // the swept config key
+  std::vector<double> values;
+  std::vector<std::string> methods;  // registry specs; learned labels resolve to the models stage
+  int samples = 100;
+  std::uint64_t seed = 1;            // snapshots (derive_seed(seed, i)); training seeds for MARL
+
+  // marl_training, planning_users, trajectories
+  std::vector<std::string> algos;
+  std::vector<std::uint64_t> seeds;
+  std::int64_t steps = 2'000'000;
+  std::vector<int> users;            // K values (planning_users, trajectories)
+  std::vector<std::string> planners; // random, greedy, optimal
+};
+
+/// Parses one experiment file for `profile`. The [experiment] table holds the defaults;
+/// [profile.<name>] replaces keys of it (`set` is appended). [reported] (the paper's numbers, read
+/// by the report) is not interpreted here. Unknown keys, wrong types and a profile the file does
+/// not define throw InputError naming the file, the key and what is allowed.
+ExperimentSpec parse_experiment(const std::string& toml_text, const std::string& source, const std::string& profile);
+
+/// Every *.toml in `dir`, in file-name order.
+std::vector<ExperimentSpec> load_experiments(const std::string& dir, const std::string& profile);
+
+struct ReproduceOptions {
+  std::string profile = "quick";
+  std::string out_dir;                 // default results/<profile>
+  std::string experiments_dir;         // default <source>/configs/experiments
+  std::vector<std::string> only;       // experiment names to run (the models stage always runs)
+  std::vector<std::string> sets;       // overrides applied to every experiment, after its own
+  bool force = false;                  // drop the cache of the selected experiments first
+  int threads = 0;                     // run.threads for every stage (0 = all cores)
+  int jobs = 0;                        // MARL runs trained in parallel (child processes); 0 = threads
+  bool plots = true;                   // run scripts/plot_figures.py at the end
+  std::string python = "/usr/bin/python3";
+  std::ostream* progress = nullptr;
+};
+
+/// Runs the experiments, writes manifest.json, config.toml and every CSV under out_dir, then the
+/// figures and report.html. Returns the process exit code of the plot step (0 if skipped).
+int reproduce(const ReproduceOptions& opt);
+
+/// The source tree's directory (configs/, models/, scripts/).
+std::string source_dir();
+
+}  // namespace skyloop

@@ -1,0 +1,428 @@
+#!/usr/bin/python3
+"""Figures (PNG and PDF) and report.html for a `skyloop reproduce` run directory.
+
+    /usr/bin/python3 scripts/plot_figures.py RUN_DIR
+
+Reads RUN_DIR/manifest.json and the per-figure CSVs it lists, writes RUN_DIR/figures/*.png|pdf
+and RUN_DIR/report.html. Needs only the standard library and matplotlib (Debian:
+python3-matplotlib). Exits non-zero with one line on stderr if the run directory is incomplete.
+"""
+import csv
+import html
+import json
+import math
+import os
+import sys
+import tomllib
+from collections import defaultdict
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+STYLE = {  # label, colour, marker, line style
+    "ga": ("GA (paper's heuristic)", "#1f77b4", "o", "-"),
+    "gnn": ("GNN (paper)", "#d62728", "s", "-"),
+    "deepsets": ("DeepSets", "#2ca02c", "^", "-"),
+    "mspointnet": ("MS-PointNet", "#9467bd", "v", "-"),
+    "gnn_structured": ("GNN, structured readout (skyloop)", "#ff7f0e", "D", "--"),
+    "wmmse": ("WMMSE (skyloop reference)", "#000000", "x", "--"),
+    "zf": ("ZF", "#7f7f7f", "+", ":"),
+    "mrt": ("MRT", "#8c564b", ".", ":"),
+    "mappo": ("MAPPO", "#d62728", "s", "-"),
+    "ippo": ("IPPO", "#1f77b4", "o", "-"),
+    "vdn": ("VDN", "#2ca02c", "^", "-"),
+    "qmix": ("QMIX", "#9467bd", "v", "-"),
+    "greedy": ("Greedy", "#7f7f7f", "+", "--"),
+    "random": ("Random", "#8c564b", ".", ":"),
+    "optimal": ("Optimum (skyloop, DP)", "#000000", "x", "--"),
+}
+AXIS = {
+    "channel.p_max_dbm": "maximum transmit power P_max (dBm)",
+    "channel.noise_dbm": "noise power (dBm)",
+    "scenario.uavs": "number of UAVs N",
+    "scenario.users": "number of users K",
+}
+
+
+def style(key):
+    return STYLE.get(key, (key, None, "o", "-"))
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def mean(xs):
+    return sum(xs) / len(xs) if xs else float("nan")
+
+
+def std(xs):
+    if len(xs) < 2:
+        return 0.0
+    m = mean(xs)
+    return math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1))
+
+
+def save(fig, out_dir, name):
+    os.makedirs(os.path.join(out_dir, "figures"), exist_ok=True)
+    paths = []
+    for ext in ("png", "pdf"):
+        rel = f"figures/{name}.{ext}"
+        tmp = os.path.join(out_dir, rel + ".tmp")
+        fig.savefig(tmp, format=ext, dpi=150, bbox_inches="tight")
+        os.replace(tmp, os.path.join(out_dir, rel))
+        paths.append(rel)
+    plt.close(fig)
+    return paths
+
+
+def fnum(x, digits=2):
+    try:
+        return f"{float(x):.{digits}f}"
+    except (TypeError, ValueError):
+        return str(x)
+
+
+# --- one function per experiment kind: (figures, tables) ------------------------------------------
+
+def beamform_sweep(run, exp):
+    rows = read_csv(os.path.join(run, exp["files"][0]))
+    latency = exp["name"] == "latency"
+    by = defaultdict(dict)
+    for r in rows:
+        by[r["method"]][float(r["x"])] = r
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    for method, pts in by.items():
+        xs = sorted(pts)
+        lab, col, mk, ls = style(method)
+        if latency:
+            ys = [float(pts[x]["median_latency_ms"]) for x in xs]
+            ax.plot(xs, ys, marker=mk, ls=ls, color=col, label=lab)
+        else:
+            ys = [float(pts[x]["mean"]) for x in xs]
+            es = [float(pts[x]["sem"]) for x in xs]
+            ax.errorbar(xs, ys, yerr=es, marker=mk, ls=ls, color=col, label=lab, capsize=2)
+    x_name = rows[0]["x_name"] if rows else ""
+    ax.set_xlabel(AXIS.get(x_name, x_name))
+    if latency:
+        ax.set_yscale("log")
+        ax.set_ylabel("time per decision (ms, median, one core)")
+    else:
+        ax.set_ylabel("network sum rate (bit/s/Hz)")
+    ax.set_title(exp["title"], fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    figs = save(fig, run, exp["name"])
+    # Table: methods x sweep values.
+    xs = sorted({float(r["x"]) for r in rows})
+    head = ["method"] + [fnum(x, 0) for x in xs]
+    body = []
+    for method, pts in by.items():
+        key = "median_latency_ms" if latency else "mean"
+        body.append([style(method)[0]] + [fnum(pts[x][key], 3 if latency else 2) if x in pts else "" for x in xs])
+    samples = rows[0]["samples"] if rows else "0"
+    what = "median ms per decision" if latency else "mean network sum rate, bit/s/Hz"
+    cap = f"{what}; {samples} snapshots per point, seed {rows[0]['seed'] if rows else ''}; x = {AXIS.get(x_name, x_name)}"
+    return figs, [(cap, head, body)]
+
+
+def curves(rows, metric):
+    """Per algo: list of (steps, values per seed) on the steps of the shortest run."""
+    per = defaultdict(lambda: defaultdict(list))
+    for r in rows:
+        v = r.get(metric, "")
+        if v in ("", "nan"):
+            continue
+        per[r["algo"]][r["seed"]].append((int(r["env_steps"]), float(v)))
+    out = {}
+    for algo, seeds in per.items():
+        series = [sorted(s) for s in seeds.values()]
+        n = min(len(s) for s in series)
+        steps = [series[0][i][0] for i in range(n)]
+        vals = [[s[i][1] for s in series] for i in range(n)]
+        out[algo] = (steps, vals, len(series))
+    return out
+
+
+def smooth(ys, w):
+    out, acc = [], []
+    for y in ys:
+        acc.append(y)
+        if len(acc) > w:
+            acc.pop(0)
+        out.append(mean(acc))
+    return out
+
+
+def marl_training(run, exp):
+    rows = read_csv(os.path.join(run, exp["name"], "curves.csv"))
+    finals = read_csv(os.path.join(run, exp["files"][0]))
+    refs_path = os.path.join(run, exp["name"], "references.csv")
+    refs = read_csv(refs_path) if os.path.exists(refs_path) else []
+    figs = []
+    for metric, ylabel, name in (("charts/episode_reward", "average episode reward", "marl_episode_reward"),
+                                 ("charts/sum_rate", "average sum rate (bit/s/Hz)", "marl_sum_rate")):
+        fig, ax = plt.subplots(figsize=(6, 4.2))
+        for algo, (steps, vals, nseeds) in curves(rows, metric).items():
+            lab, col, _, ls = style(algo)
+            w = max(1, len(steps) // 50)
+            m = smooth([mean(v) for v in vals], w)
+            lo = smooth([min(v) for v in vals], w)
+            hi = smooth([max(v) for v in vals], w)
+            ax.plot(steps, m, color=col, ls=ls, label=f"{lab} ({nseeds} seed{'s' if nseeds > 1 else ''})")
+            if nseeds > 1:
+                ax.fill_between(steps, lo, hi, color=col, alpha=0.15)
+        if metric == "charts/sum_rate":
+            for r in refs:
+                lab, col, _, ls = style(r["planner"])
+                ax.axhline(float(r["objective"]), color=col, ls=ls, lw=1, label=f"{lab} (evaluation)")
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel(ylabel)
+        ax.set_title(exp["title"] + ("; mean, min-max band over seeds" if metric else ""), fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        figs += save(fig, run, name)
+    # Table: per algo, over seeds, the deterministic policy's evaluation.
+    by = defaultdict(list)
+    for r in finals:
+        by[r["algo"]].append(r)
+    head = ["learner", "seeds", "avg sum rate (mean)", "per seed", "UAVs home", "collisions", "boundary events",
+            "train time per run (s)", "steps/s"]
+    body = []
+    for algo, rs in by.items():
+        obj = [float(r["objective"]) for r in rs]
+        body.append([style(algo)[0], str(len(rs)), fnum(mean(obj), 3), ", ".join(fnum(o, 3) for o in obj),
+                     ", ".join(f"{r['arrivals']}/3" for r in rs), ", ".join(r["collisions"] for r in rs),
+                     ", ".join(r["boundary_events"] for r in rs), fnum(mean([float(r["train_seconds"]) for r in rs]), 0),
+                     fnum(mean([float(r["steps_per_second"]) for r in rs]), 0)])
+    for r in refs:
+        body.append([style(r["planner"])[0], "-", fnum(r["objective"], 3), "", f"{r['arrivals']}/3", r["collisions"],
+                     r["boundary_events"], fnum(r["seconds"], 1), ""])
+    cap = "deterministic policies after training, on the training users (K = 12); references on the same users"
+    return figs, [(cap, head, body)]
+
+
+def planning_users(run, exp):
+    rows = read_csv(os.path.join(run, exp["files"][0]))
+    by = defaultdict(lambda: defaultdict(list))
+    for r in rows:
+        by[r["planner"]][int(r["users"])].append(r)
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    for planner, pts in by.items():
+        ks = sorted(pts)
+        lab, col, mk, ls = style(planner)
+        ys = [mean([float(r["objective"]) for r in pts[k]]) for k in ks]
+        es = [std([float(r["objective"]) for r in pts[k]]) for k in ks]
+        ax.errorbar(ks, ys, yerr=es, marker=mk, color=col, ls=ls, label=lab, capsize=2)
+    ax.set_xlabel("number of users K")
+    ax.set_ylabel("average sum rate over the flight (bit/s/Hz)")
+    ax.set_title(exp["title"], fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    figs = save(fig, run, exp["name"])
+    ks = sorted({int(r["users"]) for r in rows})
+    head = ["planner"] + [f"K = {k}" for k in ks]
+    body = []
+    for planner, pts in by.items():
+        cells = []
+        for k in ks:
+            rs = pts.get(k, [])
+            if not rs:
+                cells.append("")
+                continue
+            home = sum(int(r["arrivals"]) for r in rs)
+            viol = sum(int(r["collisions"]) + int(r["boundary_events"]) for r in rs)
+            cells.append(f"{fnum(mean([float(r['objective']) for r in rs]), 3)} ({home}/{3 * len(rs)} home"
+                         + (f", {viol} violations" if viol else "") + ")")
+        body.append([style(planner)[0]] + cells)
+    cap = "average sum rate (P2.2 objective), mean over training seeds for learners; UAVs home and violations summed"
+    return figs, [(cap, head, body)]
+
+
+def trajectories(run, exp):
+    traj = read_csv(os.path.join(run, exp["files"][0]))
+    users = read_csv(os.path.join(run, exp["files"][1]))
+    summary = read_csv(os.path.join(run, exp["files"][2]))
+    ends = read_csv(os.path.join(run, exp["files"][3]))
+    ks = sorted({int(r["users"]) for r in traj})
+    fig, axes = plt.subplots(1, len(ks), figsize=(4.2 * len(ks), 4.4), squeeze=False)
+    colours = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"]
+    for ax, k in zip(axes[0], ks):
+        us = [r for r in users if int(r["users"]) == k]
+        ax.scatter([float(r["x"]) for r in us], [float(r["y"]) for r in us], s=14, c="#555555", marker="o", label="users")
+        for planner, ls, alpha in (("optimal", "--", 0.8), ("mappo", "-", 1.0)):
+            rs = [r for r in traj if int(r["users"]) == k and r["planner"] == planner]
+            for n in sorted({int(r["uav"]) for r in rs}):
+                pts = sorted((int(r["t"]), float(r["x"]), float(r["y"])) for r in rs if int(r["uav"]) == n)
+                ax.plot([p[1] for p in pts], [p[2] for p in pts], ls=ls, color=colours[n % len(colours)], alpha=alpha,
+                        marker="." if planner == "mappo" else None,
+                        label=f"UAV {n + 1} ({'MAPPO' if planner == 'mappo' else 'optimum'})")
+        for e in ends:
+            n = int(e["uav"])
+            c = colours[n % len(colours)]
+            ax.annotate("S", (float(e["start_x"]), float(e["start_y"])), color=c, fontsize=11, weight="bold", ha="center",
+                        va="center")
+            ax.annotate("D", (float(e["dest_x"]), float(e["dest_y"])), color=c, fontsize=11, weight="bold", ha="center",
+                        va="center")
+        ax.set_xlim(0, 200)
+        ax.set_ylim(0, 200)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_title(f"K = {k}", fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=6, loc="upper center")
+    fig.suptitle(exp["title"] + " (solid: MAPPO, dashed: optimum)", fontsize=9)
+    figs = save(fig, run, exp["name"])
+    head = ["K", "planner", "avg sum rate", "T", "UAVs home", "collisions", "boundary events"]
+    body = [[r["users"], style(r["planner"])[0], fnum(r["objective"], 3), r["T"], f"{r['arrivals']}/3", r["collisions"],
+             r["boundary_events"]] for r in summary]
+    return figs, [("the plotted episodes", head, body)]
+
+
+def models(run, exp):
+    rows = read_csv(os.path.join(run, exp["files"][0]))
+    head = ["model", "source", "best validation sum rate", "epochs", "parameters"]
+    body = [[style(r["model"])[0], r["source"], fnum(r["best_val_sum_rate"], 3), r["epoch"], r["parameters"]] for r in rows]
+    return [], [("learned beamformers used by every experiment (trained at N = 3, K = 12)", head, body)]
+
+
+KINDS = {"beamform_sweep": beamform_sweep, "marl_training": marl_training, "planning_users": planning_users,
+         "trajectories": trajectories, "models": models}
+
+
+# --- the paper's numbers beside skyloop's ------------------------------------------------------------
+
+def reported(run, exp):
+    path = os.path.join(run, exp["name"], "experiment.toml")
+    if not os.path.exists(path):
+        return []
+    with open(path, "rb") as f:
+        spec = tomllib.load(f)
+    out = []
+    for item in spec.get("reported", []):
+        value = ""
+        try:
+            if exp["kind"] == "beamform_sweep":
+                rows = read_csv(os.path.join(run, exp["files"][0]))
+                for r in rows:
+                    if r["method"] == item["method"] and float(r["x"]) == float(item["x"]):
+                        if item.get("metric") == "latency":
+                            value = f"{fnum(r['median_latency_ms'], 3)} ms"
+                        else:
+                            value = f"{fnum(r['mean'])} (WMMSE {wmmse_at(rows, item['x'])})"
+            elif exp["kind"] == "marl_training":
+                if item["metric"] == "objective":
+                    rs = [r for r in read_csv(os.path.join(run, exp["files"][0])) if r["algo"] == item["algo"]]
+                    value = ", ".join(fnum(r["objective"], 3) for r in rs) + " (per seed; "
+                    value += ", ".join(f"{r['arrivals']}/3" for r in rs) + " UAVs home)"
+                else:
+                    cs = curves(read_csv(os.path.join(run, exp["name"], "curves.csv")), "charts/episode_reward")
+                    if item["algo"] in cs:
+                        steps, vals, _ = cs[item["algo"]]
+                        tail = vals[-max(1, len(vals) // 10):]
+                        value = f"{fnum(mean([mean(v) for v in tail]))} (mean of the last 10% of training)"
+            elif exp["kind"] == "planning_users":
+                rows = read_csv(os.path.join(run, exp["files"][0]))
+                wins = 0
+                ks = sorted({int(r["users"]) for r in rows})
+                for k in ks:
+                    m = mean([float(r["objective"]) for r in rows if int(r["users"]) == k and r["planner"] == "mappo"])
+                    others = [float(r["objective"]) for r in rows
+                              if int(r["users"]) == k and r["planner"] in ("greedy", "random")]
+                    wins += all(m > o for o in others)
+                value = f"MAPPO above Greedy and Random at {wins} of {len(ks)} K values"
+        except (KeyError, ValueError, OSError) as e:
+            value = f"(not computed: {e})"
+        out.append([exp["figure"], item.get("quantity", ""), item.get("paper", ""), value])
+    return out
+
+
+def wmmse_at(rows, x):
+    for r in rows:
+        if r["method"] == "wmmse" and float(r["x"]) == float(x):
+            return fnum(r["mean"])
+    return "n/a"
+
+
+def table_html(cap, head, body):
+    s = f"<table><caption>{html.escape(cap)}</caption><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
+    for row in body:
+        s += "<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>"
+    return s + "</table>\n"
+
+
+def link(run, rel, text=None):
+    """A link to a file of the run; only files that exist are linked."""
+    if not os.path.exists(os.path.join(run, rel)):
+        return html.escape(text or rel) + " (missing)"
+    return f'<a href="{html.escape(rel)}">{html.escape(text or rel)}</a>'
+
+
+def main(argv):
+    if len(argv) != 2:
+        print("usage: plot_figures.py RUN_DIR", file=sys.stderr)
+        return 2
+    run = argv[1]
+    try:
+        with open(os.path.join(run, "manifest.json")) as f:
+            manifest = json.load(f)
+    except (OSError, ValueError) as e:
+        print(f"plot_figures.py: error: {run}/manifest.json cannot be read ({e}): allowed a `skyloop reproduce` directory",
+              file=sys.stderr)
+        return 2
+    sections, comparison = [], []
+    for exp in manifest["experiments"]:
+        missing = [f for f in exp["files"] if not os.path.exists(os.path.join(run, f))]
+        if missing:
+            print(f"plot_figures.py: error: {run}/{missing[0]} is missing: re-run `skyloop reproduce`", file=sys.stderr)
+            return 1
+        figs, tables = KINDS[exp["kind"]](run, exp)
+        comparison += reported(run, exp)
+        sections.append((exp, figs, tables))
+        print(f"{exp['name']}: {', '.join(figs) if figs else 'tables only'}")
+
+    parts = [f"""<!doctype html><html><head><meta charset="utf-8"><title>skyloop: reproduction report ({html.escape(manifest['profile'])})</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}}table{{border-collapse:collapse;margin:1em 0;font-size:90%}}
+td,th{{border:1px solid #ccc;padding:3px 8px;text-align:left}}caption{{text-align:left;font-style:italic;padding:4px 0}}
+img{{max-width:100%;border:1px solid #eee}}pre{{background:#f6f6f6;padding:1em;overflow:auto;max-height:30em;font-size:80%}}</style></head><body>
+<h1>skyloop: reproduction of the paper's Section VI</h1>
+<p>Profile <b>{html.escape(manifest['profile'])}</b>, {manifest.get('threads', '?')} threads, all stages
+{fnum(manifest.get('seconds', 0), 0)} s (cached stages count their reuse time only).
+Every number below is read from the CSVs of this directory; each experiment's directory holds its experiment file and resolved configuration.</p>
+<h2>The paper's numbers beside skyloop's</h2>"""]
+    parts.append(table_html("the paper's reading of its figures (Section VI) and the same quantity measured here",
+                            ["figure", "quantity", "paper", "skyloop"], comparison))
+    parts.append("<h2>Contents</h2><ul>" + "".join(
+        f'<li><a href="#{html.escape(e["name"])}">{html.escape(e["title"] or e["name"])}</a></li>' for e, _, _ in sections)
+        + "</ul>")
+    for exp, figs, tables in sections:
+        parts.append(f'<h2 id="{html.escape(exp["name"])}">{html.escape(exp["title"] or exp["name"])}'
+                     + (f" <small>({html.escape(exp['figure'])})</small>" if exp["figure"] else "") + "</h2>")
+        for rel in figs:
+            if rel.endswith(".png") and os.path.exists(os.path.join(run, rel)):
+                parts.append(f'<p><img src="{html.escape(rel)}" alt="{html.escape(exp["title"])}"></p>')
+        for cap, head, body in tables:
+            parts.append(table_html(cap, head, body))
+        files = [f for f in figs if f.endswith(".pdf")] + exp["files"] + [f"{exp['name']}/experiment.toml",
+                                                                          f"{exp['name']}/config.toml"]
+        parts.append("<p>Files: " + ", ".join(link(run, f) for f in files) + f"; {fnum(exp.get('seconds', 0), 1)} s.</p>")
+    cfg_path = os.path.join(run, "config.toml")
+    if os.path.exists(cfg_path):
+        with open(cfg_path) as f:
+            parts.append("<h2>Resolved configuration (before each experiment's own settings)</h2><pre>"
+                         + html.escape(f.read()) + "</pre>")
+    parts.append("</body></html>\n")
+    tmp = os.path.join(run, "report.html.tmp")
+    with open(tmp, "w") as f:
+        f.write("\n".join(parts))
+    os.replace(tmp, os.path.join(run, "report.html"))
+    print(f"wrote {os.path.join(run, 'report.html')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))

@@ -1,0 +1,204 @@
+// `skyloop reproduce`: the experiment files, and a whole run on the tiny profile.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <regex>
+#include <set>
+#include <sstream>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/experiments/reproduce.hpp"
+
+namespace fs = std::filesystem;
+using namespace skyloop;
+
+namespace {
+
+const std::string kSrc = SKYLOOP_SOURCE_DIR;
+const std::string kExperiments = kSrc + "/configs/experiments";
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+struct Result {
+  int code = -1;
+  std::string out, err;
+};
+
+Result run(const std::string& args, const fs::path& logs) {
+  fs::create_directories(logs);
+  const std::string cmd = std::string(SKYLOOP_BIN) + " " + args + " >" + (logs / "out").string() + " 2>" + (logs / "err").string();
+  const int status = std::system(cmd.c_str());
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(logs / "out"), slurp(logs / "err")};
+}
+
+fs::path tmp(const std::string& name) {
+  const auto d = fs::path(::testing::TempDir()) / ("skyloop_repro_" + std::to_string(::getpid()) + "_" + name);
+  fs::remove_all(d);
+  return d;
+}
+
+}  // namespace
+
+TEST(Experiments, EveryFileLoadsForEveryProfile) {
+  for (const std::string profile : {"quick", "paper", "tiny"}) {
+    const auto specs = load_experiments(kExperiments, profile);
+    ASSERT_GE(specs.size(), 9u);
+    EXPECT_EQ(specs.front().kind, "models");
+    std::set<std::string> figures;
+    for (const auto& s : specs) {
+      figures.insert(s.figure);
+      // Every override resolves against the configuration table.
+      EXPECT_NO_THROW(resolve_config(std::nullopt, s.set)) << s.path;
+    }
+    // Every figure of the paper's Section VI has its experiment.
+    for (const std::string f : {"fig:power_sweep", "fig:noise_sweep", "fig:uav_gen", "fig:User_gen", "fig:runtime",
+                                "fig:convergence", "fig:heuristic_comp", "fig:trajectory_vis"})
+      EXPECT_EQ(figures.count(f), 1u) << profile << " lacks " << f;
+  }
+}
+
+TEST(Experiments, PaperProfileUsesThePapersSettings) {
+  const Config defaults;
+  for (const auto& s : load_experiments(kExperiments, "paper")) {
+    const Config c = resolve_config(std::nullopt, s.set);
+    EXPECT_EQ(c.ga.generations, 2000) << s.path;
+    EXPECT_EQ(c.nn.train_samples, 10000) << s.path;
+    EXPECT_EQ(c.nn.epochs, 25) << s.path;
+    EXPECT_EQ(c.marl.rollout, defaults.marl.rollout) << s.path;
+    if (s.kind == "marl_training" || s.kind == "planning_users") {
+      EXPECT_EQ(s.steps, 2000000) << s.path;
+      EXPECT_GE(s.seeds.size(), 3u) << s.path;
+    }
+    if (s.kind == "beamform_sweep") {
+      EXPECT_TRUE(std::count(s.methods.begin(), s.methods.end(), "wmmse") && std::count(s.methods.begin(), s.methods.end(), "zf") &&
+                  std::count(s.methods.begin(), s.methods.end(), "mrt"))
+          << s.path << ": every beamforming figure shows WMMSE, ZF and MRT";
+    }
+    if (s.kind == "planning_users" || s.kind == "trajectories") {
+      EXPECT_TRUE(std::count(s.planners.begin(), s.planners.end(), "optimal")) << s.path;
+    }
+  }
+}
+
+TEST(Experiments, BadFilesGiveOneClearError) {
+  const std::string ok = "[experiment]\nname = \"x\"\nkind = \"beamform_sweep\"\nsweep = \"channel.p_max_dbm\"\n"
+                         "values = [10]\nmethods = [\"mrt\"]\n[profile.quick]\n";
+  EXPECT_NO_THROW(parse_experiment(ok, "x.toml", "quick"));
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {ok + "frob = 1\n", "unknown key 'profile.quick.frob'"},
+      {ok, "profile 'paper' is not defined"},
+      {"[experiment]\nname = \"x\"\nkind = \"nosuch\"\n[profile.quick]\n", "experiment.kind = \"nosuch\" is invalid"},
+      {"[experiment]\nname = \"x\"\nkind = \"beamform_sweep\"\n[profile.quick]\n", "experiment.sweep is missing"},
+      {ok + "samples = 0\n", "samples = 0 is invalid: allowed an integer in [1, 1000000]"},
+      {"[experiment\n", "invalid TOML"},
+  };
+  for (const auto& [text, want] : bad) {
+    const std::string profile = text == ok ? "paper" : "quick";
+    try {
+      parse_experiment(text, "bad.toml", profile);
+      ADD_FAILURE() << "accepted:\n" << text;
+    } catch (const InputError& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find("bad.toml"), std::string::npos) << msg;
+      EXPECT_NE(msg.find(want), std::string::npos) << msg;
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    }
+  }
+}
+
+TEST(Reproduce, BadArgumentsAreOneLine) {
+  const auto logs = tmp("bad");
+  for (const std::string& args : {"reproduce --profile nosuch --no-plots --out " + (logs / "o").string(),
+                                 "reproduce --profile tiny --only nosuch --no-plots --out " + (logs / "o").string(),
+                                 "reproduce --profile tiny --experiments /nonexistent --out " + (logs / "o").string()}) {
+    const auto r = run(args, logs);
+    EXPECT_EQ(r.code, 2) << args << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  }
+}
+
+// The whole pipeline on the tiny profile: every stage, every figure, a report whose links all
+// resolve; a second run reuses everything; --force redoes what it names.
+TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
+  const fs::path out = tmp("tiny");
+  const auto r = run("reproduce --profile tiny --threads 2 --out " + out.string(), out / "logs1");
+  ASSERT_EQ(r.code, 0) << r.err;
+
+  const auto manifest = nlohmann::json::parse(slurp(out / "manifest.json"));
+  ASSERT_EQ(manifest["experiments"].size(), 9u);
+  for (const auto& e : manifest["experiments"]) {
+    const std::string name = e["name"];
+    EXPECT_TRUE(fs::exists(out / name / "config.toml")) << name;
+    EXPECT_TRUE(fs::exists(out / name / "experiment.toml")) << name;
+    for (const auto& f : e["files"]) {
+      const fs::path p = out / f.get<std::string>();
+      ASSERT_TRUE(fs::exists(p)) << p;
+      // Tidy CSV: a header naming a seed column and at least one row.
+      const std::string csv = slurp(p);
+      const std::string head = csv.substr(0, csv.find('\n'));
+      EXPECT_NE(head.find("seed"), std::string::npos) << p << ": " << head;
+      EXPECT_GE(std::count(csv.begin(), csv.end(), '\n'), 2) << p;
+    }
+  }
+  for (const std::string fig : {"power_sweep", "noise_sweep", "uav_sweep", "user_sweep", "latency", "marl_episode_reward",
+                                "marl_sum_rate", "planning_users", "trajectories"})
+    for (const std::string ext : {".png", ".pdf"}) EXPECT_GT(fs::file_size(out / "figures" / (fig + ext)), 1000u) << fig << ext;
+
+  const std::string report = slurp(out / "report.html");
+  const std::regex link(R"((?:href|src)=\"([^\"#]+)\")");
+  int links = 0;
+  for (auto it = std::sregex_iterator(report.begin(), report.end(), link); it != std::sregex_iterator(); ++it, ++links)
+    EXPECT_TRUE(fs::exists(out / (*it)[1].str())) << "report links a missing file: " << (*it)[1].str();
+  EXPECT_GE(links, 30);
+  EXPECT_EQ(report.find("(missing)"), std::string::npos);
+  EXPECT_NE(report.find("fig:power_sweep"), std::string::npos);
+
+  // Second run: nothing is recomputed (no training, every sweep point cached), same CSVs.
+  const std::string before = slurp(out / "power_sweep" / "power_sweep.csv");
+  const std::string curves = slurp(out / "marl_training" / "curves.csv");
+  const auto again = run("reproduce --profile tiny --threads 2 --no-plots --out " + out.string(), out / "logs2");
+  ASSERT_EQ(again.code, 0) << again.err;
+  EXPECT_EQ(again.err.find("  training "), std::string::npos) << again.err;
+  EXPECT_EQ(again.err.find("MARL runs"), std::string::npos) << again.err;
+  EXPECT_NE(again.err.find("channel.p_max_dbm = 10 (cached)"), std::string::npos) << again.err;
+  EXPECT_EQ(slurp(out / "power_sweep" / "power_sweep.csv"), before);
+  EXPECT_EQ(slurp(out / "marl_training" / "curves.csv"), curves);
+
+  // --force redoes the named experiment, and the seeded sweep gives the same sum rates.
+  const auto forced = run("reproduce --profile tiny --threads 1 --no-plots --only power_sweep --force --out " + out.string(),
+                          out / "logs3");
+  ASSERT_EQ(forced.code, 0) << forced.err;
+  EXPECT_EQ(forced.err.find("(cached)"), std::string::npos) << forced.err;
+  // (The learned models agree to rounding only: their BLAS sums in another order under other threads.)
+  const auto means = [](const std::string& csv) {
+    std::vector<std::pair<std::string, double>> m;
+    std::istringstream in(csv);
+    std::string line;
+    std::getline(in, line);
+    while (std::getline(in, line)) {
+      std::vector<std::string> f;
+      std::stringstream ls(line);
+      for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
+      m.emplace_back(f.at(4), std::stod(f.at(6)));  // method, mean
+    }
+    return m;
+  };
+  const auto a = means(slurp(out / "power_sweep" / "power_sweep.csv")), b = means(before);
+  ASSERT_EQ(a.size(), b.size());
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    EXPECT_EQ(a[i].first, b[i].first);
+    EXPECT_NEAR(a[i].second, b[i].second, 1e-6 * std::abs(b[i].second)) << a[i].first;
+  }
+}

@@ -156,9 +156,10 @@ class Runner {
   bool forgotten_ = false;  // --force already applied (before the parallel MARL runs)
 
   Config resolve(const std::vector<std::string>& sets) const {
-    std::vector<std::string> all = sets;
+    // --threads first, so an experiment may pin its own (the latency figure runs on one core).
+    std::vector<std::string> all = {"run.threads=" + std::to_string(threads_)};
+    all.insert(all.end(), sets.begin(), sets.end());
     all.insert(all.end(), opt_.sets.begin(), opt_.sets.end());
-    all.push_back("run.threads=" + std::to_string(threads_));
     return resolve_config(std::nullopt, all);
   }
   Config base(const ExperimentSpec& s, const std::vector<std::string>& extra = {}) const {

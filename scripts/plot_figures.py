@@ -308,12 +308,20 @@ def reported(run, exp):
         try:
             if exp["kind"] == "beamform_sweep":
                 rows = read_csv(os.path.join(run, exp["files"][0]))
-                for r in rows:
-                    if r["method"] == item["method"] and float(r["x"]) == float(item["x"]):
-                        if item.get("metric") == "latency":
-                            value = f"{fnum(r['median_latency_ms'], 3)} ms"
-                        else:
-                            value = f"{fnum(r['mean'])} (WMMSE {wmmse_at(rows, item['x'])})"
+                at = {r["method"]: r for r in rows if float(r["x"]) == float(item["x"])}
+                if item["method"] in at:
+                    r = at[item["method"]]
+                    if item.get("metric") == "latency":
+                        value = f"{fnum(r['median_latency_ms'], 3)} ms"
+                    else:
+                        value = fnum(r["mean"])
+                        other = item.get("versus")
+                        if other in at:
+                            d = float(r["mean"]) - float(at[other]["mean"])
+                            value += f" vs {style(other)[0].split(' (')[0]} {fnum(at[other]['mean'])} ({d:+.2f})"
+                        if "wmmse" in at:
+                            value += f"; WMMSE {fnum(at['wmmse']['mean'])}"
+                    value += f" [x = {item['x']}]"
             elif exp["kind"] == "marl_training":
                 if item["metric"] == "objective":
                     rs = [r for r in read_csv(os.path.join(run, exp["files"][0])) if r["algo"] == item["algo"]]
@@ -337,15 +345,8 @@ def reported(run, exp):
                 value = f"MAPPO above Greedy and Random at {wins} of {len(ks)} K values"
         except (KeyError, ValueError, OSError) as e:
             value = f"(not computed: {e})"
-        out.append([exp["figure"], item.get("quantity", ""), item.get("paper", ""), value])
+        out.append([exp["figure"], item.get("quantity", ""), item.get("paper", ""), value or "(not in this run's profile)"])
     return out
-
-
-def wmmse_at(rows, x):
-    for r in rows:
-        if r["method"] == "wmmse" and float(r["x"]) == float(x):
-            return fnum(r["mean"])
-    return "n/a"
 
 
 def table_html(cap, head, body):

@@ -133,6 +133,7 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
   Reader r{source};
   ExperimentSpec s;
   s.path = source;
+  s.text = text;
   for (const auto& [k, node] : doc) {
     const std::string key(k.str());
     if (key != "experiment" && key != "profile" && key != "reported")

@@ -129,7 +129,7 @@ class Runner {
       if (opt_.force && s.kind == "models") forget(s);
       const auto t0 = Clock::now();
       nlohmann::json entry = {{"name", s.name}, {"kind", s.kind}, {"figure", s.figure}, {"title", s.title}};
-      write_file_atomic((out_ / s.name / "experiment.toml").string(), read_file(s.path, "experiment file"));
+      write_file_atomic((out_ / s.name / "experiment.toml").string(), s.text);
       write_file_atomic((out_ / s.name / "config.toml").string(), to_toml(base(s)));
       entry["files"] = stage(s);
       entry["seconds"] = since(t0);

@@ -13,6 +13,7 @@ namespace skyloop {
 /// One experiment file after its profile has been applied.
 struct ExperimentSpec {
   std::string path;     // the file it came from
+  std::string text;     // its contents (copied into the run directory)
   std::string name;     // output directory under the run directory
   std::string kind;     // models | beamform_sweep | marl_training | planning_users | trajectories
   std::string figure;   // the paper's \label, e.g. fig:power_sweep

@@ -349,6 +349,13 @@ def reported(run, exp):
     return out
 
 
+def runs_text(manifest):
+    runs = manifest.get("runs") or [{"seconds": manifest.get("seconds", 0)}]
+    return "; ".join(f"{fnum(r.get('seconds', 0), 1)} s" + (" (--force)" if r.get("force") else "")
+                     + (f" ({', '.join(r['experiments'])})" if r.get("experiments") and len(r["experiments"]) < 9 else "")
+                     for r in runs)
+
+
 def table_html(cap, head, body):
     s = f"<table><caption>{html.escape(cap)}</caption><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
     for row in body:
@@ -391,8 +398,8 @@ def main(argv):
 td,th{{border:1px solid #ccc;padding:3px 8px;text-align:left}}caption{{text-align:left;font-style:italic;padding:4px 0}}
 img{{max-width:100%;border:1px solid #eee}}pre{{background:#f6f6f6;padding:1em;overflow:auto;max-height:30em;font-size:80%}}</style></head><body>
 <h1>skyloop: reproduction of the paper's Section VI</h1>
-<p>Profile <b>{html.escape(manifest['profile'])}</b>, {manifest.get('threads', '?')} threads, all stages
-{fnum(manifest.get('seconds', 0), 0)} s (cached stages count their reuse time only).
+<p>Profile <b>{html.escape(manifest['profile'])}</b>, {manifest.get('threads', '?')} threads. Invocations on this
+directory (wall time; a stage that reuses cached work takes seconds): {html.escape(runs_text(manifest))}.
 Every number below is read from the CSVs of this directory; each experiment's directory holds its experiment file and resolved configuration.</p>
 <h2>The paper's numbers beside skyloop's</h2>"""]
     parts.append(table_html("the paper's reading of its figures (Section VI) and the same quantity measured here",

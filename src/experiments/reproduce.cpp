@@ -137,7 +137,22 @@ class Runner {
       log_ << fmt::format("[{}/{}] {} done in {:.1f} s\n", i + 1, todo.size(), s.name, since(t0)) << std::flush;
     }
     manifest_["seconds"] = since(t_all);
-    manifest_["models"] = model_paths_;
+    // Earlier invocations on this directory stay listed: a cached re-run takes seconds, and the
+    // report shows what the computing run took.
+    nlohmann::json runs = nlohmann::json::array();
+    if (fs::exists(out_ / "manifest.json")) {
+      try {
+        const auto old = nlohmann::json::parse(read_file((out_ / "manifest.json").string()));
+        if (old.contains("runs")) runs = old["runs"];
+      } catch (const std::exception&) {
+      }
+    }
+    nlohmann::json names = nlohmann::json::array();
+    for (const auto* s : todo) names.push_back(s->name);
+    runs.push_back({{"seconds", manifest_["seconds"]}, {"threads", threads_}, {"jobs", jobs_}, {"force", opt_.force},
+                    {"experiments", names}});
+    manifest_["runs"] = runs;
+    manifest_["models"] = shown_models_;
     write_file_atomic((out_ / "manifest.json").string(), manifest_.dump(2) + "\n");
     log_ << fmt::format("all stages done in {:.1f} s; wrote {}\n", since(t_all), (out_ / "manifest.json").string());
     return 0;
@@ -151,6 +166,7 @@ class Runner {
   int threads_;
   std::map<std::string, std::string> model_paths_;
   std::map<std::string, std::uint64_t> model_hashes_;
+  std::map<std::string, std::string> shown_models_;
   nlohmann::json manifest_;
   int jobs_ = 1;
   bool forgotten_ = false;  // --force already applied (before the parallel MARL runs)
@@ -238,7 +254,17 @@ class Runner {
       const auto model = LearnedBeamformer::load(path, cfg);
       model_paths_[label] = fs::absolute(path).string();
       model_hashes_[label] = hash_text(read_file(path, "model"));
-      csv += fmt::format("{},{},{},{},{},{},{},{}\n", s.name, cfg.run.seed, label, source, model_paths_[label],
+      // Shown relative to the source tree or the run directory when under them.
+      std::string shown = model_paths_[label];
+      for (const fs::path& root : {fs::absolute(source_dir()), fs::absolute(out_)}) {
+        const auto rel = fs::path(shown).lexically_relative(root.lexically_normal());
+        if (!rel.empty() && rel.native().rfind("..", 0) != 0) {
+          shown = (root == fs::absolute(out_) ? "" : "<source>/") + rel.string();
+          break;
+        }
+      }
+      shown_models_[label] = shown;
+      csv += fmt::format("{},{},{},{},{},{},{},{}\n", s.name, cfg.run.seed, label, source, shown,
                          format_double(model->info().best_val_sum_rate), model->info().epoch, model->info().parameters);
       log_ << fmt::format("  {}: {} ({})\n", label, source, path) << std::flush;
     }

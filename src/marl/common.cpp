@@ -1,5 +1,7 @@
 #include "common.hpp"
 
+#include "../nn/archive.hpp"
+
 #include <filesystem>
 #include <fmt/format.h>
 #include <sstream>
@@ -10,9 +12,13 @@
 
 namespace skyloop::marl {
 
+const nn::ArchiveKind& policy_kind() {
+  static const nn::ArchiveKind k{"policy", "a policy.pt written by `skyloop train`", kFormat, kVersion};
+  return k;
+}
+
 void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt) {
   torch::serialize::OutputArchive archive;
-  archive.write("skyloop_meta", c10::IValue(meta.dump()));
   auto put = [&](const char* key, torch::nn::Module* m) {
     if (!m) return;
     torch::serialize::OutputArchive sub;
@@ -28,43 +34,13 @@ void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch
     opt->save(sub);
     archive.write("optimizer", sub);
   }
-  std::ostringstream bytes;
-  archive.save_to(bytes);
-  write_file_atomic(path, bytes.str());
+  nn::write_archive(path, policy_kind(), meta, archive);
 }
 
-namespace {
-torch::serialize::InputArchive open(const std::string& path) {
-  if (!std::filesystem::is_regular_file(path))
-    throw InputError("policy '" + path + "' does not exist: allowed a policy.pt written by `skyloop train`");
-  torch::serialize::InputArchive a;
-  try {
-    a.load_from(path);
-  } catch (const std::exception&) {
-    throw InputError("policy '" + path + "' is corrupt or not a torch archive: allowed a policy.pt written by `skyloop train`");
-  }
-  return a;
-}
-}  // namespace
-
-nlohmann::json read_meta(const std::string& path) {
-  auto a = open(path);
-  c10::IValue raw;
-  if (!a.try_read("skyloop_meta", raw) || !raw.isString()) throw InputError("policy '" + path + "' has no skyloop header");
-  nlohmann::json meta;
-  try {
-    meta = nlohmann::json::parse(raw.toStringRef());
-  } catch (const std::exception&) {
-    throw InputError("policy '" + path + "' has a corrupt header");
-  }
-  if (meta.value("format", "") != kFormat || meta.value("version", 0) != kVersion)
-    throw InputError("policy '" + path + "' has format '" + meta.value("format", "") + "' version " +
-                     std::to_string(meta.value("version", 0)) + ": allowed " + kFormat + " version " + std::to_string(kVersion));
-  return meta;
-}
+nlohmann::json read_meta(const std::string& path) { return nn::open_archive(path, policy_kind()).meta; }
 
 void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt) {
-  auto a = open(path);
+  auto a = nn::open_archive(path, policy_kind()).archive;
   auto get = [&](const char* key, torch::nn::Module* m) {
     if (!m) return;
     torch::serialize::InputArchive sub;

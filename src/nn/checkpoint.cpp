@@ -1,5 +1,7 @@
 #include "checkpoint.hpp"
 
+#include "archive.hpp"
+
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -15,17 +17,21 @@ std::int64_t count_parameters(const torch::nn::Module& m) {
   return n;
 }
 
+const ArchiveKind& checkpoint_kind() {
+  static const ArchiveKind k{"checkpoint", "a model.pt written by `skyloop beamform train`", kCheckpointFormat,
+                             kCheckpointVersion};
+  return k;
+}
+
 void save_checkpoint(const std::string& path, const ModelInfo& info, const TrainingState& state, BeamNetImpl& model,
                      torch::optim::Optimizer* optimizer) {
-  nlohmann::json meta = {{"format", kCheckpointFormat},     {"version", kCheckpointVersion},
-                         {"model", info.model},             {"antennas", info.antennas},
+  nlohmann::json meta = {{"model", info.model},             {"antennas", info.antennas},
                          {"hidden", info.hidden},           {"layers", info.layers}, {"readout", info.readout},
                          {"feature_scale", info.feature_scale}, {"parameters", info.parameters},
                          {"epoch", state.epoch},            {"step", state.step},
                          {"best_epoch", state.best_epoch},  {"best_val_sum_rate", state.best_val},
                          {"config", info.config_toml}};
   torch::serialize::OutputArchive archive;
-  archive.write("skyloop_meta", c10::IValue(meta.dump()));
   torch::serialize::OutputArchive params;
   model.save(params);
   archive.write("model", params);
@@ -34,44 +40,14 @@ void save_checkpoint(const std::string& path, const ModelInfo& info, const Train
     optimizer->save(opt);
     archive.write("optimizer", opt);
   }
-  std::ostringstream bytes;
-  archive.save_to(bytes);
-  write_file_atomic(path, bytes.str());
+  write_archive(path, checkpoint_kind(), meta, archive);
 }
-
-namespace {
-
-torch::serialize::InputArchive open_archive(const std::string& path) {
-  if (!std::filesystem::is_regular_file(path))
-    throw InputError("checkpoint '" + path + "' does not exist: allowed a model.pt written by `skyloop beamform train`");
-  torch::serialize::InputArchive archive;
-  try {
-    archive.load_from(path);
-  } catch (const std::exception&) {
-    throw InputError("checkpoint '" + path + "' is corrupt or not a torch archive: allowed a model.pt written by `skyloop beamform train`");
-  }
-  return archive;
-}
-
-}  // namespace
 
 LoadedCheckpoint load_checkpoint(const std::string& path, const torch::Device& device,
                                  torch::optim::Optimizer* optimizer_to_fill) {
-  auto archive = open_archive(path);
-  c10::IValue raw;
-  if (!archive.try_read("skyloop_meta", raw) || !raw.isString())
-    throw InputError("checkpoint '" + path + "' has no skyloop header: allowed a model.pt written by `skyloop beamform train`");
-  nlohmann::json meta;
-  try {
-    meta = nlohmann::json::parse(raw.toStringRef());
-  } catch (const std::exception&) {
-    throw InputError("checkpoint '" + path + "' has a corrupt header");
-  }
-  if (meta.value("format", "") != kCheckpointFormat)
-    throw InputError("checkpoint '" + path + "' has format '" + meta.value("format", "") + "': allowed " + kCheckpointFormat);
-  if (meta.value("version", 0) != kCheckpointVersion)
-    throw InputError("checkpoint '" + path + "' has version " + std::to_string(meta.value("version", 0)) +
-                     ": allowed " + std::to_string(kCheckpointVersion));
+  auto opened = open_archive(path, checkpoint_kind());
+  auto& archive = opened.archive;
+  const nlohmann::json& meta = opened.meta;
   LoadedCheckpoint out;
   try {
     out.info.model = meta.at("model").get<std::string>();
@@ -112,7 +88,7 @@ LoadedCheckpoint load_checkpoint(const std::string& path, const torch::Device& d
 }
 
 void load_optimizer(const std::string& path, torch::optim::Optimizer& optimizer) {
-  auto archive = open_archive(path);
+  auto archive = open_archive(path, checkpoint_kind()).archive;
   torch::serialize::InputArchive opt;
   if (!archive.try_read("optimizer", opt)) throw InputError("checkpoint '" + path + "' holds no optimiser state: cannot resume from it");
   optimizer.load(opt);

@@ -201,6 +201,7 @@ class Runner {
       fs::remove_all(out_ / "models", ec);
     } else {
       for (const auto& dir : marl_dirs(s)) fs::remove_all(dir, ec);
+      for (const auto& dir : eval_dirs(s)) fs::remove_all(dir, ec);
     }
     fs::remove_all(out_ / s.name, ec);
   }
@@ -432,6 +433,19 @@ class Runner {
     for (int k : ks)
       for (const auto& a : s.algos)
         for (auto seed : s.seeds) dirs.push_back(run_dir(run_config(s, a, seed, k)));
+    return dirs;
+  }
+
+  /// The shared planner evaluations an experiment reads (see eval_dir()).
+  std::vector<fs::path> eval_dirs(const ExperimentSpec& s) const {
+    std::vector<fs::path> dirs;
+    if (s.kind == "marl_training" && !s.planners.empty()) dirs.push_back(eval_dir(s, base(s), "planners", s.planners));
+    if (s.kind == "planning_users" && !s.planners.empty())
+      for (int k : s.users) dirs.push_back(eval_dir(s, base(s, {"scenario.users=" + std::to_string(k)}), "planners", s.planners));
+    if (s.kind == "trajectories")
+      for (int k : s.users)
+        dirs.push_back(eval_dir(s, run_config(s, s.algos.front(), s.seeds.front(), k),
+                                s.algos.front() + "_s" + std::to_string(s.seeds.front()), s.planners));
     return dirs;
   }
 

@@ -195,6 +195,14 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
     }
     return m;
   };
+  // --force on a MARL experiment retrains its runs and re-evaluates its planners.
+  const std::string traj = slurp(out / "trajectories" / "trajectories.csv");
+  const auto forced_traj = run("reproduce --profile tiny --threads 2 --no-plots --only trajectories --force --out " + out.string(),
+                               out / "logs4");
+  ASSERT_EQ(forced_traj.code, 0) << forced_traj.err;
+  EXPECT_NE(forced_traj.err.find("training 1 MARL runs"), std::string::npos) << forced_traj.err;
+  EXPECT_EQ(slurp(out / "trajectories" / "trajectories.csv"), traj);  // seeded: the same paths again
+
   const auto a = means(slurp(out / "power_sweep" / "power_sweep.csv")), b = means(before);
   ASSERT_EQ(a.size(), b.size());
   for (std::size_t i = 0; i < a.size(); ++i) {

@@ -104,10 +104,10 @@ class Runner {
     manifest_["profile"] = opt_.profile;
     manifest_["threads"] = threads_;
     manifest_["experiments"] = nlohmann::json::array();
-    std::vector<const ExperimentSpec*> todo;
+    std::vector<const ExperimentSpec*> selected;
     for (const auto& s : specs)
       if (s.kind == "models" || opt_.only.empty() || std::find(opt_.only.begin(), opt_.only.end(), s.name) != opt_.only.end())
-        todo.push_back(&s);
+        selected.push_back(&s);
     for (const auto& name : opt_.only) {
       bool found = false;
       for (const auto& s : specs) found = found || s.name == name;
@@ -118,12 +118,12 @@ class Runner {
       }
     }
     // Every experiment's configuration resolves before any work starts: a typo fails at once.
-    for (const auto* s : todo) (void)base(*s);
+    for (const auto* s : selected) (void)base(*s);
     write_file_atomic((out_ / "config.toml").string(), to_toml(resolve({})));
-    for (std::size_t i = 0; i < todo.size(); ++i) {
-      const auto& s = *todo[i];
-      if (i == 1) prefetch_marl(todo);
-      log_ << fmt::format("[{}/{}] {} ({}{}{})\n", i + 1, todo.size(), s.name, s.kind, s.figure.empty() ? "" : ", ",
+    for (std::size_t i = 0; i < selected.size(); ++i) {
+      const auto& s = *selected[i];
+      if (i == 1) prefetch_marl(selected);
+      log_ << fmt::format("[{}/{}] {} ({}{}{})\n", i + 1, selected.size(), s.name, s.kind, s.figure.empty() ? "" : ", ",
                           s.figure)
            << std::flush;
       if (opt_.force && s.kind == "models") forget(s);
@@ -134,7 +134,7 @@ class Runner {
       entry["files"] = stage(s);
       entry["seconds"] = since(t0);
       manifest_["experiments"].push_back(entry);
-      log_ << fmt::format("[{}/{}] {} done in {:.1f} s\n", i + 1, todo.size(), s.name, since(t0)) << std::flush;
+      log_ << fmt::format("[{}/{}] {} done in {:.1f} s\n", i + 1, selected.size(), s.name, since(t0)) << std::flush;
     }
     manifest_["seconds"] = since(t_all);
     // Earlier invocations on this directory stay listed: a cached re-run takes seconds, and the
@@ -148,7 +148,7 @@ class Runner {
       }
     }
     nlohmann::json names = nlohmann::json::array();
-    for (const auto* s : todo) names.push_back(s->name);
+    for (const auto* s : selected) names.push_back(s->name);
     runs.push_back({{"seconds", manifest_["seconds"]}, {"threads", threads_}, {"jobs", jobs_}, {"force", opt_.force},
                     {"experiments", names}});
     manifest_["runs"] = runs;
@@ -343,15 +343,15 @@ class Runner {
 
   /// Trains every MARL run the selected experiments need that is not done yet, `jobs` at a time,
   /// each as a child `skyloop train` process on one thread (the models stage has run by now).
-  void prefetch_marl(const std::vector<const ExperimentSpec*>& todo) {
+  void prefetch_marl(const std::vector<const ExperimentSpec*>& selected) {
     if (opt_.force)
-      for (const auto* s : todo)
+      for (const auto* s : selected)
         if (s->kind != "models") forget(*s);
     forgotten_ = true;
     if (jobs_ <= 1) return;
     std::vector<Config> need;
     std::vector<fs::path> dirs;
-    for (const auto* s : todo) {
+    for (const auto* s : selected) {
       if (s->kind == "models" || s->kind == "beamform_sweep") continue;
       const std::vector<int> ks = s->kind == "marl_training" ? std::vector<int>{base(*s).scenario.users} : s->users;
       const auto algos = s->kind == "trajectories" ? std::vector<std::string>{s->algos.front()} : s->algos;
@@ -454,6 +454,14 @@ class Runner {
     double seconds = 0, steps_per_second = 0;
     bool computed = false;
   };
+  /// train(), adding its time to the stage's ETA estimate when it computed something.
+  RunInfo train_timed(const Config& cfg, double& computed_s, std::size_t& computed) {
+    const auto t0 = Clock::now();
+    RunInfo info = train(cfg);
+    if (info.computed) computed_s += since(t0), ++computed;
+    return info;
+  }
+
   RunInfo train(const Config& cfg) {
     RunInfo info;
     info.dir = run_dir(cfg);
@@ -517,9 +525,7 @@ class Runner {
     for (const auto& algo : s.algos)
       for (auto seed : s.seeds) {
         const Config cfg = run_config(s, algo, seed, k);
-        const auto tr = Clock::now();
-        const RunInfo info = train(cfg);
-        if (info.computed) computed_s += since(tr), ++computed;
+        const RunInfo info = train_timed(cfg, computed_s, computed);
         const std::string m = read_file((info.dir / "metrics.csv").string());
         if (curves.empty()) curves = "algo,users," + header(m) + "\n";
         curves += prefixed(m, fmt::format("{},{},", algo, k));
@@ -571,9 +577,7 @@ class Runner {
       for (const auto& algo : s.algos)
         for (auto seed : s.seeds) {
           const Config cfg = run_config(s, algo, seed, k);
-          const auto tr = Clock::now();
-          const RunInfo info = train(cfg);
-          if (info.computed) computed_s += since(tr), ++computed;
+          const RunInfo info = train_timed(cfg, computed_s, computed);
           add(k, std::to_string(seed), evaluate(cfg, info.dir / "eval", {}, info.dir));
           eta(fmt::format("K = {} {} seed {}{}", k, algo, seed, info.computed ? "" : " (ready)"), ++done, total, since(t0),
               computed_s, computed);

@@ -145,7 +145,11 @@ void Run::checkpoint(const nlohmann::json& meta, Nets& nets, torch::optim::Optim
   write_file_atomic((dir / "metrics.csv").string(), metrics);
 }
 
-MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, std::int64_t steps, std::int64_t start_steps) const {
+MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets,
+                            torch::optim::Optimizer& optimizer, const std::string& metrics, std::int64_t steps,
+                            std::int64_t start_steps) const {
+  save(final_path, meta, nets, nullptr);
+  checkpoint(meta, nets, optimizer, metrics);
   MarlTrainResult result;
   result.env_steps = steps;
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

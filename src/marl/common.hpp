@@ -75,8 +75,11 @@ struct Run {
                         std::string& metrics) const;
   /// Resumable checkpoint: last.pt (networks and optimiser) and metrics.csv, both atomically.
   void checkpoint(const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer& opt, const std::string& metrics) const;
-  /// After the loop: timings and the deterministic evaluation of final_path.
-  MarlTrainResult finish(const Config& cfg, const MarlTrainOptions& opt, std::int64_t steps, std::int64_t start_steps) const;
+  /// After the loop: writes the final policy (final_path) and the last checkpoint, then returns
+  /// the timings and the deterministic evaluation of the final policy.
+  MarlTrainResult finish(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets,
+                         torch::optim::Optimizer& optimizer, const std::string& metrics, std::int64_t steps,
+                         std::int64_t start_steps) const;
 };
 
 }  // namespace skyloop::marl

@@ -248,9 +248,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     if (bar) bar->advance();
   }
   if (bar) bar->finish();
-  save(run.final_path, meta(), nets, nullptr);
-  run.checkpoint(meta(), nets, adam, metrics);
-  return run.finish(cfg, opt, steps, start_steps);
+  return run.finish(cfg, opt, meta(), nets, adam, metrics, steps, start_steps);
 }
 
 }  // namespace marl

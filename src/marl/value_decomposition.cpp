@@ -241,9 +241,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
     }
   }
   if (bar) bar->finish();
-  save(run.final_path, meta(), nets, nullptr);
-  run.checkpoint(meta(), nets, adam, metrics);
-  return run.finish(cfg, opt, steps, start_steps);
+  return run.finish(cfg, opt, meta(), nets, adam, metrics, steps, start_steps);
 }
 
 }  // namespace skyloop::marl

@@ -32,6 +32,9 @@ int run_eval(const EvalOptions& o) {
   if (!o.seed.empty()) extra.push_back("run.seed=" + o.seed);
   if (!o.threads.empty()) extra.push_back("run.threads=" + o.threads);
   const Config cfg = o.config.resolve(extra);
+  std::filesystem::path csv_path(o.out), config_path(o.out);
+  config_path.replace_extension(".config.toml");
+  if (!o.out.empty()) check_output_path(csv_path.string()), check_output_path(config_path.string());
 #ifdef SKYLOOP_HAS_TORCH
   set_torch_threads(1);  // decisions are timed on one core each; samples run in parallel instead
 #endif
@@ -56,11 +59,10 @@ int run_eval(const EvalOptions& o) {
             << std::flush;
   const auto rows = run_beamform_eval(cfg, opt, builtin_beamformers(), o.quiet ? nullptr : &std::cerr);
   if (!o.out.empty()) {
-    std::filesystem::path csv(o.out);
-    std::filesystem::path resolved = csv;
-    resolved.replace_extension(".config.toml");
-    write_file_atomic(resolved.string(), to_toml(cfg));
-    write_file_atomic(csv.string(), beamform_eval_csv(rows, cfg));
+    const auto& csv = csv_path;
+    const auto& resolved = config_path;
+    // The CSV and its resolved config change together or not at all.
+    write_files_atomic({{csv.string(), beamform_eval_csv(rows, cfg)}, {resolved.string(), to_toml(cfg)}});
     std::cout << "wrote " << csv.string() << " and " << resolved.string() << "\n";
   }
   std::cout << format_summary(summarise(rows));
@@ -70,7 +72,7 @@ int run_eval(const EvalOptions& o) {
 struct TrainCliOptions {
   ConfigOptions config;
   std::string model, out, device, seed, threads;
-  bool resume = false;
+  bool resume = false, force = false;
 };
 
 int run_train(const TrainCliOptions& o) {
@@ -83,6 +85,7 @@ int run_train(const TrainCliOptions& o) {
   TrainOptions opt;
   opt.out_dir = o.out;
   opt.resume = o.resume;
+  opt.force = o.force;
   opt.progress = &std::cerr;
   const TrainResult r = train_beamformer(cfg, opt);
   std::cout << fmt::format("{}: best validation sum rate {:.3f} bit/s/Hz (epoch {}), test sum rate {:.3f} bit/s/Hz, "
@@ -123,6 +126,7 @@ void add_beamform_command(CLI::App& app, Action& action) {
   train->add_option("--model", t->model, "gnn | deepsets | mspointnet (sets nn.model)");
   train->add_option("--out", t->out, "run directory: model.pt, last.pt, metrics.csv, config.toml, test.json")->required();
   train->add_flag("--resume", t->resume, "continue from OUT/last.pt");
+  train->add_flag("--force", t->force, "replace the run already in OUT (refused otherwise)");
   train->add_option("--device", t->device, "cpu | cuda (sets nn.device)");
   train->add_option("--seed", t->seed, "training seed (sets run.seed)");
   train->add_option("--threads", t->threads, "torch threads, 0 = all (sets run.threads)");
@@ -133,7 +137,10 @@ void add_beamform_command(CLI::App& app, Action& action) {
   auto* list = beamform->add_subcommand("list", "list the available beamformers");
   list->final_callback([&action] {
     action = [] {
-      for (const auto& [name, desc] : builtin_beamformers().list()) std::cout << fmt::format("{:<8} {}\n", name, desc);
+      const auto all = builtin_beamformers().list();
+      std::size_t width = 0;
+      for (const auto& [name, desc] : all) width = std::max(width, name.size());
+      for (const auto& [name, desc] : all) std::cout << fmt::format("{:<{}}  {}\n", name, width, desc);
       return 0;
     };
   });

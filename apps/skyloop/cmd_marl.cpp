@@ -15,7 +15,7 @@ namespace {
 struct TrainOpts {
   ConfigOptions config;
   std::string algo, seed, steps, out;
-  bool resume = false;
+  bool resume = false, force = false;
 };
 struct EvalOpts {
   ConfigOptions config;
@@ -30,8 +30,9 @@ void add_marl_commands(CLI::App& app, Action& action) {
   train->add_option("--algo", t->algo, "mappo | ippo | vdn | qmix (sets marl.algo)");
   train->add_option("--seed", t->seed, "training seed (sets run.seed)");
   train->add_option("--steps", t->steps, "environment steps (sets marl.total_steps)");
-  train->add_option("--out", t->out, "run directory: config.toml, metrics.csv, last.pt, policy.pt, summary.csv")->required();
+  train->add_option("--out", t->out, "run directory: config.toml, metrics.csv, last.pt, policy.pt")->required();
   train->add_flag("--resume", t->resume, "continue from OUT/last.pt");
+  train->add_flag("--force", t->force, "replace the run already in OUT (refused otherwise)");
   add_config_options(train, t->config);
   train->final_callback([&action, t] {
     action = [t] {
@@ -43,6 +44,7 @@ void add_marl_commands(CLI::App& app, Action& action) {
       MarlTrainOptions opt;
       opt.out_dir = t->out;
       opt.resume = t->resume;
+      opt.force = t->force;
       opt.progress = &std::cerr;
       opt.registry = &builtin_beamformers();
       const auto r = train_marl(cfg, opt);
@@ -78,8 +80,8 @@ void add_marl_commands(CLI::App& app, Action& action) {
       for (const auto& s : extra) apply_override(cfg, s);
       validate(cfg);
       PlanOptions opt;
-      if (!v->planners.empty()) opt.planners = split_methods(v->planners);
-      opt.seed = v->seed.empty() ? cfg.marl.users_seed : std::stoull(v->seed);
+      if (!v->planners.empty()) opt.planners = split_methods(v->planners, "--planner");
+      opt.seed = v->seed.empty() ? cfg.marl.users_seed : parse_seed("--seed", v->seed);
       opt.out_dir = v->out;
       opt.extra.push_back(std::shared_ptr<Planner>(std::move(policy)));
       std::vector<double> seconds;

@@ -15,7 +15,7 @@ struct PlanCliOptions {
   ConfigOptions config;
   std::string planners = "random,greedy,optimal";
   std::string users, oracle;
-  std::uint64_t seed = 3;
+  std::string seed = "3";
   std::string out;
 };
 }  // namespace
@@ -39,13 +39,13 @@ void add_plan_command(CLI::App& app, Action& action) {
       set_torch_threads(cfg.run.threads);
 #endif
       PlanOptions opt;
-      opt.planners = split_methods(o->planners);
-      opt.seed = o->seed;
+      opt.planners = split_methods(o->planners, "--planner");
+      opt.seed = parse_seed("--seed", o->seed);
       opt.out_dir = o->out;
       std::vector<double> seconds;
       const auto recs = run_planners(cfg, opt, builtin_beamformers(), &std::cerr, &seconds);
       std::cout << "plan: N = " << cfg.trajectory.starts.size() << " UAVs, K = " << cfg.scenario.users
-                << " users (seed " << o->seed << "), oracle " << cfg.env.oracle << ", T_max = " << cfg.trajectory.t_max << "\n"
+                << " users (seed " << opt.seed << "), oracle " << cfg.env.oracle << ", T_max = " << cfg.trajectory.t_max << "\n"
                 << format_plan_summary(recs, seconds);
       if (!o->out.empty()) std::cout << "wrote " << o->out << "/{trajectory,rates,summary,users}.csv and config.toml\n";
       return 0;

@@ -30,7 +30,7 @@ void add_reproduce_command(CLI::App& app, Action& action) {
   cmd->add_option("--python", o->r.python, "python interpreter with matplotlib")->capture_default_str();
   cmd->final_callback([&action, o] {
     action = [o] {
-      if (!o->only.empty()) o->r.only = split_methods(o->only);
+      if (!o->only.empty()) o->r.only = split_methods(o->only, "--only");
       o->r.progress = &std::cerr;
       const int rc = reproduce(o->r);
       std::cout << "reproduce (" << o->r.profile << "): results in "

@@ -1,9 +1,13 @@
 // skyloop: joint beamforming and trajectory optimisation for multi-UAV downlink networks.
 // Exit codes: 0 success, 2 bad input (one line on stderr), 1 runtime failure.
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
 #include <iostream>
 
 #include "common.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/process.hpp"
 
 namespace skyloop::cli {
 
@@ -19,10 +23,32 @@ void add_config_options(CLI::App* cmd, ConfigOptions& o) {
       ->type_name("KEY=VALUE");
 }
 
+/// The first word that names no subcommand where one is required: "unknown command 'x': allowed
+/// a, b, c" (CLI11 alone says only that a subcommand is required). Empty if the words are fine.
+std::string unknown_command(CLI::App& app, int argc, char** argv) {
+  CLI::App* at = &app;
+  for (int i = 1; i < argc; ++i) {
+    const std::string word = argv[i];
+    if (word.empty() || word[0] == '-') return {};
+    const auto subs = at->get_subcommands([](CLI::App*) { return true; });
+    if (subs.empty()) return {};
+    CLI::App* next = nullptr;
+    std::string names;
+    for (auto* s : subs) {
+      names += (names.empty() ? "" : ", ") + s->get_name();
+      if (s->get_name() == word) next = s;
+    }
+    if (!next) return "unknown command '" + word + "'" + (at == &app ? "" : " for '" + at->get_name() + "'") + ": allowed " + names;
+    at = next;
+  }
+  return {};
+}
+
 }  // namespace skyloop::cli
 
 int main(int argc, char** argv) {
   using namespace skyloop;
+  install_interrupt_handlers();
   CLI::App app{"skyloop: joint beamforming and trajectory optimisation for multi-UAV downlink networks"};
   app.set_version_flag("--version", std::string("skyloop ") + SKYLOOP_VERSION);
   app.require_subcommand(1);
@@ -35,6 +61,10 @@ int main(int argc, char** argv) {
   cli::add_marl_commands(app, action);
   cli::add_reproduce_command(app, action);
 #endif
+  if (const std::string bad = cli::unknown_command(app, argc, argv); !bad.empty()) {
+    std::cerr << "skyloop: error: " << bad << "\n";
+    return 2;
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -43,7 +73,12 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
-    return action ? action() : 0;
+    const int rc = action ? action() : 0;
+    // A full disk or a closed pipe on stdout is a failure, not a silent success.
+    std::cout.flush();
+    if (!std::cout || std::fflush(stdout) != 0 || std::ferror(stdout))
+      throw std::runtime_error(std::string("cannot write to standard output: ") + std::strerror(errno ? errno : EIO));
+    return rc;
   } catch (const InputError& e) {
     std::cerr << "skyloop: error: " << e.what() << "\n";
     return 2;

@@ -23,18 +23,29 @@ VectorXd waterfill(const VectorXd& floor, double budget) {
   std::vector<Eigen::Index> order(static_cast<std::size_t>(n));
   std::iota(order.begin(), order.end(), 0);
   std::sort(order.begin(), order.end(), [&](auto a, auto b) { return floor[a] < floor[b]; });
-  // Find the largest m such that the water level over the m best channels is above floor[m-1].
-  double sum = 0.0, mu = 0.0;
-  for (Eigen::Index m = 1; m <= n; ++m) {
-    const double f = floor[order[static_cast<std::size_t>(m - 1)]];
+  // The m best channels are active while the water level (budget + sum_{j<=m} f_j) / m stays above
+  // f_m, i.e. while budget > sum_{j<m} (f_m - f_j). Everything is written with differences of
+  // floors: when the floors dwarf the budget (noise far above the received power) the level itself
+  // rounds to a floor and the budget would vanish (no user served) or overshoot.
+  Eigen::Index m = 0;
+  for (Eigen::Index cand = 1; cand <= n; ++cand) {
+    const double f = floor[order[static_cast<std::size_t>(cand - 1)]];
     if (!std::isfinite(f)) break;
-    const double level = (budget + sum + f) / static_cast<double>(m);
-    if (level <= f) break;
-    sum += f;
-    mu = level;
+    double spread = 0.0;
+    for (Eigen::Index j = 0; j + 1 < cand; ++j) spread += f - floor[order[static_cast<std::size_t>(j)]];
+    if (!(budget > spread)) break;
+    m = cand;
   }
-  VectorXd p(n);
-  for (Eigen::Index k = 0; k < n; ++k) p[k] = std::max(0.0, mu - floor[k]);
+  VectorXd p = VectorXd::Zero(n);
+  if (m == 0) return p;
+  for (Eigen::Index i = 0; i < m; ++i) {
+    const auto k = order[static_cast<std::size_t>(i)];
+    double spread = 0.0;
+    for (Eigen::Index j = 0; j < m; ++j) spread += floor[order[static_cast<std::size_t>(j)]] - floor[k];
+    p[k] = std::max(0.0, (budget + spread) / static_cast<double>(m));
+  }
+  const double total = p.sum();
+  if (total > 0) p *= budget / total;  // exactly on the budget, whatever rounding did
   return p;
 }
 

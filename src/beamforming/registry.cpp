@@ -1,5 +1,7 @@
 #include "skyloop/beamforming/registry.hpp"
 
+#include <algorithm>
+
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/beamforming/wmmse.hpp"
 #include "skyloop/core/error.hpp"
@@ -14,6 +16,8 @@ std::unique_ptr<Beamformer> BeamformerRegistry::create(const std::string& spec, 
   const auto eq = spec.find('=');
   const std::string name = spec.substr(0, eq);
   const std::string arg = eq == std::string::npos ? "" : spec.substr(eq + 1);
+  if (eq != std::string::npos && arg.empty())
+    throw InputError("method '" + spec + "' has an empty argument after '=': allowed '" + name + "' or '" + name + "=ARG'");
   const auto it = entries_.find(name);
   if (it == entries_.end()) {
     std::string known;
@@ -58,13 +62,15 @@ void register_classical_beamformers(BeamformerRegistry& reg) {
   });
 }
 
-std::vector<std::string> split_methods(const std::string& list) {
+std::vector<std::string> split_methods(const std::string& list, const std::string& flag) {
   std::vector<std::string> out;
   std::size_t start = 0;
   while (true) {
     const auto comma = list.find(',', start);
     std::string item = list.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
-    if (item.empty()) throw InputError("--methods '" + list + "' has an empty item: allowed a comma-separated list such as mrt,zf,wmmse");
+    if (item.empty()) throw InputError(flag + " '" + list + "' has an empty item: allowed a comma-separated list of distinct names");
+    if (std::find(out.begin(), out.end(), item) != out.end())
+      throw InputError(flag + " '" + list + "' names '" + item + "' twice: allowed a comma-separated list of distinct names");
     out.push_back(item);
     if (comma == std::string::npos) break;
     start = comma + 1;

@@ -39,6 +39,7 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
   tr.W = scale_to_budget(W0, c.p_max, PowerScaling::Full);
   if (K == 0) {
     tr.sum_rates.push_back(0.0);
+    tr.sum_rate = 0.0;
     tr.converged = true;
     return tr;
   }
@@ -54,9 +55,11 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
   MatrixXcd W(L, K);
   for (int it = 0; it < opt.max_iterations; ++it) {
     for (Eigen::Index k = 0; k < K; ++k) {
-      const double total = M.row(k).squaredNorm() + c.noise;
       const double desired = std::norm(M(k, k));
-      const double omega = total / (total - desired);  // total - desired >= noise > 0
+      const double interference = M.row(k).squaredNorm() - desired + c.noise;
+      const double total = desired + interference;
+      // 1 + SINR, from the interference itself: total - desired cancels catastrophically at high SNR.
+      const double omega = total / std::max(interference, c.noise);
       u[k] = M(k, k) / total;
       a[k] = omega * std::norm(u[k]);
       b[k] = omega * u[k];
@@ -94,15 +97,23 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
     M.noalias() = c.G * W;
     const double next = sum_rate_of(M, c.noise);
     tr.sum_rates.push_back(next);
-    tr.W = W;
     ++tr.iterations;
+    // In exact arithmetic every iteration raises the sum rate. At extreme SNR (noise far below the
+    // received power) the W-step's matrix spans many orders of magnitude and rounding can break
+    // that: a non-finite or lower iterate ends the run, and the best iterate (at worst the start
+    // point) is returned, so WMMSE never ends below where it started.
+    if (!std::isfinite(next) || !W.allFinite()) break;
     const double gain = next - rate;
-    rate = next;
+    if (next > rate) {
+      tr.W = W;
+      rate = next;
+    }
     if (gain <= opt.tolerance * std::max(std::abs(rate), 1e-12)) {
-      tr.converged = true;
+      tr.converged = gain >= 0;
       break;
     }
   }
+  tr.sum_rate = rate;
   return tr;
 }
 
@@ -124,7 +135,7 @@ MatrixXcd WmmseBeamformer::design(const Cluster& c) const {
   WmmseTrace best = wmmse_run(c, W0, opt_);
   for (int r = 1; r <= restarts_; ++r) {
     WmmseTrace t = wmmse_run(c, random_beamformer(L, K, c.p_max, derive_seed(stream, r)), opt_);
-    if (t.sum_rates.back() > best.sum_rates.back()) best = std::move(t);
+    if (t.sum_rate > best.sum_rate) best = std::move(t);
   }
   return scale_to_budget(std::move(best.W), c.p_max, scaling_);
 }

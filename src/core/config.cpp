@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 
 #include "skyloop/core/error.hpp"
@@ -149,6 +150,9 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.nn.grad_clip; }));
   f.push_back(text("nn.readout", "per-user output: direct = 2L reals (the paper), structured = (lambda, power) of the optimal structure",
                    {"direct", "structured"}, [](Config& c) -> std::string& { return c.nn.readout; }));
+  f.push_back(text("nn.precision",
+                   "arithmetic of a served model: float32 (as trained) or float64 (same weights, a reference for numerical checks)",
+                   {"float32", "float64"}, [](Config& c) -> std::string& { return c.nn.precision; }));
   // [marl]
   f.push_back(text("marl.algo", "multi-agent learner", {"mappo", "ippo", "vdn", "qmix"},
                    [](Config& c) -> std::string& { return c.marl.algo; }));
@@ -238,6 +242,29 @@ const Field* find_field(const std::string& key) {
   return nullptr;
 }
 
+std::string toml_string(const std::string& s) {
+  std::string out = "\"";
+  for (const char ch : s) {
+    const auto u = static_cast<unsigned char>(ch);
+    switch (ch) {
+      case '"': out += "\\\""; break;
+      case '\\': out += "\\\\"; break;
+      case '\n': out += "\\n"; break;
+      case '\t': out += "\\t"; break;
+      case '\r': out += "\\r"; break;
+      default:
+        if (u < 0x20 || u == 0x7f) {
+          char buf[8];
+          std::snprintf(buf, sizeof buf, "\\u%04X", u);
+          out += buf;
+        } else {
+          out += ch;
+        }
+    }
+  }
+  return out + "\"";
+}
+
 std::string format_value(const FieldValue& v) {
   struct V {
     std::string operator()(bool b) const { return b ? "true" : "false"; }
@@ -247,7 +274,7 @@ std::string format_value(const FieldValue& v) {
       if (s.find_first_of(".eninf") == std::string::npos) s += ".0";
       return s;
     }
-    std::string operator()(const std::string& s) const { return "\"" + s + "\""; }
+    std::string operator()(const std::string& s) const { return toml_string(s); }
     std::string operator()(const std::vector<Point2>& p) const {
       std::string s = "[";
       for (std::size_t i = 0; i < p.size(); ++i)
@@ -269,8 +296,9 @@ void set_field(Config& cfg, const Field& field, const FieldValue& value) {
       return;
     case Type::Integer: {
       if (!std::holds_alternative<std::int64_t>(value)) fail("has the wrong type");
-      const auto i = static_cast<double>(std::get<std::int64_t>(value));
-      if (i < field.lo || i > field.hi) fail("is out of range");
+      // Compared as integers: a double holds 2^62 + 1 as 2^62 and would let it through.
+      const std::int64_t i = std::get<std::int64_t>(value);
+      if (i < static_cast<std::int64_t>(field.lo) || i > static_cast<std::int64_t>(field.hi)) fail("is out of range");
       field.set(cfg, value);
       return;
     }
@@ -312,7 +340,7 @@ void validate(const Config& c) {
   auto check_in_area = [&](const std::vector<Point2>& pts, const std::string& key) {
     for (std::size_t i = 0; i < pts.size(); ++i) {
       const auto& p = pts[i];
-      if (p.x < 0 || p.x > c.scenario.area_x_m || p.y < 0 || p.y > c.scenario.area_y_m)
+      if (!(p.x >= 0 && p.x <= c.scenario.area_x_m && p.y >= 0 && p.y <= c.scenario.area_y_m))  // NaN fails too
         throw InputError(key + "[" + std::to_string(i) + "] = [" + format_double(p.x) + ", " + format_double(p.y) + "]" +
                          " is outside the area: allowed x in [0, " + format_double(c.scenario.area_x_m) +
                          "], y in [0, " + format_double(c.scenario.area_y_m) + "]");

@@ -150,7 +150,7 @@ Positions positions_in_area(const std::vector<Point2>& pts, const Config& cfg, c
   Positions p(static_cast<Eigen::Index>(pts.size()), 2);
   for (std::size_t i = 0; i < pts.size(); ++i) {
     const auto [x, y] = pts[i];
-    if (x < 0 || x > cfg.scenario.area_x_m || y < 0 || y > cfg.scenario.area_y_m)
+    if (!(x >= 0 && x <= cfg.scenario.area_x_m && y >= 0 && y <= cfg.scenario.area_y_m))  // NaN fails too
       throw InputError(what + "[" + std::to_string(i) + "] = [" + format_double(x) + ", " + format_double(y) +
                        "] is outside the area: allowed x in [0, " + format_double(cfg.scenario.area_x_m) + "], y in [0, " +
                        format_double(cfg.scenario.area_y_m) + "]");
@@ -158,6 +158,16 @@ Positions positions_in_area(const std::vector<Point2>& pts, const Config& cfg, c
     p(static_cast<Eigen::Index>(i), 1) = y;
   }
   return p;
+}
+
+std::uint64_t parse_seed(const std::string& flag, const std::string& text) {
+  const Field* seed = find_field("run.seed");
+  const auto hi = static_cast<std::uint64_t>(seed->hi);
+  const auto fail = [&] { throw InputError(flag + " = '" + text + "' is invalid: allowed " + seed->allowed()); };
+  if (text.empty() || text.size() > 19 || text.find_first_not_of("0123456789") != std::string::npos) fail();
+  const std::uint64_t v = std::stoull(text);  // at most 19 digits: no overflow
+  if (v > hi) fail();
+  return v;
 }
 
 std::string to_toml(const Config& cfg) {

@@ -2,50 +2,178 @@
 
 #include <cerrno>
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "skyloop/core/error.hpp"
 
 namespace skyloop {
 
-void write_file_atomic(const std::string& path, const std::string& content) {
-  namespace fs = std::filesystem;
-  const fs::path target(path);
-  std::error_code ec;
-  if (target.has_parent_path()) {
-    fs::create_directories(target.parent_path(), ec);
-    if (ec) throw std::runtime_error("cannot create directory " + target.parent_path().string() + ": " + ec.message());
+namespace fs = std::filesystem;
+
+namespace {
+
+const char* kind_of(const fs::file_status& st) {
+  switch (st.type()) {
+    case fs::file_type::directory: return "a directory";
+    case fs::file_type::fifo: return "a FIFO";
+    case fs::file_type::character: return "a character device";
+    case fs::file_type::block: return "a block device";
+    case fs::file_type::socket: return "a socket";
+    default: return "not a regular file";
   }
-  const fs::path tmp = target.string() + ".tmp." + std::to_string(::getpid());
-  {
-    std::FILE* f = std::fopen(tmp.c_str(), "wb");
-    if (!f) throw std::runtime_error("cannot write " + tmp.string() + ": " + std::strerror(errno));
-    const bool ok = std::fwrite(content.data(), 1, content.size(), f) == content.size() &&
-                    std::fflush(f) == 0 && ::fsync(::fileno(f)) == 0;
-    std::fclose(f);
-    if (!ok) {
-      fs::remove(tmp, ec);
-      throw std::runtime_error("cannot write " + tmp.string() + ": " + std::strerror(errno));
+}
+
+/// The file a write to `path` lands in: a symlink is followed (the link stays, its target is
+/// replaced), and an existing target that is not a regular file is refused.
+fs::path write_target(const std::string& path) {
+  fs::path target(path);
+  std::error_code ec;
+  if (fs::is_symlink(fs::symlink_status(target, ec))) {
+    const fs::path resolved = fs::weakly_canonical(target, ec);
+    if (!ec) target = resolved;
+  }
+  const auto st = fs::status(target, ec);
+  if (!ec && fs::exists(st) && !fs::is_regular_file(st))
+    throw InputError("output '" + path + "' is " + kind_of(st) + ": allowed a regular file path (new or existing)");
+  return target;
+}
+
+}  // namespace
+
+void check_output_path(const std::string& path) { (void)write_target(path); }
+
+void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force) {
+  std::error_code ec;
+  if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))
+    throw InputError("--out '" + dir + "' exists and is not a directory: allowed a run directory");
+  if (resume) return;
+  for (const auto& f : results) {
+    const fs::path p = fs::path(dir) / f;
+    if (!fs::exists(p, ec)) continue;
+    if (!force)
+      throw InputError("--out '" + dir + "' already holds a run (" + f +
+                       "): allowed --resume to continue it, --force to replace it, or a new directory");
+  }
+  if (force)
+    for (const auto& f : results) fs::remove(fs::path(dir) / f, ec);
+}
+
+namespace {
+
+fs::path temp_for(const fs::path& target) { return target.string() + ".tmp." + std::to_string(::getpid()); }
+
+/// Writes `content` to `tmp`, flushed to disk; removes `tmp` and throws on failure.
+void write_temp(const fs::path& tmp, const std::string& content) {
+  std::error_code ec;
+  if (tmp.has_parent_path()) {
+    fs::create_directories(tmp.parent_path(), ec);
+    if (ec) throw std::runtime_error("cannot create directory " + tmp.parent_path().string() + ": " + ec.message());
+  }
+  std::FILE* f = std::fopen(tmp.c_str(), "wb");
+  if (!f) throw std::runtime_error("cannot write " + tmp.string() + ": " + std::strerror(errno));
+  bool ok = std::fwrite(content.data(), 1, content.size(), f) == content.size() && std::fflush(f) == 0 &&
+            ::fsync(::fileno(f)) == 0;
+  const int err = errno;
+  ok = (std::fclose(f) == 0) && ok;
+  if (!ok) {
+    fs::remove(tmp, ec);
+    throw std::runtime_error("cannot write " + tmp.string() + ": " + std::strerror(err ? err : EIO));
+  }
+}
+
+}  // namespace
+
+void write_file_atomic(const std::string& path, const std::string& content) {
+  write_files_atomic({{path, content}});
+}
+
+void write_files_atomic(const std::vector<std::pair<std::string, std::string>>& files) {
+  std::vector<fs::path> targets, temps;
+  for (const auto& [path, content] : files) targets.push_back(write_target(path));
+  std::error_code ec;
+  auto remove_all_temps = [&] {
+    for (const auto& t : temps) fs::remove(t, ec);
+  };
+  try {
+    for (std::size_t i = 0; i < files.size(); ++i) {
+      temps.push_back(temp_for(targets[i]));
+      write_temp(temps.back(), files[i].second);
+    }
+  } catch (...) {
+    remove_all_temps();
+    throw;
+  }
+  // Every new file is on disk. Keep the old ones (hard links) until all renames succeed, so a
+  // failure in the middle restores the earlier set: both or neither change.
+  std::vector<fs::path> backups(files.size());
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    if (!fs::exists(targets[i], ec)) continue;
+    backups[i] = targets[i].string() + ".bak." + std::to_string(::getpid());
+    fs::remove(backups[i], ec);
+    fs::create_hard_link(targets[i], backups[i], ec);
+    if (ec) backups[i].clear();  // e.g. a file system without hard links: no rollback for this one
+  }
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    if (::rename(temps[i].c_str(), targets[i].c_str()) != 0) {
+      const std::string why = std::strerror(errno);
+      for (std::size_t j = 0; j < i; ++j) {
+        if (!backups[j].empty()) fs::rename(backups[j], targets[j], ec);
+        else fs::remove(targets[j], ec);
+      }
+      remove_all_temps();
+      for (const auto& b : backups)
+        if (!b.empty()) fs::remove(b, ec);
+      throw std::runtime_error("cannot rename " + temps[i].string() + " into " + targets[i].string() + ": " + why);
     }
   }
-  fs::rename(tmp, target, ec);
-  if (ec) {
-    fs::remove(tmp, ec);
-    throw std::runtime_error("cannot rename into " + target.string() + ": " + ec.message());
+  for (const auto& b : backups)
+    if (!b.empty()) fs::remove(b, ec);
+}
+
+void remove_stale_temporaries(const std::string& dir) {
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) return;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    for (const char* tag : {".tmp.", ".bak."}) {
+      const auto at = name.rfind(tag);
+      if (at == std::string::npos) continue;
+      const std::string pid = name.substr(at + 5);
+      if (pid.empty() || pid.find_first_not_of("0123456789") != std::string::npos) continue;
+      const long p = std::strtol(pid.c_str(), nullptr, 10);
+      // A temporary of a process that is gone (killed mid-write) is debris; a live writer's is not.
+      if (p != ::getpid() && ::kill(static_cast<pid_t>(p), 0) != 0 && errno == ESRCH) {
+        if (std::string(tag) == ".bak.") {
+          // An interrupted pair write: the backup is the earlier file; put it back if the target is gone.
+          const fs::path target = e.path().parent_path() / name.substr(0, at);
+          if (!fs::exists(target, ec)) fs::rename(e.path(), target, ec);
+          else fs::remove(e.path(), ec);
+        } else {
+          fs::remove(e.path(), ec);
+        }
+      }
+    }
   }
 }
 
 std::string read_file(const std::string& path, const std::string& what) {
+  std::error_code ec;
+  const auto st = fs::status(path, ec);
+  if (!ec && fs::exists(st) && !fs::is_regular_file(st))
+    throw InputError(what + " '" + path + "' is " + kind_of(st) + ": allowed a regular file");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw InputError(what + " '" + path + "' cannot be read: " + std::strerror(errno));
   std::ostringstream ss;
   ss << in.rdbuf();
+  if (in.bad()) throw InputError(what + " '" + path + "' cannot be read: " + std::strerror(errno));
   return ss.str();
 }
 

@@ -23,6 +23,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/process.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/experiments/beamform_eval.hpp"
 #include "skyloop/experiments/builtin.hpp"
@@ -56,6 +57,7 @@ std::string training_key(Config c) {
   c.wmmse = d.wmmse;
   c.trajectory = d.trajectory;
   c.nn.device = d.nn.device;
+  c.nn.precision = d.nn.precision;  // serving only
   return config_key(c);
 }
 
@@ -246,6 +248,7 @@ class Runner {
           TrainOptions t;
           t.out_dir = dir.string();
           t.resume = fs::exists(dir / "last.pt");
+          t.force = !t.resume;  // the cache's own directory: a run killed before its first checkpoint restarts
           t.progress = &log_;
           train_beamformer(cfg, t);
           source = "trained";
@@ -385,15 +388,14 @@ class Runner {
         const Config& cfg = need[i];
         const fs::path& dir = dirs[i];
         write_file_atomic((dir / "request.toml").string(), to_toml(cfg));
-        const std::string cmd =
-            fmt::format("'{}' train --config '{}' --out '{}'{} > '{}' 2>&1", exe, (dir / "request.toml").string(), dir.string(),
-                        fs::exists(dir / "last.pt") ? " --resume" : "", (dir / "train.log").string());
+        std::vector<std::string> argv = {exe, "train", "--config", (dir / "request.toml").string(), "--out", dir.string()};
+        argv.push_back(fs::exists(dir / "last.pt") ? "--resume" : "--force");
         const auto tr = Clock::now();
-        const int rc = std::system(cmd.c_str());
+        const int rc = run_process(argv, (dir / "train.log").string());
         const double sec = since(tr);
         std::lock_guard<std::mutex> lock(mu);
         if (rc != 0) {
-          failed.push_back((dir / "train.log").string());
+          failed.push_back(fmt::format("{} (exit status {})", (dir / "train.log").string(), rc));
           continue;
         }
         nlohmann::json j = {{"seconds", sec},
@@ -413,7 +415,8 @@ class Runner {
     std::vector<std::thread> pool;
     for (int j = 0; j < jobs_; ++j) pool.emplace_back(worker);
     for (auto& t : pool) t.join();
-    if (!failed.empty()) throw std::runtime_error("MARL training failed; see " + failed.front());
+    if (!failed.empty())
+      throw std::runtime_error(fmt::format("{} of {} MARL runs failed; see {}", failed.size(), need.size(), failed.front()));
   }
 
   Config run_config(const ExperimentSpec& s, const std::string& algo, std::uint64_t seed, int users) const {
@@ -474,6 +477,7 @@ class Runner {
       MarlTrainOptions t;
       t.out_dir = info.dir.string();
       t.resume = fs::exists(info.dir / "last.pt");
+      t.force = !t.resume;
       t.progress = &log_;
       t.registry = &builtin_beamformers();
       const auto r = train_marl(cfg, t);
@@ -652,6 +656,10 @@ int reproduce(const ReproduceOptions& o) {
   ReproduceOptions opt = o;
   if (opt.profile != "quick" && opt.profile != "paper" && opt.profile != "tiny")
     throw InputError("--profile '" + opt.profile + "' is unknown: allowed quick, paper, tiny");
+  if (opt.threads < 0 || opt.threads > 1024)
+    throw InputError("--threads = " + std::to_string(opt.threads) + " is out of range: allowed an integer in [0, 1024] (0 = all cores)");
+  if (opt.jobs < 0 || opt.jobs > 1024)
+    throw InputError("--jobs = " + std::to_string(opt.jobs) + " is out of range: allowed an integer in [0, 1024] (0 = --threads)");
   if (opt.out_dir.empty()) opt.out_dir = "results/" + opt.profile;
   if (opt.experiments_dir.empty()) opt.experiments_dir = (fs::path(source_dir()) / "configs" / "experiments").string();
   const auto specs = load_experiments(opt.experiments_dir, opt.profile);
@@ -660,7 +668,7 @@ int reproduce(const ReproduceOptions& o) {
   const std::string script = (fs::path(source_dir()) / "scripts" / "plot_figures.py").string();
   const std::string cmd = fmt::format("'{}' '{}' '{}'", opt.python, script, opt.out_dir);
   if (opt.progress) *opt.progress << "plots and report: " << cmd << "\n" << std::flush;
-  const int rc = std::system(cmd.c_str());
+  const int rc = run_process({opt.python, script, opt.out_dir});
   if (rc != 0) throw std::runtime_error("the plot step failed (" + cmd + "); the CSVs under " + opt.out_dir + " are complete");
   return 0;
 }

@@ -127,6 +127,8 @@ Run::Run(const Config& cfg, const MarlTrainOptions& opt)
   set_torch_threads(cfg.run.threads);
   if (opt.resume && !std::filesystem::exists(last))
     throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");
+  check_fresh_run_dir(opt.out_dir, {"policy.pt", "last.pt", "metrics.csv"}, opt.resume, opt.force);
+  remove_stale_temporaries(opt.out_dir);
 }
 
 nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int size, Nets& nets,

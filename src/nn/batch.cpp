@@ -40,7 +40,8 @@ double channel_rms(const ClusterSet& set) {
   return std::sqrt(p);
 }
 
-Batch make_batch(const ClusterSet& set, const torch::Tensor& ids, double feature_scale, const torch::Device& device) {
+Batch make_batch(const ClusterSet& set, const torch::Tensor& ids, double feature_scale, const torch::Device& device,
+                 torch::ScalarType dtype) {
   const auto sizes = set.sizes.index_select(0, ids);                  // [C]
   const auto C = ids.size(0);
   const auto seg = torch::repeat_interleave(torch::arange(C, torch::kInt64), sizes);  // [U]
@@ -52,19 +53,19 @@ Batch make_batch(const ClusterSet& set, const torch::Tensor& ids, double feature
 
   Batch b;
   // h = conj(g): Re h = Re g, Im h = -Im g.
-  b.x = (torch::cat({gr, -gi}, 1) * feature_scale).to(torch::kFloat32).to(device);
+  b.x = (torch::cat({gr, -gi}, 1) * feature_scale).to(dtype).to(device);
   b.graph.seg = seg.to(device);
   b.graph.pos = pos.to(device);
-  b.graph.count = sizes.to(torch::kFloat32).unsqueeze(1).to(device);
+  b.graph.count = sizes.to(dtype).unsqueeze(1).to(device);
   b.graph.clusters = C;
   b.graph.kmax = C ? sizes.max().item<int64_t>() : 0;
   const auto to_pad = [&](const torch::Tensor& v) {
     return torch::zeros({C, b.graph.kmax, v.size(1)}, v.options()).index_put({seg, pos}, v);
   };
-  b.gr = to_pad(gr * inv_sigma).to(torch::kFloat32).to(device);
-  b.gi = to_pad(gi * inv_sigma).to(torch::kFloat32).to(device);
-  b.mask = torch::zeros({C, b.graph.kmax}, torch::kFloat32).index_put({seg, pos}, torch::ones({seg.size(0)})).to(device);
-  b.p_max = set.p_max.index_select(0, ids).to(torch::kFloat32).to(device);
+  b.gr = to_pad(gr * inv_sigma).to(dtype).to(device);
+  b.gi = to_pad(gi * inv_sigma).to(dtype).to(device);
+  b.mask = torch::zeros({C, b.graph.kmax}, dtype).index_put({seg, pos}, torch::ones({seg.size(0)}, dtype)).to(device);
+  b.p_max = set.p_max.index_select(0, ids).to(dtype).to(device);
   return b;
 }
 

@@ -28,15 +28,17 @@ ClusterSet make_cluster_set(const std::vector<Cluster>& clusters, const std::vec
 double channel_rms(const ClusterSet& set);
 
 struct Batch {
-  torch::Tensor x;          // [U, 2L] float features [Re h, Im h] * feature_scale
+  torch::Tensor x;          // [U, 2L] features [Re h, Im h] * feature_scale
   Graph graph;              // seg, pos, count
   torch::Tensor gr, gi;     // [C, Kmax, L] float, G / sqrt(noise) (so the noise power is 1)
   torch::Tensor mask;       // [C, Kmax] float, 1 for real users
   torch::Tensor p_max;      // [C] float (W)
 };
 
-/// Batch of the clusters `ids` (int64 [C]) of `set`, built with tensor ops, on `device`.
-Batch make_batch(const ClusterSet& set, const torch::Tensor& ids, double feature_scale, const torch::Device& device);
+/// Batch of the clusters `ids` (int64 [C]) of `set`, built with tensor ops, on `device`, its
+/// floating tensors in `dtype` (float32 for training and serving; float64 for reference checks).
+Batch make_batch(const ClusterSet& set, const torch::Tensor& ids, double feature_scale, const torch::Device& device,
+                 torch::ScalarType dtype = torch::kFloat32);
 
 /// Raw network output [U, 2L] -> beamformers on the budget [U, 2L] (Re, Im), per cluster:
 /// full: alpha = sqrt(P / (||W~||^2 + eps)); cap: min(1, .) (the paper's alpha_n, eps = 1e-12).

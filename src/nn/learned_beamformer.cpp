@@ -15,6 +15,7 @@ struct LearnedBeamformer::Impl {
   std::shared_ptr<nn::BeamNetImpl> model;
   torch::Device device{torch::kCPU};
   PowerScaling scaling = PowerScaling::Full;
+  torch::ScalarType dtype = torch::kFloat32;
 };
 
 LearnedBeamformer::LearnedBeamformer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -29,6 +30,10 @@ std::unique_ptr<LearnedBeamformer> LearnedBeamformer::load(const std::string& pa
                      " antennas but channel.antennas = " + std::to_string(cfg.channel.antennas) +
                      ": allowed a model trained for the configured L");
   ck.model->eval();
+  if (cfg.nn.precision == "float64") {
+    impl->dtype = torch::kFloat64;
+    ck.model->to(torch::kFloat64);
+  }
   impl->info = ck.info;
   impl->model = ck.model;
   impl->scaling = cfg.beamforming.power_scaling;
@@ -60,7 +65,7 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
   const std::vector<int> owner(nonempty.size(), 0);
   const nn::ClusterSet set = nn::make_cluster_set(nonempty, owner, 1);
   const auto ids = torch::arange(static_cast<int64_t>(nonempty.size()), torch::kInt64);
-  const nn::Batch b = nn::make_batch(set, ids, impl_->info.feature_scale, impl_->device);
+  const nn::Batch b = nn::make_batch(set, ids, impl_->info.feature_scale, impl_->device, impl_->dtype);
   const auto raw = impl_->model->forward(b.x, b.graph).to(torch::kCPU).to(torch::kFloat64).contiguous();
   const auto acc = raw.accessor<double, 2>();
   const int L = impl_->info.antennas;

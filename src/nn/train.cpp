@@ -71,6 +71,8 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   const std::string last_path = (dir / "last.pt").string(), best_path = (dir / "model.pt").string();
   if (opt.resume && !fs::exists(last_path))
     throw InputError("--resume: '" + last_path + "' does not exist: allowed a directory of an earlier training run");
+  check_fresh_run_dir(opt.out_dir, {"model.pt", "last.pt", "test.json", "metrics.csv"}, opt.resume, opt.force);
+  remove_stale_temporaries(opt.out_dir);
 
   // Data: snapshots of N UAVs and K users; their clusters are the graph instances.
   const auto t_data = Clock::now();

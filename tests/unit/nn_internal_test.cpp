@@ -6,6 +6,8 @@
 #include "../../src/nn/batch.hpp"
 #include "../../src/nn/checkpoint.hpp"
 #include "skyloop/channel/rates.hpp"
+#include "skyloop/core/rng.hpp"
+#include "skyloop/nn/learned.hpp"
 #include "skyloop/beamforming/linear.hpp"
 #include "test_util.hpp"
 
@@ -129,6 +131,87 @@ TEST(NnInternal, StructuredReadoutLimitsAreMrtAndZf) {
         const double cosine = std::abs(W.col(k).dot(ref.col(k))) / (W.col(k).norm() * ref.col(k).norm());
         EXPECT_NEAR(cosine, 1.0, 1e-4) << (log_lambda < 0 ? "MRT" : "ZF") << " cluster " << c << " user " << k;
       }
+    }
+  }
+}
+
+// The float32 serving path (what the CLI, the environment and reproduce use) agrees with the
+// float64 evaluation of the same weights to within float32 rounding, one cluster at a time and
+// batched, for every model kind and cluster size.
+//
+// Where the bound comes from. A float32 forward pass returns, to first order, the exact output of
+// the network with every weight and input perturbed by a relative amount of order u32 = 2^-24
+// (backward error analysis: each dot product, norm and activation rounds once). So
+// ||W32 - W64|| <= u32 * kappa * ||W||, where kappa is the relative condition number of the map
+// (weights, input) -> W at this cluster. kappa is measured here in float64, as the largest relative
+// change of W over 4 random relative perturbations of size delta = 1e-6 of every weight and every
+// channel entry, divided by delta. It includes the internal ill-conditioning a perturbation of the
+// input alone misses (GraphNorm over one or two users subtracts nearly equal numbers; the
+// structured readout solves with cond(G) ~ 1e4). C = 16 covers a dot product of width w <= 2d
+// rounding up to sqrt(w) ~ 6 times u32 (random-walk growth) instead of once, and the second-order
+// remainder. A wrong weight, a layer skipped or a batch layout mixing clusters gives O(1) errors.
+TEST(NnInternal, Float32ServingIsWithinRoundingOfFloat64) {
+  constexpr double u32 = 5.960464477539063e-8, delta = 1e-6, C = 16;
+  for (const std::string m : {"gnn", "deepsets", "mspointnet", "gnn+structured"}) {
+    Config cfg;
+    cfg.nn.model = m.substr(0, m.find('+'));
+    if (m.find('+') != std::string::npos) cfg.nn.readout = "structured";
+    cfg.nn.hidden = 16;
+    cfg.nn.layers = 2;
+    cfg.nn.epochs = 1;
+    cfg.nn.train_samples = 40;
+    cfg.nn.val_samples = 10;
+    cfg.nn.test_samples = 10;
+    cfg.nn.batch_samples = 8;
+    cfg.run.threads = 1;
+    TrainOptions opt;
+    opt.out_dir = ::testing::TempDir() + "/skyloop_f32_" + std::to_string(::getpid()) + "_" + m;
+    std::filesystem::remove_all(opt.out_dir);
+    train_beamformer(cfg, opt);
+    const std::string path = opt.out_dir + "/model.pt";
+    Config cfg64 = cfg;
+    cfg64.nn.precision = "float64";
+    const auto bf32 = LearnedBeamformer::load(path, cfg);
+    const auto bf64 = LearnedBeamformer::load(path, cfg64);
+
+    // Four copies of the checkpoint with every weight perturbed by a relative U(-delta, delta).
+    Rng rng(11);
+    std::vector<std::unique_ptr<LearnedBeamformer>> perturbed;
+    for (int r = 0; r < 4; ++r) {
+      auto ck = load_checkpoint(path, torch::kCPU);
+      {
+        torch::NoGradGuard no_grad;
+        for (auto& p : ck.model->parameters()) {
+          auto flat = p.view({-1});
+          auto noise = torch::empty_like(flat);
+          auto acc = noise.accessor<float, 1>();
+          for (int64_t i = 0; i < flat.size(0); ++i) acc[i] = static_cast<float>(1 + delta * (2 * rng.uniform() - 1));
+          flat.mul_(noise);
+        }
+      }
+      const std::string p = opt.out_dir + "/perturbed" + std::to_string(r) + ".pt";
+      save_checkpoint(p, ck.info, ck.state, *ck.model, nullptr);
+      perturbed.push_back(LearnedBeamformer::load(p, cfg64));
+    }
+
+    std::vector<Cluster> mixed;
+    for (int k : {1, 2, 3, 4, 6, 8})
+      for (const auto& c : test::clusters_of_size(cfg, k, 3, 90 + k)) mixed.push_back(c);
+    const auto batched = bf32->design_batch(mixed);
+    for (std::size_t i = 0; i < mixed.size(); ++i) {
+      const Cluster& c = mixed[i];
+      const MatrixXcd W64 = bf64->design(c);
+      double kappa = 0;
+      for (const auto& bp : perturbed) {
+        Cluster p = c;
+        for (Eigen::Index a = 0; a < p.G.rows(); ++a)
+          for (Eigen::Index b = 0; b < p.G.cols(); ++b) p.G(a, b) *= 1 + delta * (2 * rng.uniform() - 1);
+        kappa = std::max(kappa, (bp->design(p) - W64).norm() / W64.norm() / delta);
+      }
+      const double tol = C * u32 * std::max(kappa, 1.0) * W64.norm();
+      const double e1 = (bf32->design(c) - W64).norm(), eb = (batched[i] - W64).norm();
+      EXPECT_LT(e1, tol) << m << " K_n=" << c.size() << " kappa " << kappa;
+      EXPECT_LT(eb, tol) << m << " batched, K_n=" << c.size() << " kappa " << kappa;
     }
   }
 }

@@ -83,3 +83,25 @@ TEST(Batch, DesignBatchEqualsOneByOneForAnyThreadCount) {
     EXPECT_EQ(two[i], one[i]);
   }
 }
+
+// The corners of the allowed ranges: budget and noise 60 dB apart either way, and the extremes
+// (-30 dBm budget under 30 dBm noise; 80 dBm over -200 dBm). Every classical beamformer stays on
+// the budget to rounding (1e-9 relative, of P_max itself, whatever its scale) and returns finite
+// values (a probe found ZF-SEL 1% over a 1 uW budget under 30 dBm noise: cancellation in the
+// water level).
+TEST(PowerBudget, ExtremeBudgetsAndNoise) {
+  for (const auto& [p_dbm, noise_dbm] : std::vector<std::pair<double, double>>{{-30, 30}, {-30, -200}, {80, -200}, {80, 30}}) {
+    Config cfg;
+    cfg.channel.p_max_dbm = p_dbm;
+    cfg.channel.noise_dbm = noise_dbm;
+    for (const char* name : {"mrt", "zf", "zfsel", "rzf", "wmmse"}) {
+      const auto bf = builtin_beamformers().create(name, cfg);
+      for (int k = 1; k <= 6; ++k)
+        for (const auto& c : test::clusters_of_size(cfg, k, 3, 200 + k)) {
+          const MatrixXcd W = bf->design(c);
+          EXPECT_NO_THROW(check_beamformer_output(*bf, c, W)) << name << " P " << p_dbm << " noise " << noise_dbm;
+          EXPECT_NEAR(W.squaredNorm(), c.p_max, 1e-9 * c.p_max) << name << " P " << p_dbm << " noise " << noise_dbm;
+        }
+    }
+  }
+}

@@ -43,7 +43,8 @@ class BeamformerRegistry {
 /// Registers mrt, zf, rzf and wmmse (the Eigen-only beamformers).
 void register_classical_beamformers(BeamformerRegistry& reg);
 
-/// Splits a comma-separated method list ("mrt,zf,gnn=a/b.pt"), rejecting empty items.
-std::vector<std::string> split_methods(const std::string& list);
+/// Splits a comma-separated list ("mrt,zf,gnn=a/b.pt"), rejecting empty and repeated items;
+/// `flag` names the option in errors.
+std::vector<std::string> split_methods(const std::string& list, const std::string& flag = "--methods");
 
 }  // namespace skyloop

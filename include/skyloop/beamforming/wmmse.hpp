@@ -29,7 +29,8 @@ struct WmmseOptions {
 };
 
 struct WmmseTrace {
-  MatrixXcd W;                      // final beamformer [L x K_n]
+  MatrixXcd W;                      // best iterate [L x K_n] (the last, unless rounding broke monotonicity)
+  double sum_rate = 0;              // its sum rate (>= the starting point's)
   std::vector<double> sum_rates;    // sum rate of the starting point, then after each iteration
   int iterations = 0;
   bool converged = false;

@@ -131,6 +131,7 @@ struct NnConfig {                   // [nn] learned beamformers (Section IV and 
   std::string device = "cpu";       // cpu | cuda
   double grad_clip = 0.0;           // max global gradient norm; 0 = off
   std::string readout = "direct";   // direct (the paper: 2L reals per user) | structured (beyond the paper)
+  std::string precision = "float32";  // serving arithmetic: float32 (training's) | float64 (a reference for checks)
 };
 
 struct Config {
@@ -181,5 +182,7 @@ void validate(const Config& cfg);
 
 /// Human text of a value, TOML syntax ("3", "0.5", "\"full\"", "[[20, 20], [20, 180]]").
 std::string format_value(const FieldValue& v);
+/// A TOML basic string literal for `s` (quotes, backslashes and control characters escaped).
+std::string toml_string(const std::string& s);
 
 }  // namespace skyloop

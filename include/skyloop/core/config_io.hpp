@@ -1,6 +1,7 @@
 #pragma once
 // TOML loading, --set overrides and printing of the Config. Implemented in the skyloop_config
 // target (toml++ stays private to it).
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <vector>
@@ -30,6 +31,11 @@ std::vector<std::vector<Point2>> read_point_lists(const std::string& toml_text, 
 /// Points as Positions [n x 2], each checked to lie in the configured area; an outside point throws
 /// InputError "<what>[i] = [x, y] is outside the area: allowed x in [0, ..], y in [0, ..]".
 Positions positions_in_area(const std::vector<Point2>& pts, const Config& cfg, const std::string& what);
+
+/// A seed given on the command line (`flag` names it in errors): decimal digits only, in the range
+/// of run.seed, [0, 2^62]. Anything else (a sign, letters, trailing text, a value past the range)
+/// throws InputError "--seed = '-1' is invalid: allowed an integer in [0, 4611686018427387904]".
+std::uint64_t parse_seed(const std::string& flag, const std::string& text);
 
 /// The whole configuration as TOML, one commented line per field; apply_toml() reads it back
 /// to the same Config.

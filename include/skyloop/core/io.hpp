@@ -1,12 +1,35 @@
 #pragma once
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace skyloop {
 
 /// Writes `content` to `path` atomically: a temporary file beside it, flushed, then renamed over
 /// the target, so a reader never sees a half-written file and an old file survives a failure.
-/// Creates missing parent directories. Throws std::runtime_error naming the path on failure.
+/// Creates missing parent directories. A symlink is written through (the link stays). An existing
+/// path that is not a regular file (a directory, FIFO, device, socket) is refused with InputError;
+/// other failures throw std::runtime_error naming the path, and leave the old file untouched.
 void write_file_atomic(const std::string& path, const std::string& content);
+
+/// Writes several files as one: all temporaries first, then the renames, with the earlier files
+/// kept aside until every rename succeeded, so either all of `files` change or none does (e.g. a
+/// CSV and the resolved config beside it).
+void write_files_atomic(const std::vector<std::pair<std::string, std::string>>& files);
+
+/// Throws the InputError write_file_atomic would throw for `path` (a directory, FIFO, device or
+/// socket where a file is to go), before any work is done.
+void check_output_path(const std::string& path);
+
+/// A run directory about to receive a fresh (not resumed) run: if any of `results` is already in
+/// `dir`, throws InputError ("already holds a run: allowed --resume, --force or a new directory")
+/// unless `force`, which removes them first. `resume` skips the check.
+void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force);
+
+/// Removes the temporaries (NAME.tmp.PID) that killed processes left in `dir`, and restores the
+/// earlier file from an interrupted pair write (NAME.bak.PID) when NAME is missing. A live
+/// process's temporaries are left alone. Run directories call this when a run starts or resumes.
+void remove_stale_temporaries(const std::string& dir);
 
 /// Reads a whole file; throws InputError naming the path if it cannot be read.
 std::string read_file(const std::string& path, const std::string& what = "file");

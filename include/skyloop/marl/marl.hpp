@@ -16,6 +16,7 @@ namespace skyloop {
 struct MarlTrainOptions {
   std::string out_dir;    // config.toml, metrics.csv, last.pt (resumable), policy.pt (final)
   bool resume = false;    // continue from out_dir/last.pt
+  bool force = false;     // replace a run already in out_dir (refused otherwise)
   std::ostream* progress = nullptr;
   const BeamformerRegistry* registry = nullptr;  // resolves env.oracle (required)
 };

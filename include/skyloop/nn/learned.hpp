@@ -53,6 +53,7 @@ class LearnedBeamformer final : public Beamformer {
 struct TrainOptions {
   std::string out_dir;   // model.pt (best validation), last.pt (resume), metrics.csv, config.toml, test.json
   bool resume = false;   // continue from out_dir/last.pt
+  bool force = false;    // replace a run already in out_dir (refused otherwise)
   std::ostream* progress = nullptr;
   int max_steps = -1;    // stop after this many optimiser steps in total (tests); -1 = all epochs
 };

@@ -1,0 +1,25 @@
+#pragma once
+// Child processes and interruption. skyloop's long jobs (reproduce's parallel MARL runs, the plot
+// step) run children that must never outlive their parent or ignore its interruption:
+//  * install_interrupt_handlers(): SIGINT, SIGTERM and SIGHUP stop every running child (SIGTERM),
+//    print one line "skyloop: interrupted by SIGINT: ..." and end the process with that signal
+//    (exit status 128 + signal), so Ctrl-C or `kill PID` stops the whole job at once. What was
+//    finished is on disk (every output is written atomically) and a rerun resumes from it.
+//  * run_process(): fork + exec with its own wait, never std::system (which ignores SIGINT and
+//    SIGQUIT in the parent while the child runs); the child gets PR_SET_PDEATHSIG, so it is
+//    stopped even when the parent is killed with SIGKILL.
+#include <string>
+#include <vector>
+
+namespace skyloop {
+
+/// Installs the handlers described above (idempotent). The CLI calls it first thing.
+void install_interrupt_handlers();
+
+/// Runs argv[0] (a path, or a name looked up in PATH) with `argv`; stdout and stderr go to `log_path` (truncated), or are
+/// inherited when it is empty. Blocks until the child ends and returns its exit status, or 128 +
+/// the signal that ended it. Throws std::runtime_error if the process cannot be started. Safe to
+/// call from several threads at once.
+int run_process(const std::vector<std::string>& argv, const std::string& log_path = "");
+
+}  // namespace skyloop

@@ -27,6 +27,11 @@ struct OpenedArchive {
 /// format or version, throws InputError naming the path and what is allowed.
 OpenedArchive open_archive(const std::string& path, const ArchiveKind& kind);
 
+/// Checks every record of a torch archive (a zip of stored records) against the CRC-32 the zip
+/// directory holds for it. Returns "" when all match, else what is wrong ("a checksum mismatch in
+/// archive/data/3"). Zip64 archives (over 4 GiB) are not checked here.
+std::string verify_zip_checksums(const std::string& bytes);
+
 /// Adds the header (`meta` with kind's format and version) to `archive` and writes it atomically.
 void write_archive(const std::string& path, const ArchiveKind& kind, nlohmann::json meta,
                    torch::serialize::OutputArchive& archive);

@@ -210,3 +210,33 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
     EXPECT_NEAR(a[i].second, b[i].second, 1e-6 * std::abs(b[i].second)) << a[i].first;
   }
 }
+
+// The committed paper-profile report is whole: every file it links is in the repository (a fresh
+// clone has only what git tracks; the run's caches are ignored).
+TEST(Reproduce, CommittedReportLinksResolveInTheRepository) {
+  const fs::path src = SKYLOOP_SOURCE_DIR;
+  const fs::path dir = src / "results" / "paper";
+  ASSERT_TRUE(fs::exists(dir / "report.html"));
+  std::set<std::string> tracked;
+  const std::string cmd = "git -C '" + src.string() + "' ls-files results/paper 2>/dev/null";
+  if (FILE* p = ::popen(cmd.c_str(), "r")) {
+    char line[4096];
+    while (std::fgets(line, sizeof line, p)) {
+      std::string f = line;
+      while (!f.empty() && (f.back() == '\n' || f.back() == '\r')) f.pop_back();
+      tracked.insert(f);
+    }
+    ::pclose(p);
+  }
+  const bool in_git = !tracked.empty();  // a source tarball without .git: the files themselves
+  const std::string report = slurp(dir / "report.html");
+  const std::regex link(R"((?:href|src)=\"([^\"#]+)\")");
+  int links = 0;
+  for (auto it = std::sregex_iterator(report.begin(), report.end(), link); it != std::sregex_iterator(); ++it, ++links) {
+    const std::string target = (*it)[1].str();
+    if (target.find("://") != std::string::npos) continue;
+    if (in_git) EXPECT_TRUE(tracked.count("results/paper/" + target)) << "report.html links an untracked file: " << target;
+    else EXPECT_TRUE(fs::exists(dir / target)) << "report.html links a missing file: " << target;
+  }
+  EXPECT_GE(links, 50);
+}

@@ -171,4 +171,19 @@ TEST(Marl, BadPoliciesAreRejected) {
   const std::string dir = fresh("bad");
   write_file_atomic(dir + "/policy.pt", "not a policy");
   EXPECT_THROW(MarlPolicy::load(dir), InputError);
+  // A real policy with 64 bytes flipped in its weights, or truncated, is refused on load.
+  Config cfg = small_scenario("mappo", 1024);
+  MarlTrainOptions opt;
+  opt.out_dir = fresh("flip_src");
+  opt.registry = &zf_registry();
+  train_marl(cfg, opt);
+  const std::string good = read_file(opt.out_dir + "/policy.pt");
+  std::string flipped = good;
+  for (std::size_t i = 0; i < 64; ++i) flipped[good.size() / 2 + i] = static_cast<char>(~flipped[good.size() / 2 + i]);
+  write_file_atomic(dir + "/policy.pt", flipped);
+  EXPECT_THROW(MarlPolicy::load(dir), InputError);
+  write_file_atomic(dir + "/policy.pt", good.substr(0, good.size() - 100));
+  EXPECT_THROW(MarlPolicy::load(dir), InputError);
+  write_file_atomic(dir + "/policy.pt", good);
+  EXPECT_NO_THROW(MarlPolicy::load(dir));
 }

@@ -134,6 +134,17 @@ TEST(Learned, BadCheckpointsAreRejected) {
   const std::string good = read_file(tiny_model("gnn"));
   write_file_atomic(dir + "/truncated.pt", good.substr(0, good.size() / 2));
   EXPECT_THROW(LearnedBeamformer::load(dir + "/truncated.pt", cfg), InputError);
+  // 64 bytes flipped inside the tensor data (the bulk of the file): the archive still parses, but
+  // the zip records' CRC-32 no longer match.
+  std::string flipped = good;
+  for (std::size_t i = 0; i < 64; ++i) flipped[good.size() / 2 + i] = static_cast<char>(~flipped[good.size() / 2 + i]);
+  write_file_atomic(dir + "/flipped.pt", flipped);
+  try {
+    LearnedBeamformer::load(dir + "/flipped.pt", cfg);
+    ADD_FAILURE() << "a checkpoint with flipped bytes loaded";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("checksum"), std::string::npos) << e.what();
+  }
   // A model trained for L = 4 refused under L = 8.
   Config eight = cfg;
   eight.channel.antennas = 8;

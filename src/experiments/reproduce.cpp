@@ -250,7 +250,12 @@ class Runner {
           t.resume = fs::exists(dir / "last.pt");
           t.force = !t.resume;  // the cache's own directory: a run killed before its first checkpoint restarts
           t.progress = &log_;
-          train_beamformer(cfg, t);
+          // One torch thread, whatever --threads: a float sum split over other threads rounds
+          // differently and trains another model, and the cache key (like a --force rerun with
+          // other --threads) must name one model.
+          Config one = cfg;
+          one.run.threads = 1;
+          train_beamformer(one, t);
           source = "trained";
         }
       }

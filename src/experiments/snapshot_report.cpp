@@ -103,6 +103,21 @@ std::string snapshot_text(const SnapshotReport& r) {
                        u.serving_uav >= 0 ? std::to_string(u.serving_uav) : "-", u.distance_m, u.path_loss_db,
                        u.serving_uav < 0 ? "-" : u.sinr > 0 ? fmt::format("{:.2f}", linear_to_db(u.sinr)) : "off",
                        u.rate);
+  // The vectors themselves: h_k (the user's channel from its serving UAV) and w_k (its beam).
+  const auto vec = [](const VectorXcd& v) {
+    std::string s = "[";
+    for (Eigen::Index i = 0; i < v.size(); ++i)
+      s += fmt::format("{}{:.4e}{:+.4e}j", i ? ", " : "", v[i].real(), v[i].imag());
+    return s + "]";
+  };
+  out += "\nper-user vectors (complex, a+bj; h_k from the serving UAV, w_k its beamformer):\n";
+  for (const auto& u : r.users) {
+    if (u.serving_uav < 0) {
+      out += fmt::format("{:>4}  unserved\n", u.index);
+      continue;
+    }
+    out += fmt::format("{:>4}  h = {}\n      w = {}\n", u.index, vec(u.channel), vec(u.beamformer));
+  }
   out += fmt::format("\n{:>4} {:>8} {:>8} {:>10} {:>12} {:>10}\n", "uav", "x", "y", "users", "power (W)", "sum rate");
   for (const auto& c : r.uavs)
     out += fmt::format("{:>4} {:>8.2f} {:>8.2f} {:>10} {:>12.6g} {:>10.4f}\n", c.uav, c.x, c.y, c.users.size(),

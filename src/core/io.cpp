@@ -138,10 +138,18 @@ void write_files_atomic(const std::vector<std::pair<std::string, std::string>>& 
     if (!b.empty()) fs::remove(b, ec);
 }
 
-void remove_stale_temporaries(const std::string& dir) {
+void remove_stale_temporaries(const std::string& dir, bool recursive) {
   std::error_code ec;
   if (!fs::is_directory(dir, ec)) return;
-  for (const auto& e : fs::directory_iterator(dir, ec)) {
+  std::vector<fs::path> entries;
+  if (recursive) {
+    for (auto it = fs::recursive_directory_iterator(dir, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec))
+      entries.push_back(it->path());
+  } else {
+    for (const auto& e : fs::directory_iterator(dir, ec)) entries.push_back(e.path());
+  }
+  for (const auto& path : entries) {
+    const fs::directory_entry e(path, ec);
     const std::string name = e.path().filename().string();
     for (const char* tag : {".tmp.", ".bak."}) {
       const auto at = name.rfind(tag);

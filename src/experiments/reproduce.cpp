@@ -121,6 +121,7 @@ class Runner {
     }
     // Every experiment's configuration resolves before any work starts: a typo fails at once.
     for (const auto* s : selected) (void)base(*s);
+    remove_stale_temporaries(out_.string(), true);  // debris of a run killed mid-write
     write_file_atomic((out_ / "config.toml").string(), to_toml(resolve({})));
     for (std::size_t i = 0; i < selected.size(); ++i) {
       const auto& s = *selected[i];

@@ -28,8 +28,9 @@ void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>&
 
 /// Removes the temporaries (NAME.tmp.PID) that killed processes left in `dir`, and restores the
 /// earlier file from an interrupted pair write (NAME.bak.PID) when NAME is missing. A live
-/// process's temporaries are left alone. Run directories call this when a run starts or resumes.
-void remove_stale_temporaries(const std::string& dir);
+/// process's temporaries are left alone. Run directories call this when a run starts or resumes;
+/// `reproduce` over its whole output tree (`recursive`).
+void remove_stale_temporaries(const std::string& dir, bool recursive = false);
 
 /// Reads a whole file; throws InputError naming the path if it cannot be read.
 std::string read_file(const std::string& path, const std::string& what = "file");

@@ -153,17 +153,7 @@ TEST(NnInternal, StructuredReadoutLimitsAreMrtAndZf) {
 TEST(NnInternal, Float32ServingIsWithinRoundingOfFloat64) {
   constexpr double u32 = 5.960464477539063e-8, delta = 1e-6, C = 16;
   for (const std::string m : {"gnn", "deepsets", "mspointnet", "gnn+structured"}) {
-    Config cfg;
-    cfg.nn.model = m.substr(0, m.find('+'));
-    if (m.find('+') != std::string::npos) cfg.nn.readout = "structured";
-    cfg.nn.hidden = 16;
-    cfg.nn.layers = 2;
-    cfg.nn.epochs = 1;
-    cfg.nn.train_samples = 40;
-    cfg.nn.val_samples = 10;
-    cfg.nn.test_samples = 10;
-    cfg.nn.batch_samples = 8;
-    cfg.run.threads = 1;
+    const Config cfg = test::tiny_nn_config(m);
     TrainOptions opt;
     opt.out_dir = ::testing::TempDir() + "/skyloop_f32_" + std::to_string(::getpid()) + "_" + m;
     std::filesystem::remove_all(opt.out_dir);

@@ -17,22 +17,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-/// "gnn", "deepsets", "mspointnet", or "gnn+structured" (the structured readout).
-Config tiny_config(const std::string& model) {
-  Config cfg;
-  const auto plus = model.find('+');
-  cfg.nn.model = model.substr(0, plus);
-  if (plus != std::string::npos) cfg.nn.readout = model.substr(plus + 1);
-  cfg.nn.hidden = 16;
-  cfg.nn.layers = 2;
-  cfg.nn.epochs = 1;
-  cfg.nn.train_samples = 40;
-  cfg.nn.val_samples = 10;
-  cfg.nn.test_samples = 10;
-  cfg.nn.batch_samples = 8;
-  cfg.run.threads = 1;
-  return cfg;
-}
+Config tiny_config(const std::string& model) { return test::tiny_nn_config(model); }
 
 std::string fresh_dir(const std::string& name) {
   const auto d = fs::path(::testing::TempDir()) / ("skyloop_nn_" + std::to_string(::getpid()) + "_" + name);

@@ -1,5 +1,6 @@
 #pragma once
 // Helpers shared by the unit tests.
+#include <string>
 #include <vector>
 
 #include "skyloop/channel/system_model.hpp"
@@ -28,6 +29,24 @@ inline std::vector<Cluster> clusters_of_size(const Config& cfg, int k, int count
     out.push_back(model.make_cluster(0, 100, 100, users, idx));
   }
   return out;
+}
+
+/// A tiny learned-beamformer training config (d = 16, 2 layers, 40 snapshots, one epoch, one
+/// thread): "gnn", "deepsets", "mspointnet", or "<model>+structured" for the structured readout.
+inline Config tiny_nn_config(const std::string& model) {
+  Config cfg;
+  const auto plus = model.find('+');
+  cfg.nn.model = model.substr(0, plus);
+  if (plus != std::string::npos) cfg.nn.readout = model.substr(plus + 1);
+  cfg.nn.hidden = 16;
+  cfg.nn.layers = 2;
+  cfg.nn.epochs = 1;
+  cfg.nn.train_samples = 40;
+  cfg.nn.val_samples = 10;
+  cfg.nn.test_samples = 10;
+  cfg.nn.batch_samples = 8;
+  cfg.run.threads = 1;
+  return cfg;
 }
 
 }  // namespace skyloop::test

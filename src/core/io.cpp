@@ -50,10 +50,18 @@ fs::path write_target(const std::string& path) {
 
 void check_output_path(const std::string& path) { (void)write_target(path); }
 
-void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force) {
+void check_output_dir(const std::string& dir) {
   std::error_code ec;
   if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))
-    throw InputError("--out '" + dir + "' exists and is not a directory: allowed a run directory");
+    throw InputError("--out '" + dir + "' exists and is not a directory: allowed a directory (new or existing)");
+  for (fs::path p = fs::path(dir).parent_path(); !p.empty() && p != p.parent_path(); p = p.parent_path())
+    if (fs::exists(p, ec) && !fs::is_directory(p, ec))
+      throw InputError("--out '" + dir + "' lies under '" + p.string() + "', which is not a directory: allowed a directory path");
+}
+
+void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force) {
+  check_output_dir(dir);
+  std::error_code ec;
   if (resume) return;
   for (const auto& f : results) {
     const fs::path p = fs::path(dir) / f;

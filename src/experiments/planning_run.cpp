@@ -22,6 +22,7 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
     else throw InputError("--planner '" + p + "' is unknown: allowed random, greedy, optimal");
   }
   planners.insert(planners.end(), opt.extra.begin(), opt.extra.end());
+  if (!opt.out_dir.empty()) check_output_dir(opt.out_dir);  // before the work, not after it
   std::shared_ptr<const Beamformer> bf;
   try {
     bf = registry.create(cfg.env.oracle, cfg);

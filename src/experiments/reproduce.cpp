@@ -667,6 +667,7 @@ int reproduce(const ReproduceOptions& o) {
   if (opt.jobs < 0 || opt.jobs > 1024)
     throw InputError("--jobs = " + std::to_string(opt.jobs) + " is out of range: allowed an integer in [0, 1024] (0 = --threads)");
   if (opt.out_dir.empty()) opt.out_dir = "results/" + opt.profile;
+  check_output_dir(opt.out_dir);
   if (opt.experiments_dir.empty()) opt.experiments_dir = (fs::path(source_dir()) / "configs" / "experiments").string();
   const auto specs = load_experiments(opt.experiments_dir, opt.profile);
   Runner(opt).run(specs);

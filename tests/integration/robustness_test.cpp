@@ -255,6 +255,11 @@ TEST(Probe, MalformedInputsGiveOneLineAndExitTwo) {
       // outputs that are not regular files
       {"beamform eval --samples 1 --methods mrt --out " + D + "/adir", "is a directory"},
       {"beamform eval --samples 1 --methods mrt --out /dev/null", "character device"},
+      {"plan --planner random --out " + D + "/garbage.pt", "is not a directory"},
+      {"plan --planner random --out " + D + "/garbage.pt/sub", "is not a directory"},
+      {"beamform train --model gnn --out " + D + "/garbage.pt", "is not a directory"},
+      {"train --algo mappo --out " + D + "/garbage.pt", "is not a directory"},
+      {"reproduce --profile tiny --no-plots --out " + D + "/garbage.pt", "is not a directory"},
   };
   for (const auto& [args, want] : corpus) {
     const auto r = run(args);

@@ -21,6 +21,10 @@ void write_files_atomic(const std::vector<std::pair<std::string, std::string>>& 
 /// socket where a file is to go), before any work is done.
 void check_output_path(const std::string& path);
 
+/// An output directory (`--out DIR`): refused with InputError when it, or a folder above it, exists
+/// and is not a directory.
+void check_output_dir(const std::string& dir);
+
 /// A run directory about to receive a fresh (not resumed) run: if any of `results` is already in
 /// `dir`, throws InputError ("already holds a run: allowed --resume, --force or a new directory")
 /// unless `force`, which removes them first. `resume` skips the check.

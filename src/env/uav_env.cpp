@@ -262,7 +262,8 @@ void VecEnv::reset() {
   for (std::size_t i = 0; i < envs_.size(); ++i) reset_env(i);
 }
 
-std::vector<StepInfo> VecEnv::step(const std::vector<std::vector<int>>& actions) {
+std::vector<StepInfo> VecEnv::step(const std::vector<std::vector<int>>& actions,
+                                   const std::function<void(std::size_t)>& before_reset) {
   const std::size_t m = envs_.size();
   std::vector<StepInfo> info(m);
   std::vector<Positions> next(m);
@@ -276,7 +277,10 @@ std::vector<StepInfo> VecEnv::step(const std::vector<std::vector<int>>& actions)
   const auto rates = batch_sum_rates(oracles, ptrs);
   for (std::size_t i = 0; i < m; ++i) {
     envs_[i]->end_step(next[i], rates[i], info[i]);
-    if (info[i].done) reset_env(i);
+    if (info[i].done) {
+      if (before_reset) before_reset(i);
+      reset_env(i);
+    }
   }
   return info;
 }

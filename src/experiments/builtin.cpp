@@ -17,7 +17,7 @@ BeamformerRegistry& builtin_beamformers() {
     register_ga_beamformers(r);
 #endif
 #ifdef SKYLOOP_HAS_TORCH
-    register_learned_beamformers(r, SKYLOOP_MODELS_DIR);
+    register_learned_beamformers(r, "");  // data_dir()/models, looked up when a model is created
 #endif
     return r;
   }();

@@ -7,11 +7,12 @@
 
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/paths.hpp"
 #include "skyloop/experiments/reproduce.hpp"
 
 namespace skyloop {
 
-std::string source_dir() { return SKYLOOP_SOURCE_DIR; }
+std::string source_dir() { return data_dir(); }
 
 namespace {
 

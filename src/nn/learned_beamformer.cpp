@@ -3,6 +3,7 @@
 #include "checkpoint.hpp"
 #include "data.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/paths.hpp"
 
 namespace skyloop {
 
@@ -86,7 +87,8 @@ void register_learned_beamformers(BeamformerRegistry& reg, const std::string& mo
     reg.add(n, "learned " + n + " beamformer; '" + n + "=PATH' loads PATH (model.pt or its directory)",
             [n, models_dir](const Config& cfg, const std::string& arg) {
               namespace fs = std::filesystem;
-              std::string path = arg.empty() ? (fs::path(models_dir) / n / "model.pt").string() : arg;
+              const std::string root = models_dir.empty() ? (fs::path(data_dir()) / "models").string() : models_dir;
+              std::string path = arg.empty() ? (fs::path(root) / n / "model.pt").string() : arg;
               if (fs::is_directory(path)) path = (fs::path(path) / "model.pt").string();
               auto bf = LearnedBeamformer::load(path, cfg);
               if (bf->info().model != n)

@@ -20,6 +20,7 @@
 //    T_min = ceil(||l_D - l_A|| / D_fly) (Euclidean, as printed).
 //  - evaluations report the P2.2 objective (1/T) sum_{t=1}^T R[t], not the shaped reward.
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -141,8 +142,10 @@ class VecEnv {
   int size() const { return static_cast<int>(envs_.size()); }
   UavEnv& env(int i) { return *envs_[static_cast<std::size_t>(i)]; }
   /// actions[i] = joint action of environment i. Finished environments are reset automatically
-  /// after their final step (the returned info is the final step's).
-  std::vector<StepInfo> step(const std::vector<std::vector<int>>& actions);
+  /// after their final step (the returned info is the final step's); `before_reset(i)`, when
+  /// given, sees environment i in its final state first (e.g. to record its last observation).
+  std::vector<StepInfo> step(const std::vector<std::vector<int>>& actions,
+                             const std::function<void(std::size_t)>& before_reset = {});
   void reset();
 
  private:

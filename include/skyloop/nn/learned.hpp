@@ -71,7 +71,8 @@ struct TrainResult {
 TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt);
 
 /// Registers "gnn", "deepsets", "mspointnet": "gnn=PATH" loads PATH (a model.pt or a directory
-/// holding one); "gnn" alone loads models/gnn/model.pt under `models_dir`.
+/// holding one); "gnn" alone loads models/gnn/model.pt under `models_dir` (empty: data_dir()/models,
+/// read when the model is created).
 void register_learned_beamformers(BeamformerRegistry& reg, const std::string& models_dir);
 
 /// Number of intra-op threads torch uses (0 = library default).

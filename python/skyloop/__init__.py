@@ -1,0 +1,108 @@
+"""skyloop from Python: the multi-UAV downlink model, every beamformer, the batched trajectory
+environment, the planners, and the adapters the field's learners expect.
+
+Shapes (numpy):
+  G  complex128 [K_n, L]   a cluster's channel, row k = h_k^H (so (G W)[k, j] = h_k^H w_j)
+  W  complex128 [L, K_n]   a beamformer, column k = w_k
+  VecEnv: obs float32 [M, N, 11], state float32 [M, 4N + 2K], agent_state float32 [M, N, S + N + 11],
+          action_mask int8 [M, N, 5] (an arrived UAV: [0, 0, 0, 0, 1]), reward float32 [M]
+
+Errors in input (a config key, a value out of range, a bad action) raise ``skyloop.InputError``
+(a ValueError) carrying the same one-line message as the CLI.
+"""
+from __future__ import annotations
+
+import os as _os
+
+from . import _skyloop
+from ._skyloop import (ACTIONS, Beamformer, Cluster, InputError, Snapshot, SystemModel, beamformers, rates, sinr,
+                       sum_rate)
+
+__all__ = [
+    "ACTIONS", "Beamformer", "Cluster", "Config", "InputError", "Snapshot", "SystemModel", "VecEnv", "beamformer",
+    "beamformers", "config", "plan", "rates", "sinr", "sum_rate",
+]
+
+# An installed package carries models/ and configs/ under data/; from a build tree the source
+# directory compiled into the module is used.
+_here = _os.path.dirname(_os.path.abspath(__file__))
+if _os.path.isdir(_os.path.join(_here, "data", "models")) and not _os.environ.get("SKYLOOP_DATA_DIR"):
+    _skyloop.set_data_dir(_os.path.join(_here, "data"))
+
+Config = _skyloop.Config
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)  # 40.0, 1e-05, inf, nan: all TOML
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t") + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    try:  # numpy scalars and arrays
+        import numpy as np
+        if isinstance(v, np.ndarray):
+            return _toml_value(v.tolist())
+        if isinstance(v, np.generic):
+            return _toml_value(v.item())
+    except ImportError:  # pragma: no cover
+        pass
+    raise InputError(f"value {v!r} has the wrong type: allowed a number, a bool, a string or a list of [x, y] pairs")
+
+
+def _flatten(d, prefix=""):
+    for k, v in d.items():
+        key = f"{prefix}.{k}" if prefix else str(k)
+        if isinstance(v, dict):
+            yield from _flatten(v, key)
+        else:
+            yield key, v
+
+
+def config(path: str | None = None, overrides: dict | None = None, **sections) -> Config:
+    """A validated configuration: the paper's defaults, then the TOML file ``path``, then
+    ``overrides`` ({"channel.p_max_dbm": 40} or {"channel": {"p_max_dbm": 40}}), then keyword
+    sections (``channel={"p_max_dbm": 40}``). Bad keys or values raise InputError with the CLI's line."""
+    items = list(_flatten(overrides or {}))
+    for section, values in sections.items():
+        if not isinstance(values, dict):
+            raise InputError(f"{section} = {values!r} has the wrong type: allowed a dict of that section's keys, "
+                             f"e.g. channel={{'p_max_dbm': 40}}")
+        items += list(_flatten(values, section))
+    return _skyloop.Config(path, [f"{k}={_toml_value(v)}" for k, v in items])
+
+
+def _as_config(cfg) -> Config:
+    if cfg is None:
+        return config()
+    if isinstance(cfg, Config):
+        return cfg
+    if isinstance(cfg, dict):
+        return config(overrides=cfg)
+    if isinstance(cfg, (str, _os.PathLike)):
+        return config(str(cfg))
+    raise InputError(f"config {cfg!r} has the wrong type: allowed skyloop.Config, a dict of overrides or a TOML path")
+
+
+def beamformer(spec: str, cfg=None) -> Beamformer:
+    """A registered beamformer by its spec string: "mrt", "zf", "zfsel", "rzf", "wmmse", "ga",
+    "ga=pso", "gnn", "gnn=PATH" (a model.pt or its directory), "deepsets", "mspointnet"."""
+    return _skyloop.beamformer(spec, _as_config(cfg))
+
+
+def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, planner_seed: int = 0) -> dict:
+    """One episode of a planner on the trajectory scenario of ``cfg``: "random", "greedy", "optimal"
+    (the exact optimum of P2.2) or the path of a trained policy directory (``skyloop train``).
+    Users: K uniform users from ``users_seed`` (as ``skyloop plan --seed``), or an explicit [K, 2] array.
+    Returns positions [T, N, 2], actions [T-1, N], rates [T], objective, T, success, arrivals,
+    collisions, boundary, reward."""
+    import numpy as np
+    u = None if users is None else np.asarray(users, dtype=np.float64)
+    return _skyloop.plan(_as_config(cfg), str(planner), int(users_seed), u, int(planner_seed))
+
+
+from .env import VecEnv  # noqa: E402  (needs the names above)

@@ -15,12 +15,12 @@ from __future__ import annotations
 import os as _os
 
 from . import _skyloop
-from ._skyloop import (ACTIONS, Beamformer, Cluster, InputError, Snapshot, SystemModel, beamformers, rates, sinr,
-                       sum_rate)
+from ._skyloop import (ACTIONS, Beamformer, Cluster, InputError, Snapshot, SystemModel, beamformers, derive_seed, rates,
+                       sinr, sum_rate)
 
 __all__ = [
     "ACTIONS", "Beamformer", "Cluster", "Config", "InputError", "Snapshot", "SystemModel", "VecEnv", "beamformer",
-    "beamformers", "config", "plan", "rates", "sinr", "sum_rate",
+    "beamformers", "config", "derive_seed", "plan", "rates", "sinr", "sum_rate",
 ]
 
 # An installed package carries models/ and configs/ under data/; from a build tree the source
@@ -94,15 +94,17 @@ def beamformer(spec: str, cfg=None) -> Beamformer:
     return _skyloop.beamformer(spec, _as_config(cfg))
 
 
-def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, planner_seed: int = 0) -> dict:
+def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, planner_seed: int | None = None) -> dict:
     """One episode of a planner on the trajectory scenario of ``cfg``: "random", "greedy", "optimal"
     (the exact optimum of P2.2) or the path of a trained policy directory (``skyloop train``).
-    Users: K uniform users from ``users_seed`` (as ``skyloop plan --seed``), or an explicit [K, 2] array.
+    Users: K uniform users from ``users_seed`` (as ``skyloop plan --seed``), or an explicit [K, 2] array;
+    the random planner's stream is the CLI's for that seed unless ``planner_seed`` is given.
     Returns positions [T, N, 2], actions [T-1, N], rates [T], objective, T, success, arrivals,
     collisions, boundary, reward."""
     import numpy as np
     u = None if users is None else np.asarray(users, dtype=np.float64)
-    return _skyloop.plan(_as_config(cfg), str(planner), int(users_seed), u, int(planner_seed))
+    return _skyloop.plan(_as_config(cfg), str(planner), int(users_seed), u,
+                         None if planner_seed is None else int(planner_seed))
 
 
 from .env import VecEnv  # noqa: E402  (needs the names above)

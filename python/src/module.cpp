@@ -15,6 +15,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/paths.hpp"
+#include "skyloop/core/rng.hpp"
 #include "skyloop/env/uav_env.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/planning/planners.hpp"
@@ -297,12 +298,13 @@ py::dict episode_dict(const EpisodeRecord& r) {
 }
 
 py::dict plan(const Config& cfg, const std::string& planner, std::uint64_t users_seed, std::optional<py::array> users_xy,
-              std::uint64_t planner_seed) {
+              std::optional<std::uint64_t> planner_seed) {
   auto bf = builtin_beamformers().create(cfg.env.oracle, cfg);
   const Positions users = users_xy ? positions_from(Array<double>::ensure(*users_xy), cfg, "users")
                                    : make_users(cfg, cfg.scenario.users, users_seed);
   std::unique_ptr<Planner> p;
-  if (planner == "random") p = std::make_unique<RandomPlanner>(planner_seed);
+  // The random planner's stream: as `skyloop plan --seed S` (derive_seed(S, "RAND")) unless given.
+  if (planner == "random") p = std::make_unique<RandomPlanner>(planner_seed ? *planner_seed : derive_seed(users_seed, 0x52414e44ULL));
   else if (planner == "greedy") p = std::make_unique<GreedyPlanner>();
   else if (planner == "optimal") p = std::make_unique<OptimalPlanner>();
 #ifdef SKYLOOP_HAS_TORCH
@@ -436,6 +438,8 @@ PYBIND11_MODULE(_skyloop, m) {
       .def("users", &PyVecEnv::users, py::arg("env") = 0);
 
   m.def("plan", &plan, py::arg("config"), py::arg("planner"), py::arg("users_seed") = 3, py::arg("users") = py::none(),
-        py::arg("planner_seed") = 0);
+        py::arg("planner_seed") = py::none());
   m.attr("ACTIONS") = py::make_tuple("UP", "DOWN", "LEFT", "RIGHT", "STAY");
+  m.def("derive_seed", [](std::uint64_t base, std::uint64_t i) { return derive_seed(base, i); }, py::arg("base"), py::arg("index"),
+        "the seed of item `index` of a stream (snapshot i of `beamform eval --seed base` is random_snapshot(.., derive_seed(base, i)))");
 }

@@ -1,0 +1,117 @@
+"""Physics and beamforming from numpy agree with the CLI bit for bit; user-supplied W; errors."""
+import csv
+import json
+import os
+
+import numpy as np
+import pytest
+
+import skyloop as sl
+from conftest import run_cli
+
+
+def test_beamform_eval_equals_cli_bit_for_bit(skyloop_bin, tmp_path):
+    out = tmp_path / "bf.csv"
+    r = run_cli("beamform", "eval", "--methods", "mrt,zf,zfsel,rzf,wmmse,gnn", "--samples", "4", "--seed", "5",
+                "--quiet", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(open(out)))
+    cfg = sl.config(run={"seed": 5})
+    model = sl.SystemModel(cfg)
+    for row in rows:
+        snap = model.random_snapshot(3, 12, sl.derive_seed(5, int(row["sample"])))
+        bf = sl.beamformer(row["method"], cfg)
+        clusters = model.clusters(snap)
+        total = sum(sl.sum_rate(c, bf.design(c)) for c in clusters)
+        assert total == float(row["sum_rate_bps_hz"]), row  # exact: the CSV holds the shortest exact text
+
+
+def test_snapshot_json_equals_numpy(skyloop_bin, source_dir):
+    scenario = os.path.join(source_dir, "configs", "scenarios", "two_uavs.toml")
+    r = run_cli("snapshot", "--json", "--method", "wmmse", "--scenario", scenario)
+    assert r.returncode == 0, r.stderr
+    j = json.loads(r.stdout)
+    cfg = sl.config()
+    model = sl.SystemModel(cfg)
+    snap = model.snapshot(cfg, [[60.0, 60.0], [150.0, 150.0]],
+                          [[60.0, 60.0], [40.0, 90.0], [90.0, 30.0], [170.0, 140.0], [130.0, 180.0], [200.0, 0.0]])
+    assert model.associate(snap) == [u["serving_uav"] if u["serving_uav"] is not None else -1 for u in j["users"]]
+    bf = sl.beamformer("wmmse", cfg)
+    for c in model.clusters(snap):
+        W = bf.design(c)
+        for k, s in zip(c.users, sl.sinr(c, W)):
+            assert s == j["users"][k]["sinr"]
+        # G's row k is h_k^H: the JSON channel is h_k itself.
+        h = np.array([complex(*x) if isinstance(x, list) else complex(x["re"], x["im"]) for x in j["users"][c.users[0]]["channel"]])
+        assert np.allclose(np.conj(c.G[0]), h, rtol=0, atol=1e-15)
+
+
+def test_user_precoder_in_numpy_matches_registered_mrt():
+    cfg = sl.config()
+    model = sl.SystemModel(cfg)
+    mrt = sl.beamformer("mrt", cfg)
+    for seed in range(5):
+        for c in model.clusters(model.random_snapshot(3, 12, seed)):
+            H = np.conj(c.G).T                                 # [L, K_n], column k = h_k
+            W = H / np.linalg.norm(H, axis=0) * np.sqrt(c.p_max / c.size)
+            assert np.allclose(W, mrt.design(c), rtol=1e-12, atol=1e-15)
+            assert sl.sum_rate(c, W) == pytest.approx(sl.sum_rate(c, mrt.design(c)), rel=1e-12)
+            rates = sl.rates(c, W)
+            assert rates.shape == (c.size,) and np.all(rates >= 0)
+            assert np.isclose(rates.sum(), sl.sum_rate(c, W), rtol=1e-12)
+
+
+def test_batch_equals_one_by_one():
+    cfg = sl.config()
+    model = sl.SystemModel(cfg)
+    clusters = [c for s in range(20) for c in model.clusters(model.random_snapshot(3, 12, s))]
+    for spec in ("wmmse", "zfsel"):  # classical: every cluster alone, bit for bit
+        bf = sl.beamformer(spec, cfg)
+        batch = bf.design_batch(clusters, threads=2)
+        for c, W in zip(clusters, batch):
+            assert np.array_equal(W, bf.design(c)), spec
+    # The GNN batches its clusters into one forward pass; float32 GEMMs of another shape round
+    # differently, so the check runs in float64 (same weights): 1e-8 of sqrt(P) (see nn_test.cpp).
+    bf = sl.beamformer("gnn", sl.config(nn={"precision": "float64"}))
+    for c, W in zip(clusters, bf.design_batch(clusters)):
+        assert np.linalg.norm(W - bf.design(c)) < 1e-8 * np.sqrt(c.p_max)
+
+
+def test_config_sources_agree(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text("[channel]\np_max_dbm = 40\n")
+    a = sl.config(str(p))
+    b = sl.config(overrides={"channel.p_max_dbm": 40})
+    c = sl.config(overrides={"channel": {"p_max_dbm": 40}})
+    d = sl.config(channel={"p_max_dbm": 40.0})
+    assert a.toml() == b.toml() == c.toml() == d.toml()
+    assert a["channel.p_max_dbm"] == 40.0
+    assert a["trajectory.starts"][0] == (20.0, 20.0)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"overrides": {"channel.nosuch": 1}}, "unknown key 'channel.nosuch'"),
+    ({"overrides": {"channel.p_max_dbm": 400}}, "channel.p_max_dbm = 400 is out of range: allowed a number in [-30, 80]"),
+    ({"overrides": {"run.seed": -1}}, "run.seed = -1 is out of range"),
+    ({"channel": 3}, "channel = 3 has the wrong type"),
+    ({"path": "/nonexistent.toml"}, "cannot be read"),
+])
+def test_config_errors_carry_the_cli_line(kwargs, message):
+    with pytest.raises(sl.InputError) as e:
+        sl.config(**kwargs)
+    assert message in str(e.value)
+    assert "\n" not in str(e.value)
+    assert isinstance(e.value, ValueError)
+
+
+def test_bad_beamformer_and_w_shape():
+    cfg = sl.config()
+    with pytest.raises(sl.InputError, match="method 'nosuch' is unknown"):
+        sl.beamformer("nosuch", cfg)
+    with pytest.raises(sl.InputError, match="empty argument"):
+        sl.beamformer("gnn=", cfg)
+    c = sl.SystemModel(cfg).clusters(sl.SystemModel(cfg).random_snapshot(3, 12, 1))[0]
+    with pytest.raises(sl.InputError, match="W has shape"):
+        sl.sum_rate(c, np.zeros((c.antennas + 1, c.size), complex))
+    with pytest.raises(sl.InputError, match="outside the area"):
+        sl.SystemModel(cfg).snapshot(cfg, [[np.nan, 1.0]], [[1.0, 1.0]])

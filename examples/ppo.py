@@ -65,6 +65,7 @@ def evaluate(agent, cfg, seed, episodes=1):
     for e in range(episodes):
         o = env.reset(seed + e if e else None)
         users = env.users(0)
+        collisions = boundary = 0
         while True:
             with torch.no_grad():
                 logits = agent.actor(torch.as_tensor(with_id(o.obs)))
@@ -72,8 +73,12 @@ def evaluate(agent, cfg, seed, episodes=1):
             r = env.step(logits.argmax(-1).numpy())
             if r.terminated[0] or r.truncated[0]:
                 out.append({"objective": float(r.info["objective"][0]), "success": bool(r.info["success"][0]),
-                            "home": int(r.info["home"][0]), "T": int(r.info["T"][0]), "users": users})
+                            "home": int(r.info["home"][0]), "T": int(r.info["T"][0]), "users": users,
+                            "collisions": collisions + int(r.info["collisions"][0]),
+                            "boundary": boundary + int(r.info["boundary"][0])})
                 break
+            collisions += int(r.info["collisions"][0])
+            boundary += int(r.info["boundary"][0])
             o = r
     return out
 
@@ -180,7 +185,8 @@ def main():
     for rec in evaluate(agent, cfg, seed=1000 + a.seed, episodes=3):
         opt = sl.plan(cfg, "optimal", users=rec["users"])
         print(f"held-out users: objective {rec['objective']:.3f} (optimum {opt['objective']:.3f}, "
-              f"{100 * rec['objective'] / opt['objective']:.1f}%), UAVs home {rec['home']}, T = {rec['T']}")
+              f"{100 * rec['objective'] / opt['objective']:.1f}%), UAVs home {rec['home']}, T = {rec['T']}, "
+              f"collisions {rec['collisions']}, boundary events {rec['boundary']}")
 
 
 if __name__ == "__main__":

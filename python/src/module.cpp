@@ -9,6 +9,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <chrono>
 #include <filesystem>
 
 #include "skyloop/channel/rates.hpp"
@@ -436,6 +437,30 @@ PYBIND11_MODULE(_skyloop, m) {
       .def("step", &PyVecEnv::step, py::arg("actions"))
       .def("positions", &PyVecEnv::positions)
       .def("users", &PyVecEnv::users, py::arg("env") = 0);
+
+  // Benchmark helpers: the same work in C++ alone, timed in the same process (python/bench).
+  m.def("_bench_cpp_vecenv", [](const Config& cfg, int num_envs, std::uint64_t seed, const Array<std::int64_t>& actions) {
+    if (actions.ndim() != 3 || actions.shape(1) != num_envs) throw InputError("actions: allowed [steps, num_envs, agents]");
+    auto bf = std::shared_ptr<const Beamformer>(builtin_beamformers().create(cfg.env.oracle, cfg));
+    VecEnv vec(cfg, bf, num_envs, seed);
+    const auto steps = actions.shape(0), N = actions.shape(2);
+    std::vector<std::vector<int>> joint(static_cast<std::size_t>(num_envs), std::vector<int>(static_cast<std::size_t>(N)));
+    const auto a = actions.unchecked<3>();
+    py::gil_scoped_release nogil;
+    const auto t0 = std::chrono::steady_clock::now();
+    for (py::ssize_t t = 0; t < steps; ++t) {
+      for (int i = 0; i < num_envs; ++i)
+        for (py::ssize_t n = 0; n < N; ++n) joint[static_cast<std::size_t>(i)][static_cast<std::size_t>(n)] = static_cast<int>(a(t, i, n));
+      vec.step(joint);
+    }
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  });
+  m.def("_bench_cpp_batch", [](const Beamformer& b, const std::vector<Cluster>& cs, int repeats) {
+    py::gil_scoped_release nogil;
+    const auto t0 = std::chrono::steady_clock::now();
+    for (int r = 0; r < repeats; ++r) (void)b.design_batch(cs, 1);
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / repeats;
+  });
 
   m.def("plan", &plan, py::arg("config"), py::arg("planner"), py::arg("users_seed") = 3, py::arg("users") = py::none(),
         py::arg("planner_seed") = py::none());

@@ -115,3 +115,31 @@ def test_bad_beamformer_and_w_shape():
         sl.sum_rate(c, np.zeros((c.antennas + 1, c.size), complex))
     with pytest.raises(sl.InputError, match="outside the area"):
         sl.SystemModel(cfg).snapshot(cfg, [[np.nan, 1.0]], [[1.0, 1.0]])
+
+
+def test_installed_package_finds_its_own_models(tmp_path, source_dir):
+    """An installed package (cmake --install --component python, staged with DESTDIR) imports from
+    anywhere and loads the shipped models from its own data/ copy, not from the source tree."""
+    import os
+    import subprocess
+    import sys
+    build = os.path.join(source_dir, "build")
+    if not os.path.exists(os.path.join(build, "CMakeCache.txt")):
+        import pytest
+        pytest.skip("no build tree")
+    env = dict(os.environ, DESTDIR=str(tmp_path))
+    r = subprocess.run(["cmake", "--install", build, "--component", "python"], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
+    site = subprocess.run([sys.executable, "-c", "import sysconfig; print(sysconfig.get_path('platlib'))"],
+                          capture_output=True, text=True).stdout.strip()
+    staged = str(tmp_path) + site
+    assert os.path.exists(os.path.join(staged, "skyloop", "data", "models", "gnn", "model.pt"))
+    code = ("import skyloop as sl; import os; d = sl._skyloop.data_dir(); "
+            "assert d.startswith(os.environ['STAGED']), d; "
+            "cfg = sl.config(); m = sl.SystemModel(cfg); c = m.clusters(m.random_snapshot(3, 12, 1))[0]; "
+            "print(sl.sum_rate(c, sl.beamformer('gnn', cfg).design(c)))")
+    clean = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "SKYLOOP_DATA_DIR")}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(tmp_path),
+                       env=dict(clean, PYTHONPATH=staged, STAGED=staged))
+    assert r.returncode == 0, r.stderr
+    assert float(r.stdout) > 0

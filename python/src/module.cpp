@@ -98,16 +98,17 @@ class PyVecEnv {
 
   py::dict step(const py::array& actions_in) {
     const int M = num_envs_, N = agents();
-    if (!py::isinstance<py::array_t<std::int64_t>>(actions_in) && !py::isinstance<py::array_t<std::int32_t>>(actions_in) &&
-        !py::isinstance<py::array_t<std::int8_t>>(actions_in) && !py::isinstance<py::array_t<std::int16_t>>(actions_in) &&
-        !py::isinstance<py::array_t<std::uint8_t>>(actions_in))
+    const char kind = actions_in.dtype().kind();
+    if (kind != 'i' && kind != 'u')
       throw InputError("actions have dtype " + py::str(actions_in.dtype()).cast<std::string>() +
                        ": allowed an integer array of shape [num_envs, agents] with values 0..4 (UP, DOWN, LEFT, RIGHT, STAY)");
     const auto a = Array<std::int64_t>::ensure(actions_in);
     if (a.ndim() != 2 || a.shape(0) != M || a.shape(1) != N)
       throw InputError("actions have shape " + shape_of(actions_in) + ": allowed [" + std::to_string(M) + ", " +
                        std::to_string(N) + "] (num_envs, agents)");
-    std::vector<std::vector<int>> joint(static_cast<std::size_t>(M), std::vector<int>(static_cast<std::size_t>(N)));
+    auto& joint = joint_;
+    joint.resize(static_cast<std::size_t>(M));
+    for (auto& j : joint) j.resize(static_cast<std::size_t>(N));
     const auto r = a.unchecked<2>();
     for (int i = 0; i < M; ++i)
       for (int n = 0; n < N; ++n) {
@@ -118,19 +119,33 @@ class PyVecEnv {
         // An arrived UAV is locked to STAY (its mask is [0,0,0,0,1]); any other action is taken as STAY.
         joint[static_cast<std::size_t>(i)][static_cast<std::size_t>(n)] = static_cast<int>(v);
       }
-    auto final_obs = Array<float>({M, N, obs_size()});
-    auto final_state = Array<float>({M, state_size()});
-    std::fill_n(final_obs.mutable_data(), final_obs.size(), 0.0f);
-    std::fill_n(final_state.mutable_data(), final_state.size(), 0.0f);
+    // Final observations of the environments that finish in this step (zeros elsewhere). Most
+    // steps finish none: they share one read-only zero array instead of allocating.
+    std::vector<float> fo, fs;
     std::vector<StepInfo> info;
     {
       py::gil_scoped_release nogil;
-      float* fo = final_obs.mutable_data();
-      float* fs = final_state.mutable_data();
       info = vec_->step(joint, [&](std::size_t i) {
-        write_obs(vec_->env(static_cast<int>(i)), fo + i * static_cast<std::size_t>(N * obs_size()));
-        write_state(vec_->env(static_cast<int>(i)), fs + i * static_cast<std::size_t>(state_size()));
+        if (fo.empty()) fo.assign(static_cast<std::size_t>(M * N * obs_size()), 0.0f), fs.assign(static_cast<std::size_t>(M * state_size()), 0.0f);
+        write_obs(vec_->env(static_cast<int>(i)), fo.data() + i * static_cast<std::size_t>(N * obs_size()));
+        write_state(vec_->env(static_cast<int>(i)), fs.data() + i * static_cast<std::size_t>(state_size()));
       });
+    }
+    py::array final_obs, final_state;
+    if (fo.empty()) {
+      if (zero_obs_.size() == 0) {
+        zero_obs_ = Array<float>({M, N, obs_size()});
+        zero_state_ = Array<float>({M, state_size()});
+        std::fill_n(zero_obs_.mutable_data(), zero_obs_.size(), 0.0f);
+        std::fill_n(zero_state_.mutable_data(), zero_state_.size(), 0.0f);
+        py::detail::array_proxy(zero_obs_.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+        py::detail::array_proxy(zero_state_.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+      }
+      final_obs = zero_obs_;
+      final_state = zero_state_;
+    } else {
+      final_obs = Array<float>({M, N, obs_size()}, fo.data());
+      final_state = Array<float>({M, state_size()}, fs.data());
     }
     py::dict out = observe();
     auto reward = Array<float>({M});
@@ -206,6 +221,34 @@ class PyVecEnv {
 
   const Config& config() const { return cfg_; }
 
+  /// Benchmark helper: `actions` [steps, M, N] stepped by the C++ VecEnv alone (no observation
+  /// arrays), on this very environment (same oracles, same warm caches); returns seconds.
+  double bench_cpp_steps(const Array<std::int64_t>& actions) {
+    if (actions.ndim() != 3 || actions.shape(1) != num_envs_ || actions.shape(2) != agents())
+      throw InputError("actions: allowed [steps, num_envs, agents]");
+    std::vector<std::vector<int>> joint(static_cast<std::size_t>(num_envs_), std::vector<int>(static_cast<std::size_t>(agents())));
+    const auto a = actions.unchecked<3>();
+    py::gil_scoped_release nogil;
+    const auto t0 = std::chrono::steady_clock::now();
+    for (py::ssize_t t = 0; t < actions.shape(0); ++t) {
+      for (int i = 0; i < num_envs_; ++i)
+        for (int n = 0; n < agents(); ++n) joint[static_cast<std::size_t>(i)][static_cast<std::size_t>(n)] = static_cast<int>(a(t, i, n));
+      vec_->step(joint);
+    }
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+
+  /// Cache hit rate of the environments' rate oracles so far.
+  double hit_rate() const {
+    double hits = 0, total = 0;
+    for (int i = 0; i < num_envs_; ++i) {
+      auto& o = const_cast<VecEnv&>(*vec_).env(i).oracle();
+      hits += static_cast<double>(o.stats().hits);
+      total += static_cast<double>(o.stats().hits + o.stats().misses);
+    }
+    return total > 0 ? hits / total : 0.0;
+  }
+
  private:
   static std::string shape_of(const py::array& a) {
     std::string s = "[";
@@ -219,15 +262,9 @@ class PyVecEnv {
   }
 
   void write_obs(const UavEnv& e, float* dst) const {
-    for (int n = 0; n < e.uavs(); ++n) {
-      const auto o = e.observation(n);
-      std::copy(o.begin(), o.end(), dst + n * obs_size());
-    }
+    for (int n = 0; n < e.uavs(); ++n) e.write_observation(n, dst + n * obs_size());
   }
-  void write_state(const UavEnv& e, float* dst) const {
-    const auto s = e.state();
-    std::copy(s.begin(), s.end(), dst);
-  }
+  void write_state(const UavEnv& e, float* dst) const { e.write_state(dst); }
 
   /// Current observations of every environment: obs [M, N, 11], state [M, S], agent_state
   /// [M, N, S + N + 11], action_mask [M, N, 5] (int8; an arrived UAV: [0, 0, 0, 0, 1]).
@@ -270,6 +307,8 @@ class PyVecEnv {
   int num_envs_;
   std::shared_ptr<const Beamformer> bf_;
   std::unique_ptr<VecEnv> vec_;
+  std::vector<std::vector<int>> joint_;  // the joint actions, reused across steps
+  Array<float> zero_obs_, zero_state_;    // read-only zeros: final_obs / final_state when no episode ends
 };
 
 // ---- planners -------------------------------------------------------------------------------
@@ -436,25 +475,11 @@ PYBIND11_MODULE(_skyloop, m) {
       .def("reset", &PyVecEnv::reset, py::arg("seed") = py::none())
       .def("step", &PyVecEnv::step, py::arg("actions"))
       .def("positions", &PyVecEnv::positions)
-      .def("users", &PyVecEnv::users, py::arg("env") = 0);
+      .def("users", &PyVecEnv::users, py::arg("env") = 0)
+      .def("hit_rate", &PyVecEnv::hit_rate, "the rate oracles' cache hit rate so far")
+      .def("_bench_cpp_steps", &PyVecEnv::bench_cpp_steps, py::arg("actions"));
 
   // Benchmark helpers: the same work in C++ alone, timed in the same process (python/bench).
-  m.def("_bench_cpp_vecenv", [](const Config& cfg, int num_envs, std::uint64_t seed, const Array<std::int64_t>& actions) {
-    if (actions.ndim() != 3 || actions.shape(1) != num_envs) throw InputError("actions: allowed [steps, num_envs, agents]");
-    auto bf = std::shared_ptr<const Beamformer>(builtin_beamformers().create(cfg.env.oracle, cfg));
-    VecEnv vec(cfg, bf, num_envs, seed);
-    const auto steps = actions.shape(0), N = actions.shape(2);
-    std::vector<std::vector<int>> joint(static_cast<std::size_t>(num_envs), std::vector<int>(static_cast<std::size_t>(N)));
-    const auto a = actions.unchecked<3>();
-    py::gil_scoped_release nogil;
-    const auto t0 = std::chrono::steady_clock::now();
-    for (py::ssize_t t = 0; t < steps; ++t) {
-      for (int i = 0; i < num_envs; ++i)
-        for (py::ssize_t n = 0; n < N; ++n) joint[static_cast<std::size_t>(i)][static_cast<std::size_t>(n)] = static_cast<int>(a(t, i, n));
-      vec.step(joint);
-    }
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  });
   m.def("_bench_cpp_batch", [](const Beamformer& b, const std::vector<Cluster>& cs, int repeats) {
     py::gil_scoped_release nogil;
     const auto t0 = std::chrono::steady_clock::now();

@@ -35,7 +35,9 @@ def test_shapes_dtypes_and_bounds():
         # Agent-specific state = state, one-hot id, obs.
         assert np.array_equal(r.agent_state[:, :, :r.state.shape[1]], np.repeat(r.state[:, None], N, axis=1))
         assert np.array_equal(r.agent_state[:, :, -11:], r.obs)
+        assert r.info["final_obs"].shape == (M, N, 11) and r.info["final_state"].shape == r.state.shape
         done = r.terminated | r.truncated
+        assert np.all(r.info["final_obs"][~done] == 0)
         if done.any():
             seen_done = True
             i = int(np.flatnonzero(done)[0])

@@ -196,30 +196,39 @@ StepInfo UavEnv::step(const std::vector<int>& actions) {
 
 double UavEnv::objective() const { return rate_sum_ / static_cast<double>(t_); }
 
-std::vector<float> UavEnv::observation(int n) const {
+void UavEnv::write_observation(int n, float* o) const {
   const auto& users = oracle_->users();
   double mx = 0, my = 0;
   for (Eigen::Index k = 0; k < users.rows(); ++k) mx += users(k, 0) - pos_(n, 0), my += users(k, 1) - pos_(n, 1);
   const double K = static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
-  std::vector<float> o{static_cast<float>(pos_(n, 0) / area_x_), static_cast<float>(pos_(n, 1) / area_y_),
-                       static_cast<float>(mx / K / area_x_),     static_cast<float>(my / K / area_y_),
-                       static_cast<float>((dest_(n, 0) - pos_(n, 0)) / area_x_),
-                       static_cast<float>((dest_(n, 1) - pos_(n, 1)) / area_y_),
-                       0, 0, 0, 0, 0};
-  o[static_cast<std::size_t>(6 + prev_action_[static_cast<std::size_t>(n)])] = 1.0f;
+  o[0] = static_cast<float>(pos_(n, 0) / area_x_);
+  o[1] = static_cast<float>(pos_(n, 1) / area_y_);
+  o[2] = static_cast<float>(mx / K / area_x_);
+  o[3] = static_cast<float>(my / K / area_y_);
+  o[4] = static_cast<float>((dest_(n, 0) - pos_(n, 0)) / area_x_);
+  o[5] = static_cast<float>((dest_(n, 1) - pos_(n, 1)) / area_y_);
+  for (int a = 0; a < kActions; ++a) o[6 + a] = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
+}
+
+std::vector<float> UavEnv::observation(int n) const {
+  std::vector<float> o(static_cast<std::size_t>(observation_size()));
+  write_observation(n, o.data());
   return o;
 }
 
 int UavEnv::state_size() const { return 4 * n_ + 2 * static_cast<int>(oracle_->users().rows()); }
 
-std::vector<float> UavEnv::state() const {
-  std::vector<float> s;
-  s.reserve(static_cast<std::size_t>(state_size()));
-  for (int n = 0; n < n_; ++n) s.push_back(static_cast<float>(pos_(n, 0) / area_x_)), s.push_back(static_cast<float>(pos_(n, 1) / area_y_));
+void UavEnv::write_state(float* s) const {
+  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(pos_(n, 0) / area_x_), *s++ = static_cast<float>(pos_(n, 1) / area_y_);
   const auto& users = oracle_->users();
   for (Eigen::Index k = 0; k < users.rows(); ++k)
-    s.push_back(static_cast<float>(users(k, 0) / area_x_)), s.push_back(static_cast<float>(users(k, 1) / area_y_));
-  for (int n = 0; n < n_; ++n) s.push_back(static_cast<float>(dest_(n, 0) / area_x_)), s.push_back(static_cast<float>(dest_(n, 1) / area_y_));
+    *s++ = static_cast<float>(users(k, 0) / area_x_), *s++ = static_cast<float>(users(k, 1) / area_y_);
+  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(dest_(n, 0) / area_x_), *s++ = static_cast<float>(dest_(n, 1) / area_y_);
+}
+
+std::vector<float> UavEnv::state() const {
+  std::vector<float> s(static_cast<std::size_t>(state_size()));
+  write_state(s.data());
   return s;
 }
 

@@ -92,6 +92,11 @@ class UavEnv {
   /// to the destination / area, one-hot previous action.
   std::vector<float> observation(int n) const;
   static int observation_size() { return 11; }
+  /// observation(n) written into out[0..10] (no allocation): the layout the Python module and
+  /// the learners' batch buffers use.
+  void write_observation(int n, float* out) const;
+  /// state() written into out[0..state_size()-1].
+  void write_state(float* out) const;
   /// s[t]: all UAV positions, all user positions, all destinations, each / area (4N + 2K reals).
   std::vector<float> state() const;
   int state_size() const;

@@ -15,8 +15,7 @@ from __future__ import annotations
 import os as _os
 
 from . import _skyloop
-from ._skyloop import (ACTIONS, Beamformer, Cluster, InputError, Snapshot, SystemModel, beamformers, derive_seed, rates,
-                       sinr, sum_rate)
+from ._skyloop import ACTIONS, Beamformer, Cluster, InputError, Snapshot, SystemModel, beamformers, derive_seed
 
 __all__ = [
     "ACTIONS", "Beamformer", "Cluster", "Config", "InputError", "Snapshot", "SystemModel", "VecEnv", "beamformer",
@@ -30,6 +29,29 @@ if _os.path.isdir(_os.path.join(_here, "data", "models")) and not _os.environ.ge
     _skyloop.set_data_dir(_os.path.join(_here, "data"))
 
 Config = _skyloop.Config
+
+
+def _as_w(W):
+    """A beamformer from numpy, a torch tensor (any device, detached) or a nested list: complex128."""
+    if hasattr(W, "detach"):  # torch
+        W = W.detach().cpu().resolve_conj().numpy() if hasattr(W, "resolve_conj") else W.detach().cpu().numpy()
+    import numpy as np
+    return np.asarray(W, dtype=np.complex128)
+
+
+def sum_rate(cluster: Cluster, W) -> float:
+    """The cluster's sum rate (bit/s/Hz) under W [L, K_n] (numpy, torch or a list; complex)."""
+    return _skyloop.sum_rate(cluster, _as_w(W))
+
+
+def sinr(cluster: Cluster, W):
+    """Per-user SINR [K_n] (linear) under W [L, K_n] (eq:sinr)."""
+    return _skyloop.sinr(cluster, _as_w(W))
+
+
+def rates(cluster: Cluster, W):
+    """Per-user rates log2(1 + SINR) [K_n] under W [L, K_n] (eq:rate)."""
+    return _skyloop.rates(cluster, _as_w(W))
 
 
 def _toml_value(v) -> str:

@@ -143,3 +143,13 @@ def test_installed_package_finds_its_own_models(tmp_path, source_dir):
                        env=dict(clean, PYTHONPATH=staged, STAGED=staged))
     assert r.returncode == 0, r.stderr
     assert float(r.stdout) > 0
+
+
+def test_torch_precoder_is_accepted():
+    torch = pytest.importorskip("torch")
+    cfg = sl.config()
+    model = sl.SystemModel(cfg)
+    c = model.clusters(model.random_snapshot(3, 12, 2))[0]
+    W = sl.beamformer("zf", cfg).design(c)
+    assert sl.sum_rate(c, torch.from_numpy(W)) == sl.sum_rate(c, W)
+    assert np.array_equal(sl.sinr(c, torch.from_numpy(W).requires_grad_(False)), sl.sinr(c, W))

@@ -42,12 +42,13 @@ const char* kModels[] = {"gnn", "deepsets", "mspointnet", "gnn+structured", "dee
 }  // namespace
 
 // Tolerances in these tests follow from the arithmetic, not from one machine's output.
-//  * float64 checks: the unit roundoff is u64 = 2^-53 = 1.1e-16. The served map x -> W is at
-//    worst ~1e7-conditioned here (measured below as kappa: GraphNorm over 1-3 users and the
-//    structured readout's solve with cond(G) ~ 1e4), so two float64 evaluations that differ only in
-//    summation order agree to ~1e-9 relative and better; kF64Tol = 1e-8 (relative to sqrt(P_max),
-//    the norm of every W on the budget) leaves that margin, while a fault (a cluster seeing
-//    another's users, a permutation applied twice) changes W by O(sqrt(P_max)).
+//  * float64 checks: the unit roundoff is u64 = 2^-53 = 1.1e-16. The served map x -> W has a
+//    relative condition number kappa of at most ~1.2e3 on these tiny models (measured per cluster
+//    in NnInternal.Float32ServingIsWithinRoundingOfFloat64: GraphNorm over 1-3 users and the
+//    structured readout's solve are the ill-conditioned parts), so two float64 evaluations that
+//    differ only in summation order agree to ~1e-13 relative; kF64Tol = 1e-8 (relative to
+//    sqrt(P_max), the norm of every W on the budget) leaves a wide margin for other models, while a
+//    fault (a cluster seeing another's users, a permutation applied twice) changes W by O(sqrt(P_max)).
 //  * The float32 serving path is held to the float64 evaluation of the same weights, with a bound
 //    from float32 rounding and the measured conditioning, in nn_internal_test.cpp
 //    (NnInternal.Float32ServingIsWithinRoundingOfFloat64).

@@ -14,6 +14,32 @@ std::vector<MatrixXcd> Beamformer::design_batch(const std::vector<Cluster>& clus
   return out;
 }
 
+std::vector<MatrixXcd> Beamformer::design_network(const Network& net, int threads) const {
+  return design_batch(net.clusters, threads);
+}
+
+std::vector<std::vector<MatrixXcd>> Beamformer::design_networks(const std::vector<Network>& nets, int threads) const {
+  std::vector<std::vector<MatrixXcd>> out(nets.size());
+  if (coordinated()) {
+    parallel_for(nets.size(), threads, [&](std::size_t i) { out[i] = design_network(nets[i]); });
+    return out;
+  }
+  std::vector<Cluster> all;
+  for (const auto& n : nets) all.insert(all.end(), n.clusters.begin(), n.clusters.end());
+  auto W = design_batch(all, threads);
+  std::size_t next = 0;
+  for (std::size_t i = 0; i < nets.size(); ++i)
+    for (std::size_t c = 0; c < nets[i].clusters.size(); ++c) out[i].push_back(std::move(W[next++]));
+  return out;
+}
+
+void check_network_output(const Beamformer& bf, const Network& net, const std::vector<MatrixXcd>& W) {
+  if (W.size() != net.clusters.size())
+    throw std::runtime_error("beamformer '" + bf.name() + "' returned " + std::to_string(W.size()) +
+                             " matrices for a network of " + std::to_string(net.clusters.size()) + " clusters");
+  for (std::size_t i = 0; i < W.size(); ++i) check_beamformer_output(bf, net.clusters[i], W[i]);
+}
+
 MatrixXcd scale_to_budget(MatrixXcd W, double p_max, PowerScaling mode) {
   const double power = W.squaredNorm();
   if (power <= 0.0 || !std::isfinite(power)) return MatrixXcd::Zero(W.rows(), W.cols());

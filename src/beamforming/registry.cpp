@@ -2,6 +2,7 @@
 
 #include <algorithm>
 
+#include "skyloop/beamforming/coordinated.hpp"
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/beamforming/wmmse.hpp"
 #include "skyloop/core/error.hpp"
@@ -59,6 +60,23 @@ void register_classical_beamformers(BeamformerRegistry& reg) {
     WmmseOptions opt{cfg.wmmse.tolerance, cfg.wmmse.max_iterations, cfg.wmmse.bisection_tolerance};
     return std::make_unique<WmmseBeamformer>(opt, cfg.wmmse.init, cfg.wmmse.restarts, cfg.run.seed,
                                              cfg.beamforming.power_scaling);
+  });
+  // Coordinated (network-level) beamformers: see beamforming/coordinated.hpp.
+  reg.add("nwmmse", "network WMMSE over all UAVs (interfering broadcast channel), per-UAV budgets; from per-cluster WMMSE",
+          [no_arg](const Config& cfg, const std::string& arg) {
+            no_arg("nwmmse", arg);
+            WmmseOptions opt{cfg.wmmse.tolerance, cfg.wmmse.max_iterations, cfg.wmmse.bisection_tolerance};
+            auto start = std::make_shared<WmmseBeamformer>(opt, cfg.wmmse.init, cfg.wmmse.restarts, cfg.run.seed,
+                                                           PowerScaling::Full);
+            return std::make_unique<NetworkWmmseBeamformer>(opt, std::move(start));
+          });
+  reg.add("crzf", "coordinated RZF, regularised toward every served user of the network", [no_arg](const Config&, const std::string& arg) {
+    no_arg("crzf", arg);
+    return std::make_unique<CoordinatedRzfBeamformer>();
+  });
+  reg.add("czf", "coordinated ZF: ZF-SEL's users plus nulls toward the strongest other-cluster users", [no_arg](const Config&, const std::string& arg) {
+    no_arg("czf", arg);
+    return std::make_unique<CoordinatedZfBeamformer>();
   });
 }
 

@@ -10,8 +10,8 @@
 namespace skyloop {
 namespace {
 
-/// Sum rate from M = G W without allocating per user.
-double sum_rate_of(const MatrixXcd& M, double noise) {
+/// Sum rate from M = G W without allocating per user (times the cluster's band share).
+double sum_rate_of(const MatrixXcd& M, double noise, double share) {
   double total = 0.0;
   for (Eigen::Index k = 0; k < M.rows(); ++k) {
     double interference = noise;
@@ -19,10 +19,42 @@ double sum_rate_of(const MatrixXcd& M, double noise) {
       if (j != k) interference += std::norm(M(k, j));
     total += std::log2(1.0 + std::norm(M(k, k)) / interference);
   }
-  return total;
+  return share * total;
 }
 
 }  // namespace
+
+MatrixXcd budgeted_solve(const MatrixXcd& A, const MatrixXcd& B, double p_max, double bisection_tolerance) {
+  const Eigen::Index L = A.rows();
+  Eigen::SelfAdjointEigenSolver<MatrixXcd> eig(A);
+  const VectorXd& lambda = eig.eigenvalues();
+  const MatrixXcd C = eig.eigenvectors().adjoint() * B;  // [L x K]
+  const VectorXd cpow = C.rowwise().squaredNorm();
+  // Components with lambda ~ 0 lie outside the span of the channels, where C is ~0 too:
+  // they are dropped (pseudo-inverse at mu = 0).
+  const double lambda_floor = 1e-12 * std::max(lambda.maxCoeff(), 0.0);
+  auto power = [&](double mu) {
+    double p = 0.0;
+    for (Eigen::Index i = 0; i < L; ++i) {
+      const double den = lambda[i] + mu;
+      if (lambda[i] > lambda_floor || mu > 0) p += cpow[i] / (den * den);
+    }
+    return p;
+  };
+  double mu = 0.0;
+  if (!(power(0.0) <= p_max)) {
+    double lo = 0.0, hi = std::sqrt(cpow.sum() / p_max);
+    while (power(hi) > p_max) hi *= 2.0;  // guards rounding; normally already feasible
+    while (hi - lo > bisection_tolerance * hi) {
+      const double mid = 0.5 * (lo + hi);
+      (power(mid) > p_max ? lo : hi) = mid;
+    }
+    mu = hi;  // feasible side
+  }
+  VectorXd inv(L);
+  for (Eigen::Index i = 0; i < L; ++i) inv[i] = (lambda[i] > lambda_floor || mu > 0) ? 1.0 / (lambda[i] + mu) : 0.0;
+  return eig.eigenvectors() * (inv.asDiagonal() * C);
+}
 
 MatrixXcd random_beamformer(Eigen::Index L, Eigen::Index K, double p_max, std::uint64_t seed) {
   Rng rng(seed);
@@ -45,13 +77,12 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
   }
   const MatrixXcd GH = c.G.adjoint();  // [L x K], column k = g_k^H
   MatrixXcd M = c.G * tr.W;
-  double rate = sum_rate_of(M, c.noise);
+  double rate = sum_rate_of(M, c.noise, c.bandwidth);
   tr.sum_rates.push_back(rate);
 
   VectorXcd u(K);
   VectorXd a(K);  // omega_k |u_k|^2
   VectorXcd b(K); // omega_k u_k
-  Eigen::SelfAdjointEigenSolver<MatrixXcd> eig(L);
   MatrixXcd W(L, K);
   for (int it = 0; it < opt.max_iterations; ++it) {
     for (Eigen::Index k = 0; k < K; ++k) {
@@ -64,38 +95,9 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
       a[k] = omega * std::norm(u[k]);
       b[k] = omega * u[k];
     }
-    const MatrixXcd A = GH * a.asDiagonal() * c.G;
-    eig.compute(A);
-    const VectorXd& lambda = eig.eigenvalues();
-    const MatrixXcd C = eig.eigenvectors().adjoint() * (GH * b.asDiagonal());  // [L x K]
-    const VectorXd cpow = C.rowwise().squaredNorm();
-    // Components with lambda ~ 0 lie outside the span of the channels, where C is ~0 too:
-    // they are dropped (pseudo-inverse at mu = 0).
-    const double lambda_floor = 1e-12 * std::max(lambda.maxCoeff(), 0.0);
-    auto power = [&](double mu) {
-      double p = 0.0;
-      for (Eigen::Index i = 0; i < L; ++i) {
-        const double den = lambda[i] + mu;
-        if (lambda[i] > lambda_floor || mu > 0) p += cpow[i] / (den * den);
-      }
-      return p;
-    };
-    double mu = 0.0;
-    if (!(power(0.0) <= c.p_max)) {
-      double lo = 0.0, hi = std::sqrt(cpow.sum() / c.p_max);
-      while (power(hi) > c.p_max) hi *= 2.0;  // guards rounding; normally already feasible
-      while (hi - lo > opt.bisection_tolerance * hi) {
-        const double mid = 0.5 * (lo + hi);
-        (power(mid) > c.p_max ? lo : hi) = mid;
-      }
-      mu = hi;  // feasible side
-    }
-    VectorXd inv(L);
-    for (Eigen::Index i = 0; i < L; ++i)
-      inv[i] = (lambda[i] > lambda_floor || mu > 0) ? 1.0 / (lambda[i] + mu) : 0.0;
-    W.noalias() = eig.eigenvectors() * (inv.asDiagonal() * C);
+    W = budgeted_solve(GH * a.asDiagonal() * c.G, GH * b.asDiagonal(), c.p_max, opt.bisection_tolerance);
     M.noalias() = c.G * W;
-    const double next = sum_rate_of(M, c.noise);
+    const double next = sum_rate_of(M, c.noise, c.bandwidth);
     tr.sum_rates.push_back(next);
     ++tr.iterations;
     // In exact arithmetic every iteration raises the sum rate. At extreme SNR (noise far below the

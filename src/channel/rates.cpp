@@ -24,7 +24,8 @@ VectorXd sinr(const Cluster& c, const MatrixXcd& W) {
 }
 
 VectorXd rates(const Cluster& c, const MatrixXcd& W) {
-  return sinr(c, W).unaryExpr([](double g) { return std::log2(1.0 + g); });
+  const double share = c.bandwidth;
+  return sinr(c, W).unaryExpr([share](double g) { return share * std::log2(1.0 + g); });
 }
 
 double sum_rate(const Cluster& c, const MatrixXcd& W) { return c.G.rows() == 0 ? 0.0 : rates(c, W).sum(); }

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <limits>
 
+#include "skyloop/channel/network.hpp"
 #include "skyloop/core/rng.hpp"
 
 namespace skyloop {
@@ -17,7 +18,8 @@ SystemModel::SystemModel(const Config& cfg)
       p_max_(cfg.channel.p_max_w()),
       noise_(cfg.channel.noise_w()),
       area_x_(cfg.scenario.area_x_m),
-      area_y_(cfg.scenario.area_y_m) {}
+      area_y_(cfg.scenario.area_y_m),
+      spectrum_(parse_spectrum(cfg.channel.spectrum)) {}
 
 double SystemModel::distance(double ux, double uy, double x, double y) const {
   const double dx = ux - x, dy = uy - y;
@@ -63,12 +65,16 @@ Association SystemModel::associate(const Snapshot& s) const {
 }
 
 Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions& users_xy,
-                                  const std::vector<int>& users) const {
+                                  const std::vector<int>& users, int uavs) const {
   Cluster c;
   c.uav = uav;
   c.users = users;
   c.p_max = p_max_;
   c.noise = noise_;
+  if (spectrum_ == Spectrum::OrthogonalSplit && uavs > 1) {
+    c.bandwidth = 1.0 / static_cast<double>(uavs);
+    c.noise = noise_ / static_cast<double>(uavs);
+  }
   c.G.resize(static_cast<Eigen::Index>(users.size()), antennas_);
   for (std::size_t i = 0; i < users.size(); ++i)
     c.G.row(static_cast<Eigen::Index>(i)) = channel(ux, uy, users_xy(users[i], 0), users_xy(users[i], 1)).adjoint();
@@ -78,9 +84,38 @@ Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions
 std::vector<Cluster> SystemModel::clusters(const Snapshot& s, const Association& a) const {
   std::vector<Cluster> out;
   for (int n = 0; n < static_cast<int>(a.users.size()); ++n)
-    if (!a.users[n].empty()) out.push_back(make_cluster(n, s.uavs(n, 0), s.uavs(n, 1), s.users, a.users[n]));
+    if (!a.users[n].empty())
+      out.push_back(make_cluster(n, s.uavs(n, 0), s.uavs(n, 1), s.users, a.users[n], static_cast<int>(s.uavs.rows())));
   return out;
 }
+
+Network SystemModel::network(const Positions& uavs, const Positions& users_xy,
+                             const std::vector<std::vector<int>>& members) const {
+  Network net;
+  net.spectrum = spectrum_;
+  net.uavs = static_cast<int>(uavs.rows());
+  net.offset.push_back(0);
+  for (int n = 0; n < net.uavs; ++n) {
+    if (members[static_cast<std::size_t>(n)].empty()) continue;
+    net.clusters.push_back(make_cluster(n, uavs(n, 0), uavs(n, 1), users_xy, members[static_cast<std::size_t>(n)], net.uavs));
+    for (int k : members[static_cast<std::size_t>(n)]) net.served.push_back(k);
+    net.offset.push_back(static_cast<int>(net.served.size()));
+  }
+  const auto ks = static_cast<Eigen::Index>(net.served.size());
+  for (const Cluster& c : net.clusters) {
+    MatrixXcd H(ks, antennas_);
+    for (Eigen::Index r = 0; r < ks; ++r) {
+      const int k = net.served[static_cast<std::size_t>(r)];
+      H.row(r) = channel(uavs(c.uav, 0), uavs(c.uav, 1), users_xy(k, 0), users_xy(k, 1)).adjoint();
+    }
+    net.cross.push_back(std::move(H));
+  }
+  return net;
+}
+
+Network SystemModel::network(const Snapshot& s, const Association& a) const { return network(s.uavs, s.users, a.users); }
+
+Network SystemModel::network(const Snapshot& s) const { return network(s, associate(s)); }
 
 std::vector<Cluster> SystemModel::clusters(const Snapshot& s) const { return clusters(s, associate(s)); }
 

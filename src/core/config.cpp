@@ -12,6 +12,22 @@ namespace skyloop {
 
 std::string to_string(PowerScaling s) { return s == PowerScaling::Full ? "full" : "cap"; }
 
+Spectrum parse_spectrum(const std::string& s) {
+  if (s == "orthogonal") return Spectrum::Orthogonal;
+  if (s == "orthogonal-split") return Spectrum::OrthogonalSplit;
+  if (s == "shared") return Spectrum::Shared;
+  throw InputError("channel.spectrum = \"" + s + "\" is not allowed: allowed one of orthogonal, orthogonal-split, shared");
+}
+
+std::string to_string(Spectrum s) {
+  switch (s) {
+    case Spectrum::Orthogonal: return "orthogonal";
+    case Spectrum::OrthogonalSplit: return "orthogonal-split";
+    case Spectrum::Shared: return "shared";
+  }
+  return "orthogonal";
+}
+
 namespace {
 
 using Type = Field::Type;
@@ -86,6 +102,10 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.channel.d0_m; }));
   f.push_back(real("channel.coverage_radius_m", "coverage radius R_c on the 3-D UAV-user distance (m)", 1, 1e5,
                    [](Config& c) -> double& { return c.channel.coverage_radius_m; }));
+  f.push_back(text("channel.spectrum",
+                   "orthogonal: each UAV its own full band (the paper); orthogonal-split: N bands of 1/N; shared: one band, "
+                   "inter-cluster interference",
+                   {"orthogonal", "orthogonal-split", "shared"}, [](Config& c) -> std::string& { return c.channel.spectrum; }));
   // [beamforming]
   {
     Field s{"beamforming.power_scaling", Type::Text,

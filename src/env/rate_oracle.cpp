@@ -4,6 +4,7 @@
 #include <limits>
 #include <stdexcept>
 
+#include "skyloop/channel/network.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/rng.hpp"
@@ -45,23 +46,74 @@ void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vec
   }
 }
 
+std::size_t RateOracle::JointHash::operator()(const std::vector<double>& k) const {
+  return static_cast<std::size_t>(hash_bytes(k.data(), sizeof(double) * k.size()));
+}
+
+std::vector<double> RateOracle::joint_key(const Positions& uavs) {
+  std::vector<double> key(static_cast<std::size_t>(2 * uavs.rows()));
+  for (Eigen::Index n = 0; n < uavs.rows(); ++n)
+    key[static_cast<std::size_t>(2 * n)] = uavs(n, 0), key[static_cast<std::size_t>(2 * n + 1)] = uavs(n, 1);
+  return key;
+}
+
+namespace {
+double total_of(const std::vector<double>& per_uav) {
+  double t = 0.0;
+  for (double r : per_uav) t += r;  // fixed order: a hit sums the same doubles as the miss
+  return t;
+}
+}  // namespace
+
 std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, const std::vector<const Positions*>& uavs) {
   using Key = RateOracle::Key;
   const std::size_t m = oracles.size();
   std::vector<std::vector<Key>> keys(m);
   std::vector<std::vector<std::vector<int>>> members(m);
-  // Misses per beamformer: (oracle, key, cluster).
+  // Misses per beamformer. Per-cluster (orthogonal): (oracle, key) and its cluster. Joint
+  // (shared): (oracle, joint key) and its network.
   struct Miss {
     RateOracle* oracle;
     Key key;
   };
+  struct JointMiss {
+    RateOracle* oracle;
+    std::vector<double> key;
+  };
   std::vector<const Beamformer*> groups;
   std::vector<std::vector<Miss>> misses;
   std::vector<std::vector<Cluster>> clusters;
+  std::vector<std::vector<JointMiss>> joint_misses;
+  std::vector<std::vector<Network>> networks;
+  auto group_of = [&](const Beamformer* bf) {
+    std::size_t g = 0;
+    while (g < groups.size() && groups[g] != bf) ++g;
+    if (g == groups.size()) {
+      groups.push_back(bf);
+      misses.emplace_back(), clusters.emplace_back(), joint_misses.emplace_back(), networks.emplace_back();
+    }
+    return g;
+  };
   std::unordered_map<const RateOracle*, std::unordered_map<Key, char, RateOracle::KeyHash>> pending;
+  std::unordered_map<const RateOracle*, std::unordered_map<std::vector<double>, char, RateOracle::JointHash>> joint_pending;
+  std::vector<std::vector<double>> jkeys(m);
   for (std::size_t s = 0; s < m; ++s) {
     RateOracle& o = *oracles[s];
     o.keys_of(*uavs[s], keys[s], members[s]);
+    if (o.joint()) {
+      jkeys[s] = RateOracle::joint_key(*uavs[s]);
+      auto& mine = joint_pending[&o];
+      if (o.joint_cache_.count(jkeys[s]) || mine.count(jkeys[s])) {
+        ++o.stats_.hits;
+        continue;
+      }
+      ++o.stats_.misses;
+      mine.emplace(jkeys[s], 1);
+      const std::size_t g = group_of(o.beamformer_.get());
+      joint_misses[g].push_back({&o, jkeys[s]});
+      networks[g].push_back(o.model_.network(*uavs[s], o.users_, members[s]));
+      continue;
+    }
     for (std::size_t i = 0; i < keys[s].size(); ++i) {
       if (members[s][i].empty()) continue;
       const Key& key = keys[s][i];
@@ -72,24 +124,41 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
       }
       ++o.stats_.misses;
       mine.emplace(key, 1);
-      std::size_t g = 0;
-      while (g < groups.size() && groups[g] != o.beamformer_.get()) ++g;
-      if (g == groups.size()) groups.push_back(o.beamformer_.get()), misses.emplace_back(), clusters.emplace_back();
+      const std::size_t g = group_of(o.beamformer_.get());
       misses[g].push_back({&o, key});
-      clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[s][i]));
+      clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[s][i],
+                                                  static_cast<int>(uavs[s]->rows())));
     }
   }
   for (std::size_t g = 0; g < groups.size(); ++g) {
-    const auto W = groups[g]->design_batch(clusters[g]);
-    for (std::size_t c = 0; c < clusters[g].size(); ++c) {
-      check_beamformer_output(*groups[g], clusters[g][c], W[c]);
-      misses[g][c].oracle->cache_.emplace(misses[g][c].key, sum_rate(clusters[g][c], W[c]));
+    if (!clusters[g].empty()) {
+      const auto W = groups[g]->design_batch(clusters[g]);
+      for (std::size_t c = 0; c < clusters[g].size(); ++c) {
+        check_beamformer_output(*groups[g], clusters[g][c], W[c]);
+        misses[g][c].oracle->cache_.emplace(misses[g][c].key, sum_rate(clusters[g][c], W[c]));
+      }
+    }
+    if (!networks[g].empty()) {
+      const auto W = groups[g]->design_networks(networks[g]);
+      for (std::size_t n = 0; n < networks[g].size(); ++n) {
+        const Network& net = networks[g][n];
+        check_network_output(*groups[g], net, W[n]);
+        const auto rates = network_cluster_rates(net, W[n]);
+        std::vector<double> per_uav(static_cast<std::size_t>(net.uavs), 0.0);
+        for (std::size_t c = 0; c < net.clusters.size(); ++c) per_uav[static_cast<std::size_t>(net.clusters[c].uav)] = rates[c];
+        joint_misses[g][n].oracle->joint_cache_.emplace(joint_misses[g][n].key, std::move(per_uav));
+      }
     }
   }
   std::vector<double> out(m, 0.0);
-  for (std::size_t s = 0; s < m; ++s)
+  for (std::size_t s = 0; s < m; ++s) {
+    if (oracles[s]->joint()) {
+      out[s] = total_of(oracles[s]->joint_cache_.at(jkeys[s]));
+      continue;
+    }
     for (std::size_t i = 0; i < keys[s].size(); ++i)
       if (!members[s][i].empty()) out[s] += oracles[s]->cache_.at(keys[s][i]);
+  }
   return out;
 }
 
@@ -102,6 +171,18 @@ std::vector<double> RateOracle::sum_rates(const std::vector<Positions>& all) {
 
 double RateOracle::sum_rate(const Positions& uavs) {
   // Fast path without allocation of the batch machinery when everything is cached.
+  if (joint()) {
+    thread_local std::vector<double> key;
+    key.resize(static_cast<std::size_t>(2 * uavs.rows()));
+    for (Eigen::Index n = 0; n < uavs.rows(); ++n)
+      key[static_cast<std::size_t>(2 * n)] = uavs(n, 0), key[static_cast<std::size_t>(2 * n + 1)] = uavs(n, 1);
+    const auto it = joint_cache_.find(key);
+    if (it != joint_cache_.end()) {
+      ++stats_.hits;
+      return total_of(it->second);
+    }
+    return sum_rates({uavs}).front();
+  }
   thread_local std::vector<Key> keys;
   thread_local std::vector<std::vector<int>> members;
   keys_of(uavs, keys, members);
@@ -122,6 +203,7 @@ double RateOracle::sum_rate(const Positions& uavs) {
 
 std::vector<double> RateOracle::cluster_rates(const Positions& uavs) {
   sum_rates({uavs});  // fills the cache
+  if (joint()) return joint_cache_.at(joint_key(uavs));
   std::vector<Key> keys;
   std::vector<std::vector<int>> members;
   keys_of(uavs, keys, members);

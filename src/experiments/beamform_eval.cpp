@@ -6,7 +6,7 @@
 #include <fmt/format.h>
 #include <memory>
 
-#include "skyloop/channel/rates.hpp"
+#include "skyloop/channel/network.hpp"
 #include "skyloop/channel/system_model.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
@@ -31,29 +31,22 @@ std::vector<BeamformEvalRow> run_beamform_eval(const Config& cfg, const Beamform
 
   parallel_for(opt.samples, opt.threads, [&](std::size_t i) {
     const Snapshot snap = model.random_snapshot(opt.uavs, opt.users, derive_seed(opt.seed, i));
-    const std::vector<Cluster> clusters = model.clusters(snap);
-    int served = 0;
-    for (const auto& c : clusters) served += c.size();
+    const Network net = model.network(snap);
     for (std::size_t j = 0; j < m; ++j) {
       const Beamformer& bf = *methods[j];
       const auto t0 = std::chrono::steady_clock::now();
-      std::vector<MatrixXcd> W;
-      W.reserve(clusters.size());
-      for (const auto& c : clusters) W.push_back(bf.design(c));
+      const std::vector<MatrixXcd> W = bf.design_network(net);
       const auto t1 = std::chrono::steady_clock::now();
-      double total = 0.0;
-      for (std::size_t c = 0; c < clusters.size(); ++c) {
-        check_beamformer_output(bf, clusters[c], W[c]);
-        total += sum_rate(clusters[c], W[c]);
-      }
+      check_network_output(bf, net, W);
+      const double total = network_sum_rate(net, W);
       BeamformEvalRow& r = rows[i * m + j];
       r.seed = opt.seed;
       r.sample = i;
       r.method = opt.methods[j];
       r.uavs = opt.uavs;
       r.users = opt.users;
-      r.clusters = static_cast<int>(clusters.size());
-      r.served_users = served;
+      r.clusters = static_cast<int>(net.clusters.size());
+      r.served_users = net.served_count();
       r.sum_rate = total;
       r.latency_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
     }
@@ -64,10 +57,12 @@ std::vector<BeamformEvalRow> run_beamform_eval(const Config& cfg, const Beamform
 }
 
 std::string beamform_eval_csv(const std::vector<BeamformEvalRow>& rows, const Config& cfg) {
-  std::string out = "seed,sample,method,uavs,users,antennas,p_max_dbm,noise_dbm,clusters,served_users,sum_rate_bps_hz,latency_ms\n";
+  std::string out =
+      "seed,sample,method,uavs,users,antennas,p_max_dbm,noise_dbm,spectrum,clusters,served_users,sum_rate_bps_hz,latency_ms\n";
   for (const auto& r : rows) {
-    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{}\n", r.seed, r.sample, r.method, r.uavs, r.users,
+    out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.seed, r.sample, r.method, r.uavs, r.users,
                        cfg.channel.antennas, format_double(cfg.channel.p_max_dbm), format_double(cfg.channel.noise_dbm),
+                       cfg.channel.spectrum,
                        r.clusters, r.served_users, format_double(r.sum_rate), format_double(r.latency_ms));
   }
   return out;

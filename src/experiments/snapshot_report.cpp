@@ -34,31 +34,38 @@ SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Bea
     u.distance_m = nearest;  // the serving UAV is the nearest one
     u.path_loss_db = linear_to_db(model.path_loss(nearest));
   }
+  for (Eigen::Index k = 0; k < s.users.rows(); ++k)
+    for (Eigen::Index n = 0; n < s.uavs.rows(); ++n)
+      r.users[static_cast<std::size_t>(k)].cross.push_back(model.channel(s.uavs(n, 0), s.uavs(n, 1), s.users(k, 0), s.users(k, 1)));
+  const Network net = model.network(s, a);
+  const std::vector<MatrixXcd> W = bf.design_network(net);
+  check_network_output(bf, net, W);
+  const auto powers = user_powers(net, W);
+  r.spectrum = to_string(net.spectrum);
   for (Eigen::Index n = 0; n < s.uavs.rows(); ++n) {
     ClusterReport c;
     c.uav = static_cast<int>(n);
     c.x = s.uavs(n, 0);
     c.y = s.uavs(n, 1);
     c.users = a.users[static_cast<std::size_t>(n)];
-    if (!c.users.empty()) {
-      const Cluster cl = model.make_cluster(c.uav, c.x, c.y, s.users, c.users);
-      const MatrixXcd W = bf.design(cl);
-      check_beamformer_output(bf, cl, W);
-      const VectorXd g = sinr(cl, W);
-      for (std::size_t i = 0; i < c.users.size(); ++i) {
-        UserReport& u = r.users[static_cast<std::size_t>(c.users[i])];
-        const auto ii = static_cast<Eigen::Index>(i);
-        u.channel = cl.G.row(ii).adjoint();
-        u.beamformer = W.col(ii);
-        u.sinr = g[ii];
-        u.rate = std::log2(1.0 + g[ii]);
-        c.sum_rate += u.rate;
-      }
-      c.power_w = transmit_power(W);
-    }
-    r.total_sum_rate += c.sum_rate;
     r.uavs.push_back(std::move(c));
   }
+  for (std::size_t i = 0; i < net.clusters.size(); ++i) {
+    const Cluster& cl = net.clusters[i];
+    ClusterReport& c = r.uavs[static_cast<std::size_t>(cl.uav)];
+    for (std::size_t j = 0; j < cl.users.size(); ++j) {
+      UserReport& u = r.users[static_cast<std::size_t>(cl.users[j])];
+      const auto jj = static_cast<Eigen::Index>(j);
+      u.channel = cl.G.row(jj).adjoint();
+      u.beamformer = W[i].col(jj);
+      u.powers = powers[i][j];
+      u.sinr = u.powers.sinr();
+      u.rate = cl.bandwidth * std::log2(1.0 + u.sinr);
+      c.sum_rate += u.rate;
+    }
+    c.power_w = transmit_power(W[i]);
+  }
+  for (const auto& c : r.uavs) r.total_sum_rate += c.sum_rate;
   return r;
 }
 
@@ -71,11 +78,12 @@ std::string snapshot_json(const SnapshotReport& r, const Config& cfg) {
   };
   json j;
   j["method"] = r.method;
+  j["spectrum"] = r.spectrum;
   j["units"] = {{"position", "m"}, {"rate", "bit/s/Hz"}, {"power", "W"}, {"complex", "[re, im]"}};
   j["settings"] = {{"antennas", cfg.channel.antennas},       {"altitude_m", cfg.scenario.altitude_m},
                    {"p_max_dbm", cfg.channel.p_max_dbm},     {"noise_dbm", cfg.channel.noise_dbm},
                    {"coverage_radius_m", cfg.channel.coverage_radius_m},
-                   {"power_scaling", to_string(cfg.beamforming.power_scaling)}};
+                   {"power_scaling", to_string(cfg.beamforming.power_scaling)}, {"spectrum", cfg.channel.spectrum}};
   j["users"] = json::array();
   for (const auto& u : r.users) {
     json ju = {{"index", u.index}, {"x", u.x}, {"y", u.y}, {"distance_m", u.distance_m}, {"path_loss_db", u.path_loss_db}};
@@ -85,6 +93,13 @@ std::string snapshot_json(const SnapshotReport& r, const Config& cfg) {
     ju["sinr"] = u.sinr;
     ju["sinr_db"] = u.serving_uav >= 0 && u.sinr > 0 ? json(linear_to_db(u.sinr)) : json(nullptr);
     ju["rate"] = u.rate;
+    ju["signal_w"] = u.powers.signal;
+    ju["intra_interference_w"] = u.powers.intra;
+    ju["inter_interference_w"] = u.powers.inter;
+    ju["noise_w"] = u.powers.noise;
+    json cross = json::array();
+    for (const auto& h : u.cross) cross.push_back(cvec(h));
+    ju["cross_channels"] = cross;  // h_{m,k} from every UAV m, in UAV order
     j["users"].push_back(ju);
   }
   j["clusters"] = json::array();
@@ -96,13 +111,15 @@ std::string snapshot_json(const SnapshotReport& r, const Config& cfg) {
 }
 
 std::string snapshot_text(const SnapshotReport& r) {
-  std::string out = fmt::format("method: {}\n\n{:>4} {:>8} {:>8} {:>6} {:>10} {:>10} {:>10} {:>8}\n", r.method, "user",
-                                "x", "y", "uav", "dist (m)", "PL (dB)", "SINR (dB)", "rate");
+  const auto db = [](double w) { return w > 0 ? fmt::format("{:.2f}", linear_to_db(w) + 30.0) : std::string("-"); };
+  std::string out = fmt::format("method: {}\nspectrum: {}\n\n{:>4} {:>8} {:>8} {:>6} {:>10} {:>10} {:>10} {:>11} {:>11} {:>8}\n",
+                                r.method, r.spectrum, "user", "x", "y", "uav", "dist (m)", "PL (dB)", "SINR (dB)",
+                                "intra (dBm)", "inter (dBm)", "rate");
   for (const auto& u : r.users)
-    out += fmt::format("{:>4} {:>8.2f} {:>8.2f} {:>6} {:>10.2f} {:>10.2f} {:>10} {:>8.4f}\n", u.index, u.x, u.y,
-                       u.serving_uav >= 0 ? std::to_string(u.serving_uav) : "-", u.distance_m, u.path_loss_db,
+    out += fmt::format("{:>4} {:>8.2f} {:>8.2f} {:>6} {:>10.2f} {:>10.2f} {:>10} {:>11} {:>11} {:>8.4f}\n", u.index, u.x,
+                       u.y, u.serving_uav >= 0 ? std::to_string(u.serving_uav) : "-", u.distance_m, u.path_loss_db,
                        u.serving_uav < 0 ? "-" : u.sinr > 0 ? fmt::format("{:.2f}", linear_to_db(u.sinr)) : "off",
-                       u.rate);
+                       u.serving_uav < 0 ? "-" : db(u.powers.intra), u.serving_uav < 0 ? "-" : db(u.powers.inter), u.rate);
   // The vectors themselves: h_k (the user's channel from its serving UAV) and w_k (its beam).
   const auto vec = [](const VectorXcd& v) {
     std::string s = "[";

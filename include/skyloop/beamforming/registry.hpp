@@ -40,7 +40,8 @@ class BeamformerRegistry {
   std::map<std::string, Entry> entries_;
 };
 
-/// Registers mrt, zf, rzf and wmmse (the Eigen-only beamformers).
+/// Registers the Eigen-only beamformers: mrt, zf, zfsel, rzf, wmmse (per cluster) and nwmmse, crzf,
+/// czf (coordinated over the network).
 void register_classical_beamformers(BeamformerRegistry& reg);
 
 /// Splits a comma-separated list ("mrt,zf,gnn=a/b.pt"), rejecting empty and repeated items;

@@ -57,6 +57,11 @@ class WmmseBeamformer final : public Beamformer {
   PowerScaling scaling_;
 };
 
+/// The WMMSE transmit step: W = (A + mu I)^{-1} B with the smallest mu >= 0 such that
+/// ||W||_F^2 <= p_max, mu by bisection on the eigenvalues of A (Hermitian PSD [L x L]; B [L x K]).
+/// At mu = 0, components outside A's range are dropped (pseudo-inverse).
+MatrixXcd budgeted_solve(const MatrixXcd& A, const MatrixXcd& B, double p_max, double bisection_tolerance);
+
 /// A complex-Gaussian [L x K] matrix scaled to power P, from `seed`.
 MatrixXcd random_beamformer(Eigen::Index L, Eigen::Index K, double p_max, std::uint64_t seed);
 

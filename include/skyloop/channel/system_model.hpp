@@ -20,6 +20,8 @@
 
 namespace skyloop {
 
+struct Network;  // channel/network.hpp
+
 /// Positions of one network snapshot.
 struct Snapshot {
   Positions uavs;   // [N x 2]
@@ -32,7 +34,8 @@ struct Cluster {
   std::vector<int> users;   // user indices, ascending; row i of G is user users[i]
   MatrixXcd G;              // [K_n x L] complex, row i = h_{n,users[i]}^H
   double p_max = 1.0;       // power budget (W)
-  double noise = 1e-12;     // sigma_0^2 (W)
+  double noise = 1e-12;     // noise power in the cluster's band (W): sigma_0^2, or sigma_0^2 / N under orthogonal-split
+  double bandwidth = 1.0;   // the band's share of the bandwidth: rates are scaled by it (1/N under orthogonal-split)
   int size() const { return static_cast<int>(G.rows()); }
   int antennas() const { return static_cast<int>(G.cols()); }
 };
@@ -54,6 +57,7 @@ class SystemModel {
   double area_x() const { return area_x_; }
   double area_y() const { return area_y_; }
   double coverage() const { return coverage_; }
+  Spectrum spectrum() const { return spectrum_; }
 
   /// 3-D distance between a UAV at altitude H above (ux, uy) and a ground user at (x, y).
   double distance(double ux, double uy, double x, double y) const;
@@ -66,11 +70,19 @@ class SystemModel {
 
   /// Nearest UAV by 3-D distance (lowest index on ties), served only if that distance <= R_c.
   Association associate(const Snapshot& s) const;
-  /// The non-empty clusters of a snapshot, ascending UAV index.
+  /// The non-empty clusters of a snapshot, ascending UAV index (noise and bandwidth share of the
+  /// spectrum model; a per-cluster beamformer sees nothing else).
   std::vector<Cluster> clusters(const Snapshot& s) const;
   std::vector<Cluster> clusters(const Snapshot& s, const Association& a) const;
-  /// Cluster of UAV n at (ux, uy) serving the given users (of `users_xy`).
-  Cluster make_cluster(int uav, double ux, double uy, const Positions& users_xy, const std::vector<int>& users) const;
+  /// Cluster of UAV n at (ux, uy) serving the given users (of `users_xy`), in a network of
+  /// `uavs` UAVs (the orthogonal-split band is 1/uavs).
+  Cluster make_cluster(int uav, double ux, double uy, const Positions& users_xy, const std::vector<int>& users,
+                       int uavs = 1) const;
+  /// The whole network of a snapshot: clusters, cross channels and spectrum (channel/network.hpp).
+  Network network(const Snapshot& s) const;
+  Network network(const Snapshot& s, const Association& a) const;
+  /// The network of UAVs at `uavs` over users `users_xy` with the given association.
+  Network network(const Positions& uavs, const Positions& users_xy, const std::vector<std::vector<int>>& members) const;
 
   /// N UAVs and K users uniform in the area; a pure function of `seed`.
   Snapshot random_snapshot(int uavs, int users, std::uint64_t seed) const;
@@ -78,6 +90,7 @@ class SystemModel {
  private:
   int antennas_;
   double spacing_, altitude_, beta0_, d0_, coverage_, p_max_, noise_, area_x_, area_y_;
+  Spectrum spectrum_;
 };
 
 /// Snapshots i = 0..count-1 of a run seeded `seed`: snapshot i uses derive_seed(seed, i).

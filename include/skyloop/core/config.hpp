@@ -14,13 +14,24 @@ namespace skyloop {
 
 /// How a beamformer's raw output is scaled onto the power budget (eq:power_constraint).
 enum class PowerScaling {
-  /// alpha = sqrt(P / ||W||_F^2): always transmit at full power. The default, because in this
-  /// model scaling W up by c > 1 multiplies every signal and interference term by c^2 and so
-  /// raises every SINR; the optimum of P2.1 therefore always uses the full budget.
+  /// alpha = sqrt(P / ||W||_F^2): always transmit at full power. The default, because in the
+  /// paper's model (orthogonal bands) scaling W up by c > 1 multiplies every signal and
+  /// interference term by c^2 and so raises every SINR; the optimum of P2.1 therefore always uses
+  /// the full budget. Under the shared spectrum that no longer holds (a UAV's power is other
+  /// clusters' interference); coordinated beamformers then choose their power below the budget.
   Full,
   /// alpha = min(1, sqrt(P / ||W||_F^2)): the paper's scaling (Section IV); never scales up.
   Cap,
 };
+
+/// Spectrum model (channel.spectrum; equations in skyloop/channel/network.hpp).
+enum class Spectrum {
+  Orthogonal,       // the paper: each UAV its own band of the full bandwidth
+  OrthogonalSplit,  // N bands of 1/N of the bandwidth each (equal total bandwidth)
+  Shared,           // every UAV on the same band: inter-cluster interference
+};
+Spectrum parse_spectrum(const std::string& s);  // throws InputError naming channel.spectrum
+std::string to_string(Spectrum s);
 
 struct RunConfig {            // [run]
   std::uint64_t seed = 1;     // base seed; every stochastic stage derives its streams from it
@@ -43,6 +54,7 @@ struct ChannelConfig {                     // [channel]
   double beta0_db = -20.0;                 // channel gain at the reference distance
   double d0_m = 1.0;                       // reference distance d_0
   double coverage_radius_m = 150.0;        // R_c, on the 3-D UAV-user distance
+  std::string spectrum = "orthogonal";     // "orthogonal" (the paper) | "orthogonal-split" | "shared"
 
   double p_max_w() const { return dbm_to_watt(p_max_dbm); }
   double noise_w() const { return dbm_to_watt(noise_dbm); }

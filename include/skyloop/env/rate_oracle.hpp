@@ -1,8 +1,13 @@
 #pragma once
 // R[t] for UAV positions over fixed users: association, then each cluster's sum rate from a
-// beamformer. With fixed users and the deterministic LoS channel, a cluster's sum rate depends
-// only on its UAV's position and its user set, so it is memoised exactly on that key: a hit
-// returns the identical double the beamformer produced on the miss.
+// beamformer. With fixed users and the deterministic LoS channel, the result is a pure function
+// of the positions, memoised exactly: a hit returns the identical doubles the beamformer produced
+// on the miss.
+//   orthogonal spectra: a cluster's sum rate depends only on its UAV's position and its user set,
+//     so it is cached per cluster on that key (shared across joint positions);
+//   shared spectrum: every cluster's rate depends on every UAV (interference, coordinated
+//     beamformers), so the per-UAV rates are cached on the joint key (all N positions), and
+//     misses go to the beamformer as whole networks (design_networks).
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -36,7 +41,7 @@ class RateOracle {
   const Beamformer& beamformer() const { return *beamformer_; }
   const SystemModel& model() const { return model_; }
   const OracleStats& stats() const { return stats_; }
-  std::size_t cache_size() const { return cache_.size(); }
+  std::size_t cache_size() const { return cache_.size() + joint_cache_.size(); }
 
  private:
   friend std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles,
@@ -49,6 +54,11 @@ class RateOracle {
   struct KeyHash {
     std::size_t operator()(const Key& k) const;
   };
+  struct JointHash {
+    std::size_t operator()(const std::vector<double>& k) const;
+  };
+  bool joint() const { return model_.spectrum() == Spectrum::Shared; }
+  static std::vector<double> joint_key(const Positions& uavs);
   /// Association of `uavs`: for each UAV its key; fills `members`.
   void keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const;
 
@@ -56,6 +66,7 @@ class RateOracle {
   std::shared_ptr<const Beamformer> beamformer_;
   Positions users_;
   std::unordered_map<Key, double, KeyHash> cache_;
+  std::unordered_map<std::vector<double>, std::vector<double>, JointHash> joint_cache_;  // per-UAV rates
   OracleStats stats_;
 };
 

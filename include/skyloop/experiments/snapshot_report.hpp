@@ -5,7 +5,7 @@
 #include <vector>
 
 #include "skyloop/beamforming/beamformer.hpp"
-#include "skyloop/channel/system_model.hpp"
+#include "skyloop/channel/network.hpp"
 
 namespace skyloop {
 
@@ -23,6 +23,8 @@ struct UserReport {
   VectorXcd channel;             // h_{n,k} [L], empty if unserved
   VectorXcd beamformer;          // w_k [L], empty if unserved
   double sinr = 0, rate = 0;     // 0 if unserved
+  UserPowers powers;             // received signal, intra- and inter-cluster interference, noise (W); 0 if unserved
+  std::vector<VectorXcd> cross;  // h_{m,k} [L] from every UAV m = 0..N-1 (the serving one included)
 };
 
 struct ClusterReport {
@@ -34,6 +36,7 @@ struct ClusterReport {
 
 struct SnapshotReport {
   std::string method;
+  std::string spectrum;
   std::vector<UserReport> users;
   std::vector<ClusterReport> uavs;  // one per UAV, empty clusters included
   double total_sum_rate = 0;

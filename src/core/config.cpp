@@ -149,7 +149,8 @@ std::vector<Field> make_fields() {
   f.push_back(integer("trajectory.t_max", "mission horizon T_max (slots)", 1, 10000,
                       [](Config& c) -> int& { return c.trajectory.t_max; }));
   // [nn]
-  f.push_back(text("nn.model", "learned beamformer to train", {"gnn", "deepsets", "mspointnet"},
+  f.push_back(text("nn.model", "learned beamformer to train (ignn: the interference-aware network GNN)",
+                   {"gnn", "deepsets", "mspointnet", "ignn"},
                    [](Config& c) -> std::string& { return c.nn.model; }));
   f.push_back(integer("nn.hidden", "embedding size d_gnn (baselines use twice this width)", 4, 4096,
                       [](Config& c) -> int& { return c.nn.hidden; }));

@@ -2,6 +2,7 @@
 
 #include "checkpoint.hpp"
 #include "data.hpp"
+#include "network_batch.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/paths.hpp"
 
@@ -46,8 +47,60 @@ const ModelInfo& LearnedBeamformer::info() const { return impl_->info; }
 
 MatrixXcd LearnedBeamformer::design(const Cluster& c) const { return design_batch({c}).front(); }
 
-std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster>& clusters, int) const {
+bool LearnedBeamformer::coordinated() const { return impl_->model->network(); }
+
+std::vector<MatrixXcd> LearnedBeamformer::design_network(const Network& net, int threads) const {
+  if (!coordinated()) return design_batch(net.clusters, threads);
+  return design_networks({net}, threads).front();
+}
+
+std::vector<std::vector<MatrixXcd>> LearnedBeamformer::design_networks(const std::vector<Network>& nets, int threads) const {
+  if (!coordinated()) return Beamformer::design_networks(nets, threads);
+  const int L = impl_->info.antennas;
+  std::vector<std::vector<MatrixXcd>> out(nets.size());
+  for (const auto& n : nets)
+    for (const auto& c : n.clusters)
+      if (c.antennas() != L)
+        throw std::invalid_argument("cluster has " + std::to_string(c.antennas()) + " antennas; the " + impl_->info.model +
+                                    " model was trained for " + std::to_string(L));
+  c10::InferenceMode inference;
+  const nn::NetSet set = nn::make_net_set(nets, L);
+  const auto ids = torch::arange(static_cast<int64_t>(nets.size()), torch::kInt64);
+  const nn::NetBatch b = nn::make_net_batch(set, ids, impl_->info.feature_scale, impl_->device, impl_->dtype);
+  const auto raw = impl_->model->forward_network(b).to(torch::kCPU).to(torch::kFloat64).contiguous();
+  const auto acc = raw.accessor<double, 4>();  // [B, C, K, 2L]
+  for (std::size_t i = 0; i < nets.size(); ++i) {
+    for (std::size_t c = 0; c < nets[i].clusters.size(); ++c) {
+      const Cluster& cl = nets[i].clusters[c];
+      MatrixXcd W(L, cl.size());
+      for (int k = 0; k < cl.size(); ++k)
+        for (int l = 0; l < L; ++l)
+          W(l, k) = cdouble(acc[static_cast<int64_t>(i)][static_cast<int64_t>(c)][k][l],
+                            acc[static_cast<int64_t>(i)][static_cast<int64_t>(c)][k][L + l]);
+      out[i].push_back(skyloop::scale_to_budget(std::move(W), cl.p_max, impl_->scaling));
+    }
+  }
+  return out;
+}
+
+std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster>& clusters, int threads) const {
   std::vector<MatrixXcd> out(clusters.size());
+  if (coordinated()) {  // each cluster as a network of its own (no other UAV)
+    std::vector<Network> nets;
+    std::vector<std::size_t> where;
+    for (std::size_t i = 0; i < clusters.size(); ++i) {
+      if (clusters[i].size() == 0) {
+        out[i] = MatrixXcd(clusters[i].antennas(), 0);
+        continue;
+      }
+      nets.push_back(Network::of(clusters[i]));
+      where.push_back(i);
+    }
+    if (nets.empty()) return out;
+    auto W = design_networks(nets, threads);
+    for (std::size_t j = 0; j < nets.size(); ++j) out[where[j]] = std::move(W[j].front());
+    return out;
+  }
   std::vector<Cluster> nonempty;
   std::vector<std::size_t> where;
   for (std::size_t i = 0; i < clusters.size(); ++i) {
@@ -82,7 +135,7 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
 }
 
 void register_learned_beamformers(BeamformerRegistry& reg, const std::string& models_dir) {
-  for (const char* name : {"gnn", "deepsets", "mspointnet"}) {
+  for (const char* name : {"gnn", "deepsets", "mspointnet", "ignn"}) {
     const std::string n = name;
     reg.add(n, "learned " + n + " beamformer; '" + n + "=PATH' loads PATH (model.pt or its directory)",
             [n, models_dir](const Config& cfg, const std::string& arg) {

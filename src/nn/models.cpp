@@ -1,5 +1,7 @@
 #include "models.hpp"
 
+#include "network_batch.hpp"
+
 #include <stdexcept>
 
 namespace skyloop::nn {
@@ -161,12 +163,127 @@ torch::Tensor MsPointNetImpl::head(const torch::Tensor& x, const Graph& g) {
   return head2_(head1_(torch::cat({f, pooled}, 1), g), g);
 }
 
+torch::Tensor BeamNetImpl::forward_network(const NetBatch&) {
+  throw std::logic_error("forward_network called on a per-cluster model");
+}
+
+namespace {
+
+const Graph kNoGraph;  // Layer-norm blocks do not read the graph
+
+/// Mean of x [..., K, d] over the K axis (dim) where mask [..., K] is 1; 0 where none is.
+torch::Tensor masked_mean(const torch::Tensor& x, const torch::Tensor& mask, int64_t dim) {
+  const auto m = mask.unsqueeze(-1);
+  return (x * m).sum(dim) / torch::clamp_min(m.sum(dim), 1.0);
+}
+
+/// For each user slot, max over the other real users of its cluster: x [B, C, K, d], mask [B, C, K].
+/// Zeros for a single-user cluster (the max over an empty set), as max_over_others.
+torch::Tensor dense_max_over_others(const torch::Tensor& x, const torch::Tensor& mask) {
+  const auto K = x.size(2);
+  if (K < 2) return torch::zeros_like(x);
+  const auto filled = torch::where(mask.unsqueeze(-1) > 0, x, torch::full({}, -INFINITY, x.options()));
+  const auto top = filled.topk(2, 2);
+  const auto& values = std::get<0>(top);   // [B, C, 2, d]
+  const auto& indices = std::get<1>(top);  // [B, C, 2, d]
+  const auto pos = torch::arange(K, indices.options()).view({1, 1, K, 1});
+  const auto is_max = indices.narrow(2, 0, 1).eq(pos);                           // [B, C, K, d]
+  const auto other = torch::where(is_max, values.narrow(2, 1, 1), values.narrow(2, 0, 1));
+  return torch::where(torch::isinf(other), torch::zeros_like(other), other) * mask.unsqueeze(-1);
+}
+
+}  // namespace
+
+IgnnImpl::IgnnImpl(int64_t antennas, int64_t hidden, int64_t layers, Readout readout)
+    : BeamNetImpl(readout), antennas_(antennas) {
+  const int64_t d = hidden;
+  user_enc_ = register_module("user_enc", Mlp(2 * antennas, d, d, Norm::Layer));
+  edge_enc_ = register_module("edge_enc", Mlp(2 * antennas, d, d, Norm::Layer));
+  uav_enc_ = register_module("uav_enc", Mlp(d, d, d, Norm::Layer));
+  for (int64_t l = 0; l < layers; ++l) {
+    user_msg_->push_back(Mlp(d, d, d, Norm::Layer));
+    uav_msg_->push_back(Mlp(d, d, d, Norm::Layer));
+    int_msg_->push_back(Mlp(2 * d, d, d, Norm::Layer));
+    leak_msg_->push_back(Mlp(2 * d, d, d, Norm::Layer));
+    user_upd_->push_back(Mlp(4 * d, d, d, Norm::Layer));
+    uav_upd_->push_back(Mlp(3 * d, d, d, Norm::Layer));
+  }
+  register_module("user_msg", user_msg_);
+  register_module("uav_msg", uav_msg_);
+  register_module("int_msg", int_msg_);
+  register_module("leak_msg", leak_msg_);
+  register_module("user_upd", user_upd_);
+  register_module("uav_upd", uav_upd_);
+  out_ = register_module("out", Mlp(d, d, head_width(readout, antennas), Norm::Layer, /*final=*/true));
+}
+
+torch::Tensor IgnnImpl::head(const torch::Tensor&, const Graph&) {
+  throw std::logic_error("the interference-aware GNN takes networks (forward_network), not clusters");
+}
+
+torch::Tensor IgnnImpl::forward_network(const NetBatch& b) {
+  const auto& x = b.x;                                  // [B, C, C, K, 2L]
+  const int64_t B = x.size(0), C = x.size(1), K = x.size(3);
+  const auto um = b.umask.unsqueeze(-1);                // [B, C, K, 1]
+  const auto cm = b.cmask.unsqueeze(-1);                // [B, C, 1]
+  const auto own = x.diagonal(0, 1, 2).permute({0, 3, 1, 2});  // [B, C, K, 2L]: h from the serving UAV
+  // Interference edges (tx != rx, both real): [B, C_tx, C_rx, K].
+  const auto off_diag = 1 - torch::eye(C, x.options()).view({1, C, C, 1});
+  const auto emask = b.cmask.view({B, C, 1, 1}) * b.umask.view({B, 1, C, K}) * off_diag;
+  const auto em = emask.unsqueeze(-1);
+  const auto e = edge_enc_(x, kNoGraph) * em;           // e_{m,k}  [B, C, C, K, d]
+  auto u = user_enc_(own, kNoGraph) * um;               // u_k      [B, C, K, d]
+  auto a = uav_enc_(masked_mean(u, b.umask, 2), kNoGraph) * cm;  // a_n [B, C, d]
+  const auto to_user = torch::clamp_min(emask.sum(1), 1.0).unsqueeze(-1);      // [B, C_rx, K, 1]
+  const auto to_uav = torch::clamp_min(emask.sum({2, 3}), 1.0).unsqueeze(-1);  // [B, C_tx, 1]
+  for (std::size_t l = 0; l < user_msg_->size(); ++l) {
+    const auto mu = user_msg_[l]->as<Mlp>()->forward(u, kNoGraph) * um;  // m_{u_k}  [B, C, K, d]
+    const auto ma = uav_msg_[l]->as<Mlp>()->forward(a, kNoGraph) * cm;   // m_{a_n}  [B, C, d]
+    const int64_t d = mu.size(-1);
+    const auto ma_tx = ma.view({B, C, 1, 1, d}).expand({B, C, C, K, d});
+    const auto mu_rx = mu.view({B, 1, C, K, d}).expand({B, C, C, K, d});
+    const auto heard = (int_msg_[l]->as<Mlp>()->forward(torch::cat({ma_tx, e}, -1), kNoGraph) * em).sum(1) / to_user;
+    const auto leaked =
+        (leak_msg_[l]->as<Mlp>()->forward(torch::cat({mu_rx, e}, -1), kNoGraph) * em).sum({2, 3}) / to_uav;
+    const auto user_in =
+        torch::cat({u, ma.unsqueeze(2).expand({B, C, K, d}), dense_max_over_others(mu, b.umask), heard}, -1);
+    const auto uav_in = torch::cat({a, masked_mean(mu, b.umask, 2), leaked}, -1);
+    u = user_upd_[l]->as<Mlp>()->forward(user_in, kNoGraph) * um;
+    a = uav_upd_[l]->as<Mlp>()->forward(uav_in, kNoGraph) * cm;
+  }
+  const auto h = out_(u, kNoGraph);                     // [B, C, K, head]
+  if (readout() == Readout::Direct) return h * um;
+  // Structured: w_{n,k} ~ (I + sum_j lambda_j h_{n,j} h_{n,j}^H)^{-1} h_{n,k}, over every served j.
+  const int64_t L = antennas_;
+  const auto xd = x.to(torch::kFloat64);
+  const auto lambda = torch::exp(h.select(-1, 0).clamp(-30, 30)).to(torch::kFloat64) * b.umask.to(torch::kFloat64);
+  const auto hr = xd.narrow(-1, 0, L).reshape({B * C, C * K, L});  // per tx: every (rx, k)
+  const auto hi = xd.narrow(-1, L, L).reshape({B * C, C * K, L});
+  const auto lam = lambda.view({B, 1, C * K}).expand({B, C, C * K}).reshape({B * C, C * K, 1});
+  const auto lr = hr * lam, li = hi * lam;
+  const auto eye = torch::eye(L, xd.options()).expand({B * C, L, L});
+  const auto ar = eye + torch::bmm(lr.transpose(1, 2), hr) + torch::bmm(li.transpose(1, 2), hi);
+  const auto ai = torch::bmm(li.transpose(1, 2), hr) - torch::bmm(lr.transpose(1, 2), hi);
+  const auto R = torch::cat({torch::cat({ar, -ai}, 2), torch::cat({ai, ar}, 2)}, 1);  // [B C, 2L, 2L]
+  const auto od = own.to(torch::kFloat64).reshape({B * C, K, 2 * L});
+  const auto rhs = torch::cat({od.narrow(2, 0, L).transpose(1, 2), od.narrow(2, L, L).transpose(1, 2)}, 1);  // [B C, 2L, K]
+  const auto v = torch::linalg::solve(R, rhs, /*left=*/true).transpose(1, 2).reshape({B, C, K, 2 * L});
+  // Written so that every gradient stays finite at the padded slots: an empty UAV slot has v = 0
+  // (norm via sqrt(. + tiny), not norm(), whose gradient at 0 is NaN), and a padded user has
+  // share 0 (amplitude exp(log_softmax / 2), not sqrt(share), whose gradient at 0 is infinite).
+  const auto dir = v * torch::rsqrt((v * v).sum(-1, true) + 1e-30);
+  const auto logit = torch::where(b.umask > 0, h.select(-1, 1), torch::full({}, -1e9, h.options()));
+  const auto amplitude = torch::exp(0.5 * torch::log_softmax(logit.to(torch::kFloat64), 2));  // sqrt(power share)
+  return (dir * amplitude.unsqueeze(-1)).to(x.scalar_type()) * um;
+}
+
 std::shared_ptr<BeamNetImpl> make_model(const std::string& name, int64_t antennas, int64_t hidden, int64_t layers,
                                         Readout readout) {
   if (name == "gnn") return std::make_shared<GnnImpl>(antennas, hidden, layers, readout);
   if (name == "deepsets") return std::make_shared<DeepSetsImpl>(antennas, hidden, readout);
   if (name == "mspointnet") return std::make_shared<MsPointNetImpl>(antennas, hidden, readout);
-  throw std::invalid_argument("nn.model = \"" + name + "\" is not allowed: allowed one of gnn, deepsets, mspointnet");
+  if (name == "ignn") return std::make_shared<IgnnImpl>(antennas, hidden, layers, readout);
+  throw std::invalid_argument("nn.model = \"" + name + "\" is not allowed: allowed one of gnn, deepsets, mspointnet, ignn");
 }
 
 }  // namespace skyloop::nn

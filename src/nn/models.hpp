@@ -14,6 +14,8 @@
 
 namespace skyloop::nn {
 
+struct NetBatch;  // network_batch.hpp
+
 struct Graph {
   torch::Tensor seg, pos, count;
   int64_t clusters = 0, kmax = 0;
@@ -89,6 +91,10 @@ class BeamNetImpl : public torch::nn::Module {
     return readout_ == Readout::Structured ? structured_beams(h, x, g) : h;
   }
   Readout readout() const { return readout_; }
+  /// True for a network-level model (forward_network: all clusters of a snapshot at once).
+  virtual bool network() const { return false; }
+  /// Raw beams [B, C, K, 2L] of a batch of networks (network models only).
+  virtual torch::Tensor forward_network(const NetBatch& b);
 
  protected:
   /// Per-user head outputs [U, head_width].
@@ -145,7 +151,34 @@ class MsPointNetImpl : public BeamNetImpl {
   Mlp head1_{nullptr}, head2_{nullptr};
 };
 
-/// Builds a model by name ("gnn", "deepsets", "mspointnet"); throws std::invalid_argument.
+/// The interference-aware GNN (beyond the paper, its future work): the paper's heterogeneous
+/// graph over a whole network, with an interference edge from every UAV to every user of another
+/// cluster carrying the cross channel h_{m,k}. Per layer, with e_{m,k} = enc(h_{m,k}):
+///   user k of UAV n:  u_k <- upd_u([u_k, m_{a_n}, max_{j != k in n} m_{u_j},
+///                                   mean_{m != n} phi([m_{a_m}, e_{m,k}])])
+///   UAV n:            a_n <- upd_a([a_n, mean_{k in n} m_{u_k}, mean_{k not in n} psi([m_{u_k}, e_{n,k}])])
+/// so a user hears who interferes with it and a UAV hears whom it interferes with. Every block is
+/// an MLP with LayerNorm (per node; a cluster of one or two users makes GraphNorm degenerate).
+/// Readouts: direct (2L reals per user, scaled per UAV onto its budget) or structured: the network
+/// WMMSE fixed point's form w_{n,k} ~ (I + sum_{every served j} lambda_j h_{n,j} h_{n,j}^H)^{-1}
+/// h_{n,k}, with lambda_j and a power share (softmax over the UAV's users) per user. Equivariant
+/// to permutations of the users of a cluster and of the UAVs.
+class IgnnImpl : public BeamNetImpl {
+ public:
+  IgnnImpl(int64_t antennas, int64_t hidden, int64_t layers, Readout readout = Readout::Direct);
+  bool network() const override { return true; }
+  torch::Tensor forward_network(const NetBatch& b) override;
+
+ protected:
+  torch::Tensor head(const torch::Tensor& x, const Graph& g) override;
+
+ private:
+  int64_t antennas_;
+  Mlp user_enc_{nullptr}, edge_enc_{nullptr}, uav_enc_{nullptr}, out_{nullptr};
+  torch::nn::ModuleList user_msg_, uav_msg_, int_msg_, leak_msg_, user_upd_, uav_upd_;
+};
+
+/// Builds a model by name ("gnn", "deepsets", "mspointnet", "ignn"); throws std::invalid_argument.
 std::shared_ptr<BeamNetImpl> make_model(const std::string& name, int64_t antennas, int64_t hidden, int64_t layers,
                                         Readout readout = Readout::Direct);
 

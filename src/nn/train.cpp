@@ -40,23 +40,33 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-/// Sum rates of the classical references on the test snapshots, for the test report.
-nlohmann::json reference_rates(const Config& cfg) {
+/// The test snapshots as networks (channel.spectrum).
+std::vector<Network> test_networks(const Config& cfg) {
   const SystemModel model(cfg);
   const auto seed = derive_seed(cfg.nn.data_seed, static_cast<std::uint64_t>(nn::Split::Test));
   const auto snaps = random_snapshots(model, cfg.scenario.uavs, cfg.scenario.users, seed,
                                       static_cast<std::size_t>(cfg.nn.test_samples));
-  const auto clusters = clusters_of(model, snaps);
+  std::vector<Network> nets;
+  for (const auto& s : snaps) nets.push_back(model.network(s));
+  return nets;
+}
+
+/// Mean network sum rate of a beamformer on networks (the same path as every evaluation).
+double mean_network_rate(const Beamformer& bf, const std::vector<Network>& nets, int threads) {
+  const auto W = bf.design_networks(nets, threads);
+  double total = 0;
+  for (std::size_t i = 0; i < nets.size(); ++i) total += network_sum_rate(nets[i], W[i]);
+  return nets.empty() ? 0.0 : total / static_cast<double>(nets.size());
+}
+
+/// Sum rates of the classical references on the test snapshots, for the test report.
+nlohmann::json reference_rates(const Config& cfg, const std::vector<Network>& nets) {
   nlohmann::json out;
   BeamformerRegistry classical;
   register_classical_beamformers(classical);
-  for (const char* name : {"mrt", "zf", "zfsel", "wmmse"}) {
-    const auto bf = classical.create(name, cfg);
-    const auto W = bf->design_batch(clusters, cfg.run.threads);
-    double total = 0;
-    for (std::size_t i = 0; i < clusters.size(); ++i) total += sum_rate(clusters[i], W[i]);
-    out[name] = total / static_cast<double>(snaps.size());
-  }
+  std::vector<const char*> names{"mrt", "zf", "zfsel", "wmmse"};
+  if (parse_spectrum(cfg.channel.spectrum) == Spectrum::Shared) names.insert(names.end(), {"crzf", "nwmmse"});
+  for (const char* name : names) out[name] = mean_network_rate(*classical.create(name, cfg), nets, cfg.run.threads);
   return out;
 }
 
@@ -76,8 +86,9 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
 
   // Data: snapshots of N UAVs and K users; their clusters are the graph instances.
   const auto t_data = Clock::now();
-  const nn::ClusterSet train = nn::make_split(cfg, nn::Split::Train, static_cast<std::size_t>(cfg.nn.train_samples));
-  const nn::ClusterSet val = nn::make_split(cfg, nn::Split::Validation, static_cast<std::size_t>(cfg.nn.val_samples));
+  const bool network = nn::make_model(cfg.nn.model, cfg.channel.antennas, 4, 1)->network();
+  const nn::TrainData train = nn::make_data(cfg, nn::Split::Train, static_cast<std::size_t>(cfg.nn.train_samples), network);
+  const nn::TrainData val = nn::make_data(cfg, nn::Split::Validation, static_cast<std::size_t>(cfg.nn.val_samples), network);
   const double data_s = std::chrono::duration<double>(Clock::now() - t_data).count();
 
   ModelInfo info;
@@ -86,7 +97,7 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   info.hidden = cfg.nn.hidden;
   info.layers = cfg.nn.layers;
   info.readout = cfg.nn.readout;
-  info.feature_scale = 1.0 / nn::channel_rms(train);
+  info.feature_scale = 1.0 / train.channel_rms();
   info.config_toml = to_toml(cfg);
 
   torch::manual_seed(cfg.run.seed);
@@ -116,7 +127,7 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   }
   write_file_atomic((dir / "config.toml").string(), info.config_toml);
 
-  const std::size_t samples = train.sample_clusters.size();
+  const std::size_t samples = train.samples();
   const std::size_t batch = static_cast<std::size_t>(cfg.nn.batch_samples);
   const std::size_t steps_per_epoch = (samples + batch - 1) / batch;
   const auto t_start = Clock::now();
@@ -124,8 +135,11 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   double train_seconds = 0;
   bool stop = false;
   if (opt.progress)
-    *opt.progress << fmt::format("training {} ({} parameters) on {} snapshots ({} clusters), {} epochs; data {:.1f}s\n",
-                                 info.model, info.parameters, samples, train.clusters(), cfg.nn.epochs, data_s);
+    *opt.progress << fmt::format("training {} ({} parameters) on {} snapshots ({}), {} epochs; data {:.1f}s\n",
+                                 info.model, info.parameters, samples,
+                                 network ? "whole networks, " + cfg.channel.spectrum + " spectrum"
+                                         : std::to_string(train.clusters.clusters()) + " clusters",
+                                 cfg.nn.epochs, data_s);
 
   const int start_epoch = state.epoch;
   for (int epoch = state.epoch; epoch < cfg.nn.epochs && !stop; ++epoch) {
@@ -140,11 +154,10 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
     double loss_sum = 0;
     std::int64_t epoch_clusters = 0, epoch_steps = 0;
     for (std::size_t first = 0; first < samples; first += batch) {
-      const auto ids = nn::cluster_ids(train, order, first, std::min(samples, first + batch));
-      if (ids.size(0) == 0) continue;
-      const nn::Batch b = nn::make_batch(train, ids, info.feature_scale, device);
-      const auto w = nn::scale_to_budget(model->forward(b.x, b.graph), b, cfg.beamforming.power_scaling);
-      const auto loss = -nn::cluster_sum_rates(w, b).mean();  // eq:loss_function
+      int64_t units = 0;
+      const auto loss = nn::batch_loss(*model, train, order, first, std::min(samples, first + batch), info.feature_scale,
+                                       cfg.beamforming.power_scaling, device, &units);
+      if (units == 0) continue;
       const double value = loss.item<double>();
       if (!std::isfinite(value))
         throw std::runtime_error(fmt::format("training diverged: the loss is {} at epoch {}, step {}; "
@@ -155,7 +168,7 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
       if (cfg.nn.grad_clip > 0) torch::nn::utils::clip_grad_norm_(model->parameters(), cfg.nn.grad_clip);
       adam.step();
       loss_sum += value;
-      epoch_clusters += ids.size(0);
+      epoch_clusters += units;
       ++epoch_steps;
       ++state.step;
       if (bar) bar->advance();
@@ -202,9 +215,12 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   TrainResult result;
   const auto best = nn::load_checkpoint(best_path, device);
   best.model->eval();
-  const nn::ClusterSet test = nn::make_split(cfg, nn::Split::Test, static_cast<std::size_t>(cfg.nn.test_samples));
+  // Held-out test networks, evaluated as every tool evaluates: the served model through
+  // design_network and the network sum rate under channel.spectrum (for a per-cluster model under
+  // the shared spectrum, interference-unaware designs scored with the interference).
+  const auto nets = test_networks(cfg);
   result.info = best.info;
-  result.test_sum_rate = nn::evaluate_sum_rate(*best.model, test, best.info.feature_scale, cfg.beamforming.power_scaling, device);
+  result.test_sum_rate = mean_network_rate(*LearnedBeamformer::load(best_path, cfg), nets, cfg.run.threads);
   result.wall_seconds = std::chrono::duration<double>(Clock::now() - t_start).count();
   result.steps = state.step;
   result.clusters_per_second = clusters_seen / std::max(train_seconds, 1e-9);
@@ -223,7 +239,8 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
                            {"readout", info.readout},
                            {"train_seconds", train_seconds},
                            {"clusters_per_second", result.clusters_per_second},
-                           {"references_test_sum_rate", reference_rates(cfg)}};
+                           {"spectrum", cfg.channel.spectrum},
+                           {"references_test_sum_rate", reference_rates(cfg, nets)}};
   write_file_atomic((dir / "test.json").string(), report.dump(2) + "\n");
   return result;
 }

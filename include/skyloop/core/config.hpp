@@ -129,7 +129,7 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
 };
 
 struct NnConfig {                   // [nn] learned beamformers (Section IV and its baselines)
-  std::string model = "gnn";        // gnn | deepsets | mspointnet
+  std::string model = "gnn";        // gnn | deepsets | mspointnet | ignn (network-level, interference-aware)
   int hidden = 128;                 // d_gnn (GNN embedding size); baselines use 2x, see README
   int layers = 3;                   // L_g message-passing layers (GNN)
   double learning_rate = 1e-3;      // Adam

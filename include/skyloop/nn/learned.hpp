@@ -16,7 +16,7 @@ namespace skyloop {
 
 /// What a checkpoint says about itself.
 struct ModelInfo {
-  std::string model;            // gnn | deepsets | mspointnet
+  std::string model;            // gnn | deepsets | mspointnet (per cluster) | ignn (network, interference-aware)
   int antennas = 0;             // L the model was trained for
   int hidden = 0, layers = 0;
   std::string readout = "direct";  // direct (the paper) | structured (see src/nn/models.hpp)
@@ -41,6 +41,11 @@ class LearnedBeamformer final : public Beamformer {
   std::string name() const override;
   MatrixXcd design(const Cluster& c) const override;
   std::vector<MatrixXcd> design_batch(const std::vector<Cluster>& clusters, int threads = 1) const override;
+  /// A network model (ignn) designs every cluster of each network in one batched forward pass; a
+  /// per-cluster model designs each cluster alone.
+  std::vector<MatrixXcd> design_network(const Network& net, int threads = 1) const override;
+  std::vector<std::vector<MatrixXcd>> design_networks(const std::vector<Network>& nets, int threads = 1) const override;
+  bool coordinated() const override;
   const ModelInfo& info() const;
 
   struct Impl;
@@ -70,7 +75,7 @@ struct TrainResult {
 /// eq:loss_function). Seeded by run.seed (initialisation, shuffling); data from nn.data_seed.
 TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt);
 
-/// Registers "gnn", "deepsets", "mspointnet": "gnn=PATH" loads PATH (a model.pt or a directory
+/// Registers "gnn", "deepsets", "mspointnet", "ignn": "gnn=PATH" loads PATH (a model.pt or a directory
 /// holding one); "gnn" alone loads models/gnn/model.pt under `models_dir` (empty: data_dir()/models,
 /// read when the model is created).
 void register_learned_beamformers(BeamformerRegistry& reg, const std::string& models_dir);

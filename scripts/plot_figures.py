@@ -29,6 +29,12 @@ STYLE = {  # label, colour, marker, line style
     "gnn_structured": ("GNN, structured readout (skyloop)", "#ff7f0e", "D", "--"),
     "wmmse": ("WMMSE (skyloop reference)", "#000000", "x", "--"),
     "zf": ("ZF", "#7f7f7f", "+", ":"),
+    "zfsel": ("ZF with user selection", "#bcbd22", "1", ":"),
+    "nwmmse": ("Coordinated WMMSE (network, skyloop)", "#17becf", "P", "-"),
+    "crzf": ("Coordinated RZF", "#e377c2", "*", "-."),
+    "czf": ("Coordinated ZF", "#7f7f7f", "X", "-."),
+    "ignn": ("Interference-aware GNN (skyloop)", "#d62728", "p", "-"),
+    "ignn_structured": ("Interference-aware GNN, structured readout (skyloop)", "#ff7f0e", "h", "-"),
     "mrt": ("MRT", "#8c564b", ".", ":"),
     "mappo": ("MAPPO", "#d62728", "s", "-"),
     "ippo": ("IPPO", "#1f77b4", "o", "-"),
@@ -79,6 +85,18 @@ def save(fig, out_dir, name):
     return paths
 
 
+MANIFEST = {}
+
+
+def experiment_spec(run, exp):
+    """The experiment file as run (its [[reported]], [[reference]] and reading), {} if absent."""
+    path = os.path.join(run, exp["name"], "experiment.toml")
+    if not os.path.exists(path):
+        return {}
+    with open(path, "rb") as f:
+        return tomllib.load(f)
+
+
 def fnum(x, digits=2):
     try:
         return f"{float(x):.{digits}f}"
@@ -105,6 +123,18 @@ def beamform_sweep(run, exp):
             ys = [float(pts[x]["mean"]) for x in xs]
             es = [float(pts[x]["sem"]) for x in xs]
             ax.errorbar(xs, ys, yerr=es, marker=mk, ls=ls, color=col, label=lab, capsize=2)
+    # Another experiment's curve, drawn grey and dashed for reference ([[reference]]).
+    notes = []
+    for ref in experiment_spec(run, exp).get("reference", []):
+        other = next((e for e in MANIFEST.get("experiments", []) if e["name"] == ref["experiment"]), None)
+        if other is None or not os.path.exists(os.path.join(run, other["files"][0])):
+            notes.append(f"reference '{ref['experiment']}' is not in this run")
+            continue
+        pts = {float(r["x"]): float(r["mean"]) for r in read_csv(os.path.join(run, other["files"][0]))
+               if r["method"] == ref["method"]}
+        xs = sorted(pts)
+        ax.plot(xs, [pts[x] for x in xs], ls="--", color="#999999", marker="", lw=1.2,
+                label=ref.get("label", f"{ref['method']} ({ref['experiment']})"))
     x_name = rows[0]["x_name"] if rows else ""
     ax.set_xlabel(AXIS.get(x_name, x_name))
     if latency:
@@ -126,6 +156,8 @@ def beamform_sweep(run, exp):
     samples = rows[0]["samples"] if rows else "0"
     what = "median ms per decision" if latency else "mean network sum rate, bit/s/Hz"
     cap = f"{what}; {samples} snapshots per point, seed {rows[0]['seed'] if rows else ''}; x = {AXIS.get(x_name, x_name)}"
+    if notes:
+        cap += "; " + "; ".join(notes)
     return figs, [(cap, head, body)]
 
 
@@ -297,11 +329,7 @@ KINDS = {"beamform_sweep": beamform_sweep, "marl_training": marl_training, "plan
 # --- the paper's numbers beside skyloop's ------------------------------------------------------------
 
 def reported(run, exp):
-    path = os.path.join(run, exp["name"], "experiment.toml")
-    if not os.path.exists(path):
-        return []
-    with open(path, "rb") as f:
-        spec = tomllib.load(f)
+    spec = experiment_spec(run, exp)
     out = []
     for item in spec.get("reported", []):
         value = ""
@@ -382,6 +410,7 @@ def main(argv):
         print(f"plot_figures.py: error: {run}/manifest.json cannot be read ({e}): allowed a `skyloop reproduce` directory",
               file=sys.stderr)
         return 2
+    MANIFEST.update(manifest)
     sections, comparison = [], []
     for exp in manifest["experiments"]:
         missing = [f for f in exp["files"] if not os.path.exists(os.path.join(run, f))]
@@ -413,6 +442,9 @@ Every number below is read from the CSVs of this directory; each experiment's di
         for rel in figs:
             if rel.endswith(".png") and os.path.exists(os.path.join(run, rel)):
                 parts.append(f'<p><img src="{html.escape(rel)}" alt="{html.escape(exp["title"])}"></p>')
+        reading = experiment_spec(run, exp).get("reading", "")
+        if reading:
+            parts.append(f"<p><b>Reading.</b> {html.escape(reading)}</p>")
         for cap, head, body in tables:
             parts.append(table_html(cap, head, body))
         files = [f for f in figs if f.endswith(".pdf")] + exp["files"] + [f"{exp['name']}/experiment.toml",

@@ -15,11 +15,12 @@ from __future__ import annotations
 import os as _os
 
 from . import _skyloop
-from ._skyloop import ACTIONS, Beamformer, Cluster, InputError, Snapshot, SystemModel, beamformers, derive_seed
+from ._skyloop import ACTIONS, Beamformer, Cluster, InputError, Network, Snapshot, SystemModel, beamformers, derive_seed
 
 __all__ = [
-    "ACTIONS", "Beamformer", "Cluster", "Config", "InputError", "Snapshot", "SystemModel", "VecEnv", "beamformer",
-    "beamformers", "config", "derive_seed", "plan", "rates", "sinr", "sum_rate",
+    "ACTIONS", "Beamformer", "Cluster", "Config", "InputError", "Network", "Snapshot", "SystemModel", "VecEnv",
+    "beamformer", "beamformers", "config", "derive_seed", "network_sum_rate", "plan", "rates", "sinr", "sum_rate",
+    "user_powers",
 ]
 
 # An installed package carries models/ and configs/ under data/; from a build tree the source
@@ -52,6 +53,18 @@ def sinr(cluster: Cluster, W):
 def rates(cluster: Cluster, W):
     """Per-user rates log2(1 + SINR) [K_n] under W [L, K_n] (eq:rate)."""
     return _skyloop.rates(cluster, _as_w(W))
+
+
+def network_sum_rate(network: Network, W) -> float:
+    """The network sum rate (bit/s/Hz) under one W [L, K_i] per cluster, with the network's spectrum
+    model (shared: inter-cluster interference counted; see SystemModel.network)."""
+    return _skyloop.network_sum_rate(network, [_as_w(w) for w in W])
+
+
+def user_powers(network: Network, W):
+    """Per cluster, per user: dicts of the received signal, intra- and inter-cluster interference,
+    noise (W) and the SINR."""
+    return _skyloop.user_powers(network, [_as_w(w) for w in W])
 
 
 def _toml_value(v) -> str:

@@ -414,6 +414,7 @@ PYBIND11_MODULE(_skyloop, m) {
       .def_readonly("G", &Cluster::G)
       .def_readonly("p_max", &Cluster::p_max)
       .def_readonly("noise", &Cluster::noise)
+      .def_readonly("bandwidth", &Cluster::bandwidth)
       .def_property_readonly("size", &Cluster::size)
       .def_property_readonly("antennas", &Cluster::antennas)
       .def("__repr__", [](const Cluster& c) {
@@ -425,6 +426,20 @@ PYBIND11_MODULE(_skyloop, m) {
       .def_readonly("uavs", &Snapshot::uavs)
       .def_readonly("users", &Snapshot::users);
 
+  py::class_<Network>(m, "Network",
+                      "Every non-empty cluster of a snapshot, the cross channels and the spectrum model "
+                      "(channel.spectrum): cross[i] is [K_s, L] complex, row r = h^H from cluster i's UAV to served user r.")
+      .def_property_readonly("spectrum", [](const Network& n) { return to_string(n.spectrum); })
+      .def_readonly("uavs", &Network::uavs)
+      .def_readonly("clusters", &Network::clusters)
+      .def_readonly("served", &Network::served)
+      .def_readonly("offset", &Network::offset)
+      .def_readonly("cross", &Network::cross)
+      .def("__repr__", [](const Network& n) {
+        return "<Network " + to_string(n.spectrum) + ", " + std::to_string(n.clusters.size()) + " clusters, " +
+               std::to_string(n.served_count()) + " served users>";
+      });
+
   py::class_<SystemModel>(m, "SystemModel", "The paper's Section III model: LoS channels, association, clusters.")
       .def(py::init<const Config&>(), py::arg("config"))
       .def("random_snapshot", &SystemModel::random_snapshot, py::arg("uavs"), py::arg("users"), py::arg("seed"))
@@ -434,6 +449,8 @@ PYBIND11_MODULE(_skyloop, m) {
       .def("associate", [](const SystemModel& model, const Snapshot& s) { return model.associate(s).serving; }, py::arg("snapshot"),
            "serving UAV of every user, -1 where no UAV covers it")
       .def("clusters", py::overload_cast<const Snapshot&>(&SystemModel::clusters, py::const_), py::arg("snapshot"))
+      .def("network", py::overload_cast<const Snapshot&>(&SystemModel::network, py::const_), py::arg("snapshot"),
+           "the whole network of a snapshot under channel.spectrum")
       .def("channel", &SystemModel::channel, py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"));
 
   py::class_<Beamformer, std::shared_ptr<Beamformer>>(m, "Beamformer", "A registered beamformer, by its spec string.")
@@ -445,7 +462,12 @@ PYBIND11_MODULE(_skyloop, m) {
       .def("design_batch", [](const Beamformer& b, const std::vector<Cluster>& cs, int threads) {
              py::gil_scoped_release nogil;
              return b.design_batch(cs, threads);
-           }, py::arg("clusters"), py::arg("threads") = 1);
+           }, py::arg("clusters"), py::arg("threads") = 1)
+      .def("design_network", [](const Beamformer& b, const Network& n) {
+             py::gil_scoped_release nogil;
+             return b.design_network(n);
+           }, py::arg("network"), "one W per cluster of the network (coordinated beamformers see the cross channels)")
+      .def_property_readonly("coordinated", &Beamformer::coordinated);
   m.def("beamformer", [](const std::string& spec, const Config& cfg) {
           return std::shared_ptr<Beamformer>(builtin_beamformers().create(spec, cfg));
         }, py::arg("spec"), py::arg("config"));
@@ -462,6 +484,27 @@ PYBIND11_MODULE(_skyloop, m) {
         py::arg("cluster"), py::arg("W"));
   m.def("sum_rate", [check_w](const Cluster& c, const Eigen::MatrixXcd& W) { check_w(c, W); return skyloop::sum_rate(c, W); },
         py::arg("cluster"), py::arg("W"));
+  const auto check_net = [check_w](const Network& n, const std::vector<Eigen::MatrixXcd>& W) {
+    if (W.size() != n.clusters.size())
+      throw InputError("W has " + std::to_string(W.size()) + " matrices: allowed one per cluster (" +
+                       std::to_string(n.clusters.size()) + ")");
+    for (std::size_t i = 0; i < W.size(); ++i) check_w(n.clusters[i], W[i]);
+  };
+  m.def("network_sum_rate", [check_net](const Network& n, const std::vector<Eigen::MatrixXcd>& W) {
+          check_net(n, W);
+          return skyloop::network_sum_rate(n, W);
+        }, py::arg("network"), py::arg("W"), "network sum rate under the network's spectrum model");
+  m.def("user_powers", [check_net](const Network& n, const std::vector<Eigen::MatrixXcd>& W) {
+          check_net(n, W);
+          std::vector<std::vector<std::map<std::string, double>>> out;
+          for (const auto& cluster : skyloop::user_powers(n, W)) {
+            out.emplace_back();
+            for (const auto& u : cluster)
+              out.back().push_back({{"signal", u.signal}, {"intra", u.intra}, {"inter", u.inter}, {"noise", u.noise}, {"sinr", u.sinr()}});
+          }
+          return out;
+        }, py::arg("network"), py::arg("W"),
+        "per cluster, per user: received signal, intra- and inter-cluster interference and noise (W), and the SINR");
 
   py::class_<PyVecEnv>(m, "VecEnv")
       .def(py::init<const Config&, int, std::uint64_t, const std::string&>(), py::arg("config"), py::arg("num_envs"),

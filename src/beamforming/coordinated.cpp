@@ -98,7 +98,13 @@ MatrixXcd NetworkWmmseBeamformer::design(const Cluster& c) const { return design
 std::vector<MatrixXcd> NetworkWmmseBeamformer::design_network(const Network& net, int threads) const {
   auto W0 = start_->design_batch(net.clusters, threads);
   if (!net.interferes()) return W0;  // no coupling: the per-cluster WMMSE solution is the answer
-  return network_wmmse_run(net, W0, opt_).W;
+  // A non-convex problem: run from several structured starts and keep the best local optimum.
+  NetworkWmmseTrace best = network_wmmse_run(net, W0, opt_);
+  for (const auto& start : {coordinated_rzf(net), coordinated_zf(net)}) {
+    NetworkWmmseTrace t = network_wmmse_run(net, start, opt_);
+    if (t.sum_rate > best.sum_rate) best = std::move(t);
+  }
+  return best.W;
 }
 
 std::vector<MatrixXcd> coordinated_rzf(const Network& net) {

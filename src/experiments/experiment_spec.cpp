@@ -137,8 +137,8 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
   s.text = text;
   for (const auto& [k, node] : doc) {
     const std::string key(k.str());
-    if (key != "experiment" && key != "profile" && key != "reported")
-      throw InputError(source + ": unknown table '" + key + "': allowed experiment, profile, reported");
+    if (key != "experiment" && key != "profile" && key != "reported" && key != "reference" && key != "reading")
+      throw InputError(source + ": unknown table '" + key + "': allowed experiment, profile, reported, reference, reading");
   }
   const auto* exp = doc["experiment"].as_table();
   if (!exp) throw InputError(source + ": missing table [experiment]");
@@ -159,8 +159,9 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
     if (!ok) throw InputError(source + ": " + key + " is missing for kind \"" + s.kind + "\": allowed " + what);
   };
   if (s.kind == "models") {
-    need(!s.models.empty(), "experiment.models", "a list of gnn, deepsets, mspointnet, gnn_structured");
-    for (const auto& m : s.models) check_in(source, "experiment.models", m, {"gnn", "deepsets", "mspointnet", "gnn_structured"});
+    const std::vector<std::string> labels{"gnn", "deepsets", "mspointnet", "gnn_structured", "ignn", "ignn_structured"};
+    need(!s.models.empty(), "experiment.models", "a list of " + join(labels));
+    for (const auto& m : s.models) check_in(source, "experiment.models", m, labels);
   } else if (s.kind == "beamform_sweep") {
     need(!s.sweep.empty(), "experiment.sweep", "a config key such as channel.p_max_dbm");
     need(!s.values.empty(), "experiment.values", "a list of numbers");

@@ -6,6 +6,7 @@
 #include <fstream>
 
 #include "skyloop/beamforming/linear.hpp"
+#include "skyloop/channel/network.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
@@ -179,9 +180,11 @@ TEST(Learned, SameSeedSameModel) {
 namespace {
 /// A short, seeded GNN training run (6 epochs over 800 snapshots, d = 64, 2 layers); returns its
 /// test sum rate and a reference from its test report ("mrt", "zf", ...).
-std::pair<double, double> short_run(const std::string& readout, const std::string& reference) {
+std::pair<double, double> short_run(const std::string& readout, const std::string& reference,
+                                    const std::string& model = "gnn") {
   Config cfg;
-  cfg.nn.model = "gnn";
+  cfg.nn.model = model;
+  if (model == "ignn") cfg.channel.spectrum = "shared";
   cfg.nn.readout = readout;
   cfg.nn.hidden = 64;
   cfg.nn.layers = 2;
@@ -191,7 +194,7 @@ std::pair<double, double> short_run(const std::string& readout, const std::strin
   cfg.nn.test_samples = 200;
   cfg.nn.batch_samples = 16;
   TrainOptions opt;
-  opt.out_dir = fresh_dir("learn_" + readout);
+  opt.out_dir = fresh_dir("learn_" + model + "_" + readout);
   const TrainResult r = train_beamformer(cfg, opt);
   const std::string report = read_file(opt.out_dir + "/test.json");
   const std::string key = "\"" + reference + "\": ";
@@ -213,4 +216,82 @@ TEST(Learned, ShortTrainingBeatsMrtClearly) {
 TEST(Learned, StructuredReadoutShortTrainingBeatsZf) {
   const auto [rate, zf] = short_run("structured", "zf");
   EXPECT_GT(rate, zf) << "test " << rate << " vs ZF " << zf;
+}
+
+// The interference-aware GNN is equivariant to permutations of the users and of the UAVs: the same
+// weights (in float64, so that only a structural fault can exceed the bound) give every (UAV, user)
+// pair the same beam whatever order the snapshot lists them in.
+TEST(Ignn, PermutingUsersAndUavsPermutesBeamformers) {
+  for (const char* m : {"ignn", "ignn+structured"}) {
+    Config cfg = tiny_config(m);
+    cfg.nn.precision = "float64";
+    const auto bf = LearnedBeamformer::load(tiny_model(m), cfg);
+    EXPECT_TRUE(bf->coordinated());
+    const SystemModel model(cfg);
+    for (std::uint64_t seed = 0; seed < 5; ++seed) {
+      const Snapshot s = model.random_snapshot(3, 12, 300 + seed);
+      const std::vector<int> uav_perm{2, 0, 1};                               // new row i = old row uav_perm[i]
+      const std::vector<int> user_perm{5, 11, 0, 3, 9, 1, 7, 10, 2, 8, 4, 6};
+      Snapshot p{Positions(3, 2), Positions(12, 2)};
+      for (int i = 0; i < 3; ++i) p.uavs.row(i) = s.uavs.row(uav_perm[static_cast<std::size_t>(i)]);
+      for (int i = 0; i < 12; ++i) p.users.row(i) = s.users.row(user_perm[static_cast<std::size_t>(i)]);
+      const Network a = model.network(s), b = model.network(p);
+      const auto wa = bf->design_network(a), wb = bf->design_network(b);
+      ASSERT_EQ(a.clusters.size(), b.clusters.size());
+      // Beam of (old UAV n, old user k) in each design.
+      auto beam = [](const Network& net, const std::vector<MatrixXcd>& W, int uav, int user) -> VectorXcd {
+        for (std::size_t c = 0; c < net.clusters.size(); ++c)
+          if (net.clusters[c].uav == uav)
+            for (std::size_t j = 0; j < net.clusters[c].users.size(); ++j)
+              if (net.clusters[c].users[j] == user) return W[c].col(static_cast<Eigen::Index>(j));
+        return VectorXcd();
+      };
+      std::vector<int> uav_new(3), user_new(12);
+      for (int i = 0; i < 3; ++i) uav_new[static_cast<std::size_t>(uav_perm[static_cast<std::size_t>(i)])] = i;
+      for (int i = 0; i < 12; ++i) user_new[static_cast<std::size_t>(user_perm[static_cast<std::size_t>(i)])] = i;
+      const double bound = 1e-8 * std::sqrt(cfg.channel.p_max_w());
+      for (std::size_t c = 0; c < a.clusters.size(); ++c) {
+        for (std::size_t j = 0; j < a.clusters[c].users.size(); ++j) {
+          const int n = a.clusters[c].uav, k = a.clusters[c].users[j];
+          const VectorXcd x = wa[c].col(static_cast<Eigen::Index>(j));
+          const VectorXcd y = beam(b, wb, uav_new[static_cast<std::size_t>(n)], user_new[static_cast<std::size_t>(k)]);
+          ASSERT_EQ(y.size(), x.size()) << m << ": user " << k << " lost its UAV under the permutation";
+          EXPECT_LE((x - y).norm(), bound) << m << " seed " << seed << " uav " << n << " user " << k;
+        }
+      }
+    }
+  }
+}
+
+// The same weights serve one network or many: the batched network call equals network by network,
+// and a network model's per-cluster call is the network of that cluster alone.
+TEST(Ignn, BatchedNetworksEqualOneByOne) {
+  Config cfg = tiny_config("ignn+structured");
+  cfg.nn.precision = "float64";
+  const auto bf = LearnedBeamformer::load(tiny_model("ignn+structured"), cfg);
+  const SystemModel model(cfg);
+  std::vector<Network> nets;
+  for (std::uint64_t seed = 0; seed < 6; ++seed) nets.push_back(model.network(model.random_snapshot(2 + seed % 3, 12, 40 + seed)));
+  const auto all = bf->design_networks(nets);
+  for (std::size_t i = 0; i < nets.size(); ++i) {
+    const auto one = bf->design_network(nets[i]);
+    ASSERT_EQ(one.size(), all[i].size());
+    for (std::size_t c = 0; c < one.size(); ++c) EXPECT_LE((one[c] - all[i][c]).norm(), 1e-8 * std::sqrt(cfg.channel.p_max_w()));
+    EXPECT_NO_THROW(check_network_output(*bf, nets[i], all[i]));
+  }
+  const Cluster& c = nets[0].clusters[0];
+  EXPECT_LE((bf->design(c) - bf->design_network(Network::of(c)).front()).norm(), 1e-8 * std::sqrt(cfg.channel.p_max_w()));
+}
+
+// A short, seeded training run of the interference-aware GNN on the network sum rate (shared
+// spectrum) learns to manage interference: its held-out test sum rate ends above coordinated RZF's
+// and within 90% of coordinated WMMSE's on the same snapshots.
+TEST(Ignn, ShortTrainingBeatsCoordinatedRzf) {
+  const auto [rate, crzf] = short_run("structured", "crzf", "ignn");
+  const auto [again, nwmmse] = short_run("structured", "nwmmse", "ignn");
+  EXPECT_EQ(rate, again) << "same seed, same model";
+  EXPECT_GT(rate, crzf) << "test " << rate << " vs coordinated RZF " << crzf;
+  // The target at full training is 90% of coordinated WMMSE; 300 steps already reach it
+  // (measured 109%), so this holds with margin on any kernel's training path.
+  EXPECT_GT(rate, 0.9 * nwmmse) << "test " << rate << " vs coordinated WMMSE " << nwmmse;
 }

@@ -32,12 +32,14 @@ inline std::vector<Cluster> clusters_of_size(const Config& cfg, int k, int count
 }
 
 /// A tiny learned-beamformer training config (d = 16, 2 layers, 40 snapshots, one epoch, one
-/// thread): "gnn", "deepsets", "mspointnet", or "<model>+structured" for the structured readout.
+/// thread): "gnn", "deepsets", "mspointnet", "ignn" (under the shared spectrum), or
+/// "<model>+structured" for the structured readout.
 inline Config tiny_nn_config(const std::string& model) {
   Config cfg;
   const auto plus = model.find('+');
   cfg.nn.model = model.substr(0, plus);
   if (plus != std::string::npos) cfg.nn.readout = model.substr(plus + 1);
+  if (cfg.nn.model == "ignn") cfg.channel.spectrum = "shared";  // the network model learns interference
   cfg.nn.hidden = 16;
   cfg.nn.layers = 2;
   cfg.nn.epochs = 1;

@@ -40,8 +40,9 @@ struct ExperimentSpec {
 };
 
 /// Parses one experiment file for `profile`. The [experiment] table holds the defaults;
-/// [profile.<name>] replaces keys of it (`set` is appended). [reported] (the paper's numbers, read
-/// by the report) is not interpreted here. Unknown keys, wrong types and a profile the file does
+/// [profile.<name>] replaces keys of it (`set` is appended). [[reported]] (the paper's numbers),
+/// [[reference]] (another experiment's curve drawn beside this one) and `reading` (the report's
+/// text) are read by the report, not interpreted here. Unknown keys, wrong types and a profile the file does
 /// not define throw InputError naming the file, the key and what is allowed.
 ExperimentSpec parse_experiment(const std::string& toml_text, const std::string& source, const std::string& profile);
 

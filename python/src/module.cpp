@@ -467,6 +467,10 @@ PYBIND11_MODULE(_skyloop, m) {
              py::gil_scoped_release nogil;
              return b.design_network(n);
            }, py::arg("network"), "one W per cluster of the network (coordinated beamformers see the cross channels)")
+      .def("design_networks", [](const Beamformer& b, const std::vector<Network>& ns, int threads) {
+             py::gil_scoped_release nogil;
+             return b.design_networks(ns, threads);
+           }, py::arg("networks"), py::arg("threads") = 1, "design_network of each; learned models batch them in one pass")
       .def_property_readonly("coordinated", &Beamformer::coordinated);
   m.def("beamformer", [](const std::string& spec, const Config& cfg) {
           return std::shared_ptr<Beamformer>(builtin_beamformers().create(spec, cfg));

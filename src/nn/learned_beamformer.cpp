@@ -1,4 +1,6 @@
+#include <algorithm>
 #include <filesystem>
+#include <numeric>
 
 #include "checkpoint.hpp"
 #include "data.hpp"
@@ -64,20 +66,37 @@ std::vector<std::vector<MatrixXcd>> LearnedBeamformer::design_networks(const std
         throw std::invalid_argument("cluster has " + std::to_string(c.antennas()) + " antennas; the " + impl_->info.model +
                                     " model was trained for " + std::to_string(L));
   c10::InferenceMode inference;
-  const nn::NetSet set = nn::make_net_set(nets, L);
-  const auto ids = torch::arange(static_cast<int64_t>(nets.size()), torch::kInt64);
-  const nn::NetBatch b = nn::make_net_batch(set, ids, impl_->info.feature_scale, impl_->device, impl_->dtype);
-  const auto raw = impl_->model->forward_network(b).to(torch::kCPU).to(torch::kFloat64).contiguous();
-  const auto acc = raw.accessor<double, 4>();  // [B, C, K, 2L]
-  for (std::size_t i = 0; i < nets.size(); ++i) {
-    for (std::size_t c = 0; c < nets[i].clusters.size(); ++c) {
-      const Cluster& cl = nets[i].clusters[c];
-      MatrixXcd W(L, cl.size());
-      for (int k = 0; k < cl.size(); ++k)
-        for (int l = 0; l < L; ++l)
-          W(l, k) = cdouble(acc[static_cast<int64_t>(i)][static_cast<int64_t>(c)][k][l],
-                            acc[static_cast<int64_t>(i)][static_cast<int64_t>(c)][k][L + l]);
-      out[i].push_back(skyloop::scale_to_budget(std::move(W), cl.p_max, impl_->scaling));
+  // Padding costs: a batch is padded to its most clusters and its largest cluster, and big padded
+  // tensors leave the cache. Networks are therefore served in chunks of similar shape (sorted by
+  // cluster count, then largest cluster), at most kChunk at a time.
+  constexpr std::size_t kChunk = 64;
+  auto shape = [&](std::size_t i) {
+    int kmax = 0;
+    for (const auto& c : nets[i].clusters) kmax = std::max(kmax, c.size());
+    return std::make_pair(static_cast<int>(nets[i].clusters.size()), kmax);
+  };
+  std::vector<std::size_t> order(nets.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return shape(a) < shape(b); });
+  for (std::size_t first = 0; first < order.size(); first += kChunk) {
+    const std::size_t last = std::min(order.size(), first + kChunk);
+    std::vector<Network> chunk;
+    for (std::size_t j = first; j < last; ++j) chunk.push_back(nets[order[j]]);
+    const nn::NetSet set = nn::make_net_set(chunk, L);
+    const auto ids = torch::arange(static_cast<int64_t>(chunk.size()), torch::kInt64);
+    const nn::NetBatch b = nn::make_net_batch(set, ids, impl_->info.feature_scale, impl_->device, impl_->dtype);
+    const auto raw = impl_->model->forward_network(b).to(torch::kCPU).to(torch::kFloat64).contiguous();
+    const auto acc = raw.accessor<double, 4>();  // [B, C, K, 2L]
+    for (std::size_t j = 0; j < chunk.size(); ++j) {
+      const auto i = static_cast<int64_t>(j);
+      for (std::size_t c = 0; c < chunk[j].clusters.size(); ++c) {
+        const Cluster& cl = chunk[j].clusters[c];
+        MatrixXcd W(L, cl.size());
+        for (int k = 0; k < cl.size(); ++k)
+          for (int l = 0; l < L; ++l)
+            W(l, k) = cdouble(acc[i][static_cast<int64_t>(c)][k][l], acc[i][static_cast<int64_t>(c)][k][L + l]);
+        out[order[first + j]].push_back(skyloop::scale_to_budget(std::move(W), cl.p_max, impl_->scaling));
+      }
     }
   }
   return out;

@@ -46,4 +46,25 @@ BENCHMARK(BM_Wmmse)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMicroseco
 BENCHMARK(BM_WmmseRzfStart)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_Ga2000)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMillisecond)->Iterations(4);
 
+// Coordinated beamformers under the shared spectrum: one decision = one network of N UAVs, K = 12.
+static void network_run(benchmark::State& state, const std::string& method) {
+  Config cfg;
+  cfg.channel.spectrum = "shared";
+  const auto bf = builtin_beamformers().create(method, cfg);
+  const SystemModel model(cfg);
+  std::vector<Network> nets;
+  for (std::uint64_t s = 0; s < 32; ++s) nets.push_back(model.network(model.random_snapshot(static_cast<int>(state.range(0)), 12, s)));
+  std::size_t i = 0;
+  for (auto _ : state) {
+    auto W = bf->design_network(nets[i++ % nets.size()]);
+    benchmark::DoNotOptimize(W.data());
+  }
+}
+static void BM_NetworkWmmse(benchmark::State& s) { network_run(s, "nwmmse"); }
+static void BM_CoordinatedRzf(benchmark::State& s) { network_run(s, "crzf"); }
+static void BM_CoordinatedZf(benchmark::State& s) { network_run(s, "czf"); }
+BENCHMARK(BM_NetworkWmmse)->DenseRange(2, 6)->ArgName("N")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_CoordinatedRzf)->DenseRange(2, 6)->ArgName("N")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_CoordinatedZf)->DenseRange(2, 6)->ArgName("N")->Unit(benchmark::kMicrosecond);
+
 BENCHMARK_MAIN();

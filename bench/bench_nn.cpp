@@ -59,7 +59,36 @@ void per_cluster(benchmark::State& state, const std::string& name) {
   state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(batch));  // clusters per second
 }
 
+/// Interference-aware GNN under the shared spectrum: one decision = one network (N = 3, K = 12),
+/// or `batch` networks in one design_networks call (the rate oracle's and the DP's batched path).
+void per_network(benchmark::State& state, const std::string& name) {
+  set_torch_threads(bench_threads());
+  Config cfg;
+  cfg.channel.spectrum = "shared";
+  const std::string path = kModels + "/" + name + "/model.pt";
+  if (!std::filesystem::exists(path)) return state.SkipWithError("no shipped model");
+  const auto bf = LearnedBeamformer::load(path, cfg);
+  const SystemModel model(cfg);
+  const auto batch = static_cast<std::size_t>(state.range(0));
+  std::vector<Network> nets;
+  for (std::uint64_t s = 0; s < std::max<std::size_t>(batch, 64); ++s) nets.push_back(model.network(model.random_snapshot(3, 12, s)));
+  std::size_t i = 0;
+  for (auto _ : state) {
+    if (batch == 1) {
+      auto W = bf->design_network(nets[i++ % nets.size()]);
+      benchmark::DoNotOptimize(W.data());
+    } else {
+      auto W = bf->design_networks(std::vector<Network>(nets.begin(), nets.begin() + static_cast<std::ptrdiff_t>(batch)));
+      benchmark::DoNotOptimize(W.data());
+    }
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(batch));  // networks per second
+}
+
 }  // namespace
+
+static void BM_IgnnNetwork(benchmark::State& s) { per_network(s, "ignn_structured"); }
+BENCHMARK(BM_IgnnNetwork)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
 
 static void BM_GnnDecision(benchmark::State& s) { per_decision(s, "gnn"); }
 static void BM_DeepSetsDecision(benchmark::State& s) { per_decision(s, "deepsets"); }

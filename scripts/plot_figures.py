@@ -125,7 +125,7 @@ def beamform_sweep(run, exp):
             ax.errorbar(xs, ys, yerr=es, marker=mk, ls=ls, color=col, label=lab, capsize=2)
     # Another experiment's curve, drawn grey and dashed for reference ([[reference]]).
     notes = []
-    for ref in experiment_spec(run, exp).get("reference", []):
+    for i, ref in enumerate(experiment_spec(run, exp).get("reference", [])):
         other = next((e for e in MANIFEST.get("experiments", []) if e["name"] == ref["experiment"]), None)
         if other is None or not os.path.exists(os.path.join(run, other["files"][0])):
             notes.append(f"reference '{ref['experiment']}' is not in this run")
@@ -133,7 +133,7 @@ def beamform_sweep(run, exp):
         pts = {float(r["x"]): float(r["mean"]) for r in read_csv(os.path.join(run, other["files"][0]))
                if r["method"] == ref["method"]}
         xs = sorted(pts)
-        ax.plot(xs, [pts[x] for x in xs], ls="--", color="#999999", marker="", lw=1.2,
+        ax.plot(xs, [pts[x] for x in xs], ls=("--", ":", "-.")[i % 3], color="#999999", marker="", lw=1.4,
                 label=ref.get("label", f"{ref['method']} ({ref['experiment']})"))
     x_name = rows[0]["x_name"] if rows else ""
     ax.set_xlabel(AXIS.get(x_name, x_name))
@@ -216,7 +216,8 @@ def marl_training(run, exp):
         ax.set_title(exp["title"] + ("; mean, min-max band over seeds" if metric else ""), fontsize=9)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-        figs += save(fig, run, name)
+        # The paper's experiment keeps its figure names; another MARL experiment is prefixed by its name.
+        figs += save(fig, run, name if exp["name"] == "marl_training" else f"{exp['name']}_{name[5:]}")
     # Table: per algo, over seeds, the deterministic policy's evaluation.
     by = defaultdict(list)
     for r in finals:

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <map>
 #include <regex>
 #include <set>
 #include <sstream>
@@ -137,7 +138,7 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   ASSERT_EQ(r.code, 0) << r.err;
 
   const auto manifest = nlohmann::json::parse(slurp(out / "manifest.json"));
-  ASSERT_EQ(manifest["experiments"].size(), 9u);
+  ASSERT_EQ(manifest["experiments"].size(), 14u);
   for (const auto& e : manifest["experiments"]) {
     const std::string name = e["name"];
     EXPECT_TRUE(fs::exists(out / name / "config.toml")) << name;
@@ -153,7 +154,8 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
     }
   }
   for (const std::string fig : {"power_sweep", "noise_sweep", "uav_sweep", "user_sweep", "latency", "marl_episode_reward",
-                                "marl_sum_rate", "planning_users", "trajectories"})
+                                "marl_sum_rate", "planning_users", "trajectories", "shared_power_sweep", "split_power_sweep",
+                                "shared_uav_sweep", "shared_marl_episode_reward", "shared_marl_sum_rate", "shared_trajectories"})
     for (const std::string ext : {".png", ".pdf"}) EXPECT_GT(fs::file_size(out / "figures" / (fig + ext)), 1000u) << fig << ext;
 
   const std::string report = slurp(out / "report.html");
@@ -164,6 +166,23 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   EXPECT_GE(links, 30);
   EXPECT_EQ(report.find("(missing)"), std::string::npos);
   EXPECT_NE(report.find("fig:power_sweep"), std::string::npos);
+
+  // The shared-spectrum sweep: coordinated WMMSE starts from per-cluster WMMSE and only climbs, so
+  // its mean is at least per-cluster WMMSE's at every power.
+  {
+    std::map<std::string, std::map<std::string, double>> mean;  // x -> method -> mean
+    std::istringstream in(slurp(out / "shared_power_sweep" / "shared_power_sweep.csv"));
+    std::string line;
+    std::getline(in, line);
+    while (std::getline(in, line)) {
+      std::vector<std::string> f;
+      std::stringstream ls(line);
+      for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
+      mean[f.at(3)][f.at(4)] = std::stod(f.at(6));
+    }
+    ASSERT_EQ(mean.size(), 2u);
+    for (const auto& [x, m] : mean) EXPECT_GE(m.at("nwmmse"), m.at("wmmse")) << "x = " << x;
+  }
 
   // Second run: nothing is recomputed (no training, every sweep point cached), same CSVs.
   const std::string before = slurp(out / "power_sweep" / "power_sweep.csv");

@@ -15,10 +15,14 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
                                         std::ostream* progress, std::vector<double>* seconds) {
   if (opt.planners.empty() && opt.extra.empty()) throw InputError("--planner is empty: allowed random, greedy, optimal");
   std::vector<std::shared_ptr<Planner>> planners;
+  const Positions users = make_users(cfg, cfg.scenario.users, opt.seed);
+  // The exact optimum depends on the resolved config and the users only: solved once per process.
+  const std::string memo = to_toml(cfg) + "|users " +
+                           std::to_string(hash_bytes(users.data(), sizeof(double) * static_cast<std::size_t>(users.size())));
   for (const auto& p : opt.planners) {
     if (p == "random") planners.push_back(std::make_shared<RandomPlanner>(derive_seed(opt.seed, 0x52414e44ULL)));
     else if (p == "greedy") planners.push_back(std::make_shared<GreedyPlanner>());
-    else if (p == "optimal") planners.push_back(std::make_shared<OptimalPlanner>(progress));
+    else if (p == "optimal") planners.push_back(std::make_shared<OptimalPlanner>(progress, memo));
     else throw InputError("--planner '" + p + "' is unknown: allowed random, greedy, optimal");
   }
   planners.insert(planners.end(), opt.extra.begin(), opt.extra.end());
@@ -29,7 +33,7 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
   } catch (const InputError& e) {
     throw InputError("env.oracle = \"" + cfg.env.oracle + "\": " + e.what());
   }
-  auto oracle = std::make_shared<RateOracle>(cfg, bf, make_users(cfg, cfg.scenario.users, opt.seed));
+  auto oracle = std::make_shared<RateOracle>(cfg, bf, users);
   UavEnv env(cfg, oracle);
   std::vector<EpisodeRecord> out;
   for (auto& p : planners) {

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <map>
+#include <mutex>
 #include <cmath>
 #include <limits>
 #include <ostream>
@@ -255,7 +257,20 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
 }
 
 void OptimalPlanner::reset(UavEnv& env) {
+  static std::mutex mutex;
+  static std::map<std::string, OptimalPlan> memo;
+  if (!memo_key_.empty()) {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (const auto it = memo.find(memo_key_); it != memo.end()) {
+      plan_ = it->second;
+      return;
+    }
+  }
   plan_ = solve_optimal(env, progress_);
+  if (!memo_key_.empty()) {
+    std::lock_guard<std::mutex> lock(mutex);
+    memo.emplace(memo_key_, plan_);
+  }
 }
 
 std::vector<int> OptimalPlanner::act(UavEnv& env) {

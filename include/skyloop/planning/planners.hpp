@@ -69,7 +69,12 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress = nullptr);
 /// Replays solve_optimal's plan.
 class OptimalPlanner final : public Planner {
  public:
-  explicit OptimalPlanner(std::ostream* progress = nullptr) : progress_(progress) {}
+  /// `memo_key`: when not empty, the plan is kept for the process under this key (it must name
+  /// everything the plan depends on: the resolved config and the users) and a later planner with
+  /// the same key reuses it; the DP over joint states is the expensive part under the shared
+  /// spectrum, where every joint state is one network for the oracle.
+  explicit OptimalPlanner(std::ostream* progress = nullptr, std::string memo_key = {})
+      : progress_(progress), memo_key_(std::move(memo_key)) {}
   std::string name() const override { return "optimal"; }
   void reset(UavEnv& env) override;
   std::vector<int> act(UavEnv& env) override;
@@ -77,6 +82,7 @@ class OptimalPlanner final : public Planner {
 
  private:
   std::ostream* progress_;
+  std::string memo_key_;
   OptimalPlan plan_;
 };
 

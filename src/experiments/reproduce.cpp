@@ -90,8 +90,8 @@ const std::map<std::string, ModelLabel>& model_labels() {
       {"mspointnet", {"mspointnet", {"nn.model=mspointnet", "nn.readout=direct"}}},
       {"gnn_structured", {"gnn", {"nn.model=gnn", "nn.readout=structured"}}},
       // The interference-aware GNN, trained on the network sum rate under the shared spectrum.
-      {"ignn", {"ignn", {"nn.model=ignn", "nn.readout=direct", "channel.spectrum=shared", "nn.hidden=64"}}},
-      {"ignn_structured", {"ignn", {"nn.model=ignn", "nn.readout=structured", "channel.spectrum=shared", "nn.hidden=64"}}},
+      {"ignn", {"ignn", {"nn.model=ignn", "nn.readout=direct", "channel.spectrum=shared", "nn.hidden=64", "nn.layers=2"}}},
+      {"ignn_structured", {"ignn", {"nn.model=ignn", "nn.readout=structured", "channel.spectrum=shared", "nn.hidden=64", "nn.layers=2"}}},
   };
   return m;
 }

@@ -75,16 +75,7 @@ NetworkWmmseTrace network_wmmse_run(const Network& net, const std::vector<Matrix
     tr.sum_rates.push_back(next);
     ++tr.iterations;
     const bool finite = std::isfinite(next) && std::all_of(W.begin(), W.end(), [](const MatrixXcd& x) { return x.allFinite(); });
-    if (!finite) break;  // rounding at extreme SNR: keep the best iterate (see wmmse.hpp)
-    const double gain = next - rate;
-    if (next > rate) {
-      tr.W = W;
-      rate = next;
-    }
-    if (gain <= opt.tolerance * std::max(std::abs(rate), 1e-12)) {
-      tr.converged = gain >= 0;
-      break;
-    }
+    if (wmmse_step_done(tr.W, rate, tr.converged, W, next, finite, opt.tolerance)) break;
   }
   tr.sum_rate = rate;
   return tr;

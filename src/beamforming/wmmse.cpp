@@ -104,16 +104,7 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
     // received power) the W-step's matrix spans many orders of magnitude and rounding can break
     // that: a non-finite or lower iterate ends the run, and the best iterate (at worst the start
     // point) is returned, so WMMSE never ends below where it started.
-    if (!std::isfinite(next) || !W.allFinite()) break;
-    const double gain = next - rate;
-    if (next > rate) {
-      tr.W = W;
-      rate = next;
-    }
-    if (gain <= opt.tolerance * std::max(std::abs(rate), 1e-12)) {
-      tr.converged = gain >= 0;
-      break;
-    }
+    if (wmmse_step_done(tr.W, rate, tr.converged, W, next, std::isfinite(next) && W.allFinite(), opt.tolerance)) break;
   }
   tr.sum_rate = rate;
   return tr;

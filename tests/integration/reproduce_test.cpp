@@ -25,6 +25,21 @@ namespace {
 const std::string kSrc = SKYLOOP_SOURCE_DIR;
 const std::string kExperiments = kSrc + "/configs/experiments";
 
+/// The data rows of a CSV (no quoting in skyloop's CSVs), each split at the commas.
+std::vector<std::vector<std::string>> csv_rows(const std::string& csv) {
+  std::vector<std::vector<std::string>> rows;
+  std::istringstream in(csv);
+  std::string line;
+  std::getline(in, line);  // header
+  while (std::getline(in, line)) {
+    std::vector<std::string> f;
+    std::stringstream ls(line);
+    for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
+    rows.push_back(std::move(f));
+  }
+  return rows;
+}
+
 std::string slurp(const fs::path& p) {
   std::ifstream in(p);
   std::stringstream ss;
@@ -171,15 +186,8 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   // its mean is at least per-cluster WMMSE's at every power.
   {
     std::map<std::string, std::map<std::string, double>> mean;  // x -> method -> mean
-    std::istringstream in(slurp(out / "shared_power_sweep" / "shared_power_sweep.csv"));
-    std::string line;
-    std::getline(in, line);
-    while (std::getline(in, line)) {
-      std::vector<std::string> f;
-      std::stringstream ls(line);
-      for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
+    for (const auto& f : csv_rows(slurp(out / "shared_power_sweep" / "shared_power_sweep.csv")))
       mean[f.at(3)][f.at(4)] = std::stod(f.at(6));
-    }
     ASSERT_EQ(mean.size(), 2u);
     for (const auto& [x, m] : mean) EXPECT_GE(m.at("nwmmse"), m.at("wmmse")) << "x = " << x;
   }
@@ -204,15 +212,7 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   // thread and times every decision on one core, so no float sum is split differently.
   const auto means = [](const std::string& csv) {
     std::vector<std::pair<std::string, double>> m;
-    std::istringstream in(csv);
-    std::string line;
-    std::getline(in, line);
-    while (std::getline(in, line)) {
-      std::vector<std::string> f;
-      std::stringstream ls(line);
-      for (std::string x; std::getline(ls, x, ',');) f.push_back(x);
-      m.emplace_back(f.at(4), std::stod(f.at(6)));  // method, mean
-    }
+    for (const auto& f : csv_rows(csv)) m.emplace_back(f.at(4), std::stod(f.at(6)));  // method, mean
     return m;
   };
   // --force on a MARL experiment retrains its runs and re-evaluates its planners.

@@ -15,6 +15,8 @@
 // 37.4 bit/s/Hz mean at K_n = L = 4, 30 dBm). skyloop therefore starts WMMSE from ZF with greedy
 // user selection (zf_select); a user with w_k = 0 stays off (u_k = 0), so WMMSE then refines
 // the selected set. wmmse.init = "rzf" gives the textbook start.
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -61,6 +63,24 @@ class WmmseBeamformer final : public Beamformer {
 /// ||W||_F^2 <= p_max, mu by bisection on the eigenvalues of A (Hermitian PSD [L x L]; B [L x K]).
 /// At mu = 0, components outside A's range are dropped (pseudo-inverse).
 MatrixXcd budgeted_solve(const MatrixXcd& A, const MatrixXcd& B, double p_max, double bisection_tolerance);
+
+/// The bookkeeping of one WMMSE iteration (per cluster or network): keeps the best iterate in
+/// (best, best_rate) and returns true when the run stops: a non-finite iterate (rounding at
+/// extreme SNR; the best so far stands) or a relative gain below `tolerance` (then `converged`
+/// says whether the last step still climbed).
+template <class Iterate>
+bool wmmse_step_done(Iterate& best, double& best_rate, bool& converged, const Iterate& next, double next_rate,
+                     bool finite, double tolerance) {
+  if (!finite) return true;
+  const double gain = next_rate - best_rate;
+  if (next_rate > best_rate) {
+    best = next;
+    best_rate = next_rate;
+  }
+  if (gain > tolerance * std::max(std::abs(best_rate), 1e-12)) return false;
+  converged = gain >= 0;
+  return true;
+}
 
 /// A complex-Gaussian [L x K] matrix scaled to power P, from `seed`.
 MatrixXcd random_beamformer(Eigen::Index L, Eigen::Index K, double p_max, std::uint64_t seed);

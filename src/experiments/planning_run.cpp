@@ -16,8 +16,11 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
   if (opt.planners.empty() && opt.extra.empty()) throw InputError("--planner is empty: allowed random, greedy, optimal");
   std::vector<std::shared_ptr<Planner>> planners;
   const Positions users = make_users(cfg, cfg.scenario.users, opt.seed);
-  // The exact optimum depends on the resolved config and the users only: solved once per process.
-  const std::string memo = to_toml(cfg) + "|users " +
+  // The exact optimum depends on the resolved config (not the learners' [marl] settings) and the
+  // users only: solved once per process for all of them.
+  Config key = cfg;
+  key.marl = MarlConfig{};
+  const std::string memo = to_toml(key) + "|users " +
                            std::to_string(hash_bytes(users.data(), sizeof(double) * static_cast<std::size_t>(users.size())));
   for (const auto& p : opt.planners) {
     if (p == "random") planners.push_back(std::make_shared<RandomPlanner>(derive_seed(opt.seed, 0x52414e44ULL)));

@@ -144,7 +144,10 @@ def beamform_sweep(run, exp):
         ax.set_ylabel("network sum rate (bit/s/Hz)")
     ax.set_title(exp["title"], fontsize=9)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7)
+    if len(ax.get_legend_handles_labels()[0]) > 8:  # many curves: the legend beside the axes, not over them
+        ax.legend(fontsize=7, bbox_to_anchor=(1.02, 1), loc="upper left")
+    else:
+        ax.legend(fontsize=7)
     figs = save(fig, run, exp["name"])
     # Table: methods x sweep values.
     xs = sorted({float(r["x"]) for r in rows})

@@ -104,36 +104,26 @@ std::vector<std::vector<MatrixXcd>> LearnedBeamformer::design_networks(const std
 
 std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster>& clusters, int threads) const {
   std::vector<MatrixXcd> out(clusters.size());
+  std::vector<std::size_t> where;  // the non-empty clusters; an empty one gets an [L x 0] W
+  for (std::size_t i = 0; i < clusters.size(); ++i) {
+    if (clusters[i].size() == 0) out[i] = MatrixXcd(clusters[i].antennas(), 0);
+    else where.push_back(i);
+  }
+  if (where.empty()) return out;
   if (coordinated()) {  // each cluster as a network of its own (no other UAV)
     std::vector<Network> nets;
-    std::vector<std::size_t> where;
-    for (std::size_t i = 0; i < clusters.size(); ++i) {
-      if (clusters[i].size() == 0) {
-        out[i] = MatrixXcd(clusters[i].antennas(), 0);
-        continue;
-      }
-      nets.push_back(Network::of(clusters[i]));
-      where.push_back(i);
-    }
-    if (nets.empty()) return out;
+    for (std::size_t i : where) nets.push_back(Network::of(clusters[i]));
     auto W = design_networks(nets, threads);
     for (std::size_t j = 0; j < nets.size(); ++j) out[where[j]] = std::move(W[j].front());
     return out;
   }
   std::vector<Cluster> nonempty;
-  std::vector<std::size_t> where;
-  for (std::size_t i = 0; i < clusters.size(); ++i) {
-    if (clusters[i].size() == 0) {
-      out[i] = MatrixXcd(clusters[i].antennas(), 0);
-      continue;
-    }
+  for (std::size_t i : where) {
     if (clusters[i].antennas() != impl_->info.antennas)
       throw std::invalid_argument("cluster has " + std::to_string(clusters[i].antennas()) + " antennas; the " +
                                   impl_->info.model + " model was trained for " + std::to_string(impl_->info.antennas));
     nonempty.push_back(clusters[i]);
-    where.push_back(i);
   }
-  if (nonempty.empty()) return out;
   c10::InferenceMode inference;  // no autograd bookkeeping at all (cheaper than NoGradGuard)
   const std::vector<int> owner(nonempty.size(), 0);
   const nn::ClusterSet set = nn::make_cluster_set(nonempty, owner, 1);

@@ -15,10 +15,13 @@ namespace {
 
 const std::string kModels = SKYLOOP_MODELS_DIR;
 
-std::unique_ptr<LearnedBeamformer> load(const std::string& name) {
+/// The shipped model `name`, served by the fused kernels (torch = false, the default) or LibTorch.
+std::unique_ptr<LearnedBeamformer> load(const std::string& name, bool torch) {
   const std::string path = kModels + "/" + name + "/model.pt";
   if (!std::filesystem::exists(path)) return nullptr;
-  return LearnedBeamformer::load(path, Config{});
+  Config cfg;
+  cfg.nn.inference = torch ? "torch" : "fast";
+  return LearnedBeamformer::load(path, cfg);
 }
 
 int bench_threads() {
@@ -28,7 +31,7 @@ int bench_threads() {
 
 void per_decision(benchmark::State& state, const std::string& name) {
   set_torch_threads(bench_threads());
-  const auto bf = load(name);
+  const auto bf = load(name, state.range(0) != 0);
   if (!bf) return state.SkipWithError("no shipped model");
   const Config cfg;
   const SystemModel model(cfg);
@@ -43,7 +46,7 @@ void per_decision(benchmark::State& state, const std::string& name) {
 
 void per_cluster(benchmark::State& state, const std::string& name) {
   set_torch_threads(bench_threads());
-  const auto bf = load(name);
+  const auto bf = load(name, state.range(1) != 0);
   if (!bf) return state.SkipWithError("no shipped model");
   const Config cfg;
   const SystemModel model(cfg);
@@ -97,11 +100,15 @@ static void BM_GnnClusters(benchmark::State& s) { per_cluster(s, "gnn"); }
 static void BM_DeepSetsClusters(benchmark::State& s) { per_cluster(s, "deepsets"); }
 static void BM_MsPointNetClusters(benchmark::State& s) { per_cluster(s, "mspointnet"); }
 
-BENCHMARK(BM_GnnDecision)->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_DeepSetsDecision)->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_MsPointNetDecision)->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_GnnClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_DeepSetsClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_MsPointNetClusters)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
+static void BM_GnnStructuredDecision(benchmark::State& s) { per_decision(s, "gnn_structured"); }
+
+// torch:0 = the fused float32 path (the default for inference), torch:1 = LibTorch (the reference).
+BENCHMARK(BM_GnnDecision)->Arg(0)->Arg(1)->ArgName("torch")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_GnnStructuredDecision)->Arg(0)->Arg(1)->ArgName("torch")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_DeepSetsDecision)->Arg(0)->Arg(1)->ArgName("torch")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_MsPointNetDecision)->Arg(0)->Arg(1)->ArgName("torch")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_GnnClusters)->ArgsProduct({{1, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_DeepSetsClusters)->ArgsProduct({{1, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_MsPointNetClusters)->ArgsProduct({{1, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
 
 BENCHMARK_MAIN();

@@ -174,6 +174,10 @@ std::vector<Field> make_fields() {
   f.push_back(text("nn.precision",
                    "arithmetic of a served model: float32 (as trained) or float64 (same weights, a reference for numerical checks)",
                    {"float32", "float64"}, [](Config& c) -> std::string& { return c.nn.precision; }));
+  f.push_back(text("nn.inference",
+                   "serving path of a learned model: fast (fused float32 kernels, same weights; the ignn and float64 are served by "
+                   "torch) or torch (LibTorch, the training path and the reference)",
+                   {"fast", "torch"}, [](Config& c) -> std::string& { return c.nn.inference; }));
   // [marl]
   f.push_back(text("marl.algo", "multi-agent learner", {"mappo", "ippo", "vdn", "qmix"},
                    [](Config& c) -> std::string& { return c.marl.algo; }));

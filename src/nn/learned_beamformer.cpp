@@ -4,8 +4,10 @@
 
 #include "checkpoint.hpp"
 #include "data.hpp"
+#include "fast_model.hpp"
 #include "network_batch.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/paths.hpp"
 
 namespace skyloop {
@@ -20,7 +22,23 @@ struct LearnedBeamformer::Impl {
   torch::Device device{torch::kCPU};
   PowerScaling scaling = PowerScaling::Full;
   torch::ScalarType dtype = torch::kFloat32;
+  std::unique_ptr<nn::fast::Model> fast;  // the fused float32 path; null: LibTorch serves
 };
+
+namespace {
+/// The model's parameters by name, as float32 row-major arrays (the fast path's input).
+nn::fast::Params parameters_of(nn::BeamNetImpl& model) {
+  nn::fast::Params out;
+  for (const auto& item : model.named_parameters(/*recurse=*/true)) {
+    const auto t = item.value().detach().to(torch::kCPU).to(torch::kFloat32).contiguous();
+    nn::fast::Param p;
+    for (const auto s : t.sizes()) p.shape.push_back(static_cast<long>(s));
+    p.data.assign(t.data_ptr<float>(), t.data_ptr<float>() + t.numel());
+    out.emplace(item.key(), std::move(p));
+  }
+  return out;
+}
+}  // namespace
 
 LearnedBeamformer::LearnedBeamformer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 LearnedBeamformer::~LearnedBeamformer() = default;
@@ -34,6 +52,9 @@ std::unique_ptr<LearnedBeamformer> LearnedBeamformer::load(const std::string& pa
                      " antennas but channel.antennas = " + std::to_string(cfg.channel.antennas) +
                      ": allowed a model trained for the configured L");
   ck.model->eval();
+  // The fast path serves float32 on the CPU; float64 (a reference) and CUDA stay with LibTorch.
+  if (cfg.nn.inference == "fast" && cfg.nn.precision == "float32" && impl->device.is_cpu())
+    impl->fast = nn::fast::Model::build(ck.info, parameters_of(*ck.model));
   if (cfg.nn.precision == "float64") {
     impl->dtype = torch::kFloat64;
     ck.model->to(torch::kFloat64);
@@ -124,6 +145,7 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
                                   impl_->info.model + " model was trained for " + std::to_string(impl_->info.antennas));
     nonempty.push_back(clusters[i]);
   }
+  if (impl_->fast) return design_fast(nonempty, where, std::move(out), threads);
   c10::InferenceMode inference;  // no autograd bookkeeping at all (cheaper than NoGradGuard)
   const std::vector<int> owner(nonempty.size(), 0);
   const nn::ClusterSet set = nn::make_cluster_set(nonempty, owner, 1);
@@ -142,6 +164,26 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
   }
   return out;
 }
+
+std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<Cluster>& nonempty,
+                                                      const std::vector<std::size_t>& where, std::vector<MatrixXcd> out,
+                                                      int threads) const {
+  // One fused pass per slice of the batch; slices of at least kSlice clusters go to the threads.
+  constexpr std::size_t kSlice = 64;
+  const std::size_t slices = std::max<std::size_t>(
+      1, std::min<std::size_t>(static_cast<std::size_t>(resolve_threads(threads)), nonempty.size() / kSlice));
+  parallel_for(slices, static_cast<int>(slices), [&](std::size_t i) {
+    const std::size_t first = nonempty.size() * i / slices, last = nonempty.size() * (i + 1) / slices;
+    std::vector<const Cluster*> part;
+    for (std::size_t j = first; j < last; ++j) part.push_back(&nonempty[j]);
+    auto raw = impl_->fast->forward(part);
+    for (std::size_t j = first; j < last; ++j)
+      out[where[j]] = skyloop::scale_to_budget(std::move(raw[j - first]), nonempty[j].p_max, impl_->scaling);
+  });
+  return out;
+}
+
+bool LearnedBeamformer::fast() const { return impl_->fast != nullptr; }
 
 void register_learned_beamformers(BeamformerRegistry& reg, const std::string& models_dir) {
   for (const char* name : {"gnn", "deepsets", "mspointnet", "ignn"}) {

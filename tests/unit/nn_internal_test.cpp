@@ -147,61 +147,98 @@ TEST(NnInternal, StructuredReadoutLimitsAreMrtAndZf) {
 // change of W over 4 random relative perturbations of size delta = 1e-6 of every weight and every
 // channel entry, divided by delta. It includes the internal ill-conditioning a perturbation of the
 // input alone misses (GraphNorm over one or two users subtracts nearly equal numbers; the
-// structured readout solves with cond(G) ~ 1e4). C = 16 covers a dot product of width w <= 2d
-// rounding up to sqrt(w) ~ 6 times u32 (random-walk growth) instead of once, and the second-order
-// remainder. A wrong weight, a layer skipped or a batch layout mixing clusters gives O(1) errors.
+// structured readout solves with cond(G) ~ 1e4). C = 2.5 sqrt(w) covers a dot product of width w
+// (the model's widest) rounding up to sqrt(w) times u32 (random-walk growth) instead of once, and
+// the second-order remainder. A wrong weight, a layer skipped or a batch layout mixing clusters gives O(1) errors.
+namespace {
+/// Holds both float32 serving paths (the fused kernels, nn.inference = "fast", and LibTorch) of
+/// the checkpoint at `path` to its float64 evaluation on clusters of sizes `sizes`.
+void expect_float32_paths_within_rounding(const std::string& label, const Config& cfg, const std::string& path,
+                                          const std::string& scratch, const std::vector<int>& sizes) {
+  constexpr double u32 = 5.960464477539063e-8, delta = 1e-6;
+  Config cfg64 = cfg, cfg_torch = cfg;
+  cfg64.nn.precision = "float64";
+  cfg_torch.nn.inference = "torch";
+  const auto fast32 = LearnedBeamformer::load(path, cfg);
+  const auto torch32 = LearnedBeamformer::load(path, cfg_torch);
+  const auto bf64 = LearnedBeamformer::load(path, cfg64);
+  ASSERT_TRUE(fast32->fast()) << label;
+  ASSERT_FALSE(torch32->fast()) << label;
+  ASSERT_FALSE(bf64->fast()) << label;
+  // The widest dot product: GNN 3d (user update), DeepSets 4d (head on [phi, pooled], width 2d
+  // each), MS-PointNet also 1.5 d L (the projection of L antennas x 3c channels).
+  const ModelInfo& info = fast32->info();
+  const double d = info.hidden;
+  const double width = info.model == "gnn" ? 3 * d : info.model == "deepsets" ? 4 * d : std::max(4 * d, 1.5 * d * info.antennas);
+  const double C = 2.5 * std::sqrt(width);
+
+  // Four copies of the checkpoint with every weight perturbed by a relative U(-delta, delta).
+  Rng rng(11);
+  std::vector<std::unique_ptr<LearnedBeamformer>> perturbed;
+  for (int r = 0; r < 4; ++r) {
+    auto ck = load_checkpoint(path, torch::kCPU);
+    {
+      torch::NoGradGuard no_grad;
+      for (auto& p : ck.model->parameters()) {
+        auto flat = p.view({-1});
+        auto noise = torch::empty_like(flat);
+        auto acc = noise.accessor<float, 1>();
+        for (int64_t i = 0; i < flat.size(0); ++i) acc[i] = static_cast<float>(1 + delta * (2 * rng.uniform() - 1));
+        flat.mul_(noise);
+      }
+    }
+    const std::string p = scratch + "/perturbed" + std::to_string(r) + ".pt";
+    save_checkpoint(p, ck.info, ck.state, *ck.model, nullptr);
+    perturbed.push_back(LearnedBeamformer::load(p, cfg64));
+  }
+
+  std::vector<Cluster> mixed;
+  for (int k : sizes)
+    for (const auto& c : test::clusters_of_size(cfg, k, 3, 90 + static_cast<std::uint64_t>(k))) mixed.push_back(c);
+  const auto fast_batched = fast32->design_batch(mixed), torch_batched = torch32->design_batch(mixed);
+  for (std::size_t i = 0; i < mixed.size(); ++i) {
+    const Cluster& c = mixed[i];
+    const MatrixXcd W64 = bf64->design(c);
+    double kappa = 0;
+    for (const auto& bp : perturbed) {
+      Cluster p = c;
+      for (Eigen::Index a = 0; a < p.G.rows(); ++a)
+        for (Eigen::Index b = 0; b < p.G.cols(); ++b) p.G(a, b) *= 1 + delta * (2 * rng.uniform() - 1);
+      kappa = std::max(kappa, (bp->design(p) - W64).norm() / W64.norm() / delta);
+    }
+    const double tol = C * u32 * std::max(kappa, 1.0) * W64.norm();
+    const std::string where = label + " K_n=" + std::to_string(c.size()) + " kappa " + std::to_string(kappa);
+    EXPECT_LT((fast32->design(c) - W64).norm(), tol) << "fast " << where;
+    EXPECT_LT((fast_batched[i] - W64).norm(), tol) << "fast batched " << where;
+    EXPECT_LT((torch32->design(c) - W64).norm(), tol) << "torch " << where;
+    EXPECT_LT((torch_batched[i] - W64).norm(), tol) << "torch batched " << where;
+  }
+}
+}  // namespace
+
+// The float32 serving paths (fused kernels and LibTorch) against the float64 evaluation of the
+// same weights, on tiny trained models of every kind (d = 16: widths that do not fill a kernel
+// block) and clusters of every size up to 12.
 TEST(NnInternal, Float32ServingIsWithinRoundingOfFloat64) {
-  constexpr double u32 = 5.960464477539063e-8, delta = 1e-6, C = 16;
-  for (const std::string m : {"gnn", "deepsets", "mspointnet", "gnn+structured"}) {
+  for (const std::string m : {"gnn", "deepsets", "mspointnet", "gnn+structured", "mspointnet+structured"}) {
     const Config cfg = test::tiny_nn_config(m);
     TrainOptions opt;
     opt.out_dir = ::testing::TempDir() + "/skyloop_f32_" + std::to_string(::getpid()) + "_" + m;
     std::filesystem::remove_all(opt.out_dir);
     train_beamformer(cfg, opt);
-    const std::string path = opt.out_dir + "/model.pt";
-    Config cfg64 = cfg;
-    cfg64.nn.precision = "float64";
-    const auto bf32 = LearnedBeamformer::load(path, cfg);
-    const auto bf64 = LearnedBeamformer::load(path, cfg64);
+    expect_float32_paths_within_rounding(m, cfg, opt.out_dir + "/model.pt", opt.out_dir,
+                                         {1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12});
+  }
+}
 
-    // Four copies of the checkpoint with every weight perturbed by a relative U(-delta, delta).
-    Rng rng(11);
-    std::vector<std::unique_ptr<LearnedBeamformer>> perturbed;
-    for (int r = 0; r < 4; ++r) {
-      auto ck = load_checkpoint(path, torch::kCPU);
-      {
-        torch::NoGradGuard no_grad;
-        for (auto& p : ck.model->parameters()) {
-          auto flat = p.view({-1});
-          auto noise = torch::empty_like(flat);
-          auto acc = noise.accessor<float, 1>();
-          for (int64_t i = 0; i < flat.size(0); ++i) acc[i] = static_cast<float>(1 + delta * (2 * rng.uniform() - 1));
-          flat.mul_(noise);
-        }
-      }
-      const std::string p = opt.out_dir + "/perturbed" + std::to_string(r) + ".pt";
-      save_checkpoint(p, ck.info, ck.state, *ck.model, nullptr);
-      perturbed.push_back(LearnedBeamformer::load(p, cfg64));
-    }
-
-    std::vector<Cluster> mixed;
-    for (int k : {1, 2, 3, 4, 6, 8})
-      for (const auto& c : test::clusters_of_size(cfg, k, 3, 90 + k)) mixed.push_back(c);
-    const auto batched = bf32->design_batch(mixed);
-    for (std::size_t i = 0; i < mixed.size(); ++i) {
-      const Cluster& c = mixed[i];
-      const MatrixXcd W64 = bf64->design(c);
-      double kappa = 0;
-      for (const auto& bp : perturbed) {
-        Cluster p = c;
-        for (Eigen::Index a = 0; a < p.G.rows(); ++a)
-          for (Eigen::Index b = 0; b < p.G.cols(); ++b) p.G(a, b) *= 1 + delta * (2 * rng.uniform() - 1);
-        kappa = std::max(kappa, (bp->design(p) - W64).norm() / W64.norm() / delta);
-      }
-      const double tol = C * u32 * std::max(kappa, 1.0) * W64.norm();
-      const double e1 = (bf32->design(c) - W64).norm(), eb = (batched[i] - W64).norm();
-      EXPECT_LT(e1, tol) << m << " K_n=" << c.size() << " kappa " << kappa;
-      EXPECT_LT(eb, tol) << m << " batched, K_n=" << c.size() << " kappa " << kappa;
-    }
+// The same for the shipped models (d = 128, the paper's GNN and its baselines), which the
+// environment's oracle, `beamform eval` and the latency figure serve through the fused path.
+TEST(NnInternal, ShippedModelsFastPathIsWithinRoundingOfFloat64) {
+  for (const std::string m : {"gnn", "gnn_structured", "deepsets", "mspointnet"}) {
+    const std::string path = std::string(SKYLOOP_SOURCE_DIR) + "/models/" + m + "/model.pt";
+    const std::string scratch = ::testing::TempDir() + "/skyloop_shipped_" + std::to_string(::getpid()) + "_" + m;
+    std::filesystem::create_directories(scratch);
+    expect_float32_paths_within_rounding(m, Config{}, path, scratch, {1, 3, 6, 12});
+    std::filesystem::remove_all(scratch);
   }
 }

@@ -144,6 +144,7 @@ struct NnConfig {                   // [nn] learned beamformers (Section IV and 
   double grad_clip = 0.0;           // max global gradient norm; 0 = off
   std::string readout = "direct";   // direct (the paper: 2L reals per user) | structured (beyond the paper)
   std::string precision = "float32";  // serving arithmetic: float32 (training's) | float64 (a reference for checks)
+  std::string inference = "fast";     // serving path: fast (fused float32 kernels) | torch (LibTorch, the reference)
 };
 
 struct Config {

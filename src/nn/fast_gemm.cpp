@@ -1,0 +1,89 @@
+#include "fast_gemm.hpp"
+
+#include <cstdlib>
+#include <cstring>
+#include <stdexcept>
+
+namespace skyloop::nn::fast {
+
+namespace {
+
+#define SKYLOOP_GEMM_NAME gemm_default
+#define SKYLOOP_GEMM_TARGET
+#define SKYLOOP_GEMM_V 4
+#include "fast_gemm_kernel.inl"
+#undef SKYLOOP_GEMM_NAME
+#undef SKYLOOP_GEMM_TARGET
+#undef SKYLOOP_GEMM_V
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#define SKYLOOP_GEMM_NAME gemm_avx2
+#define SKYLOOP_GEMM_TARGET __attribute__((target("avx2,fma")))
+#define SKYLOOP_GEMM_V 8
+#include "fast_gemm_kernel.inl"
+#undef SKYLOOP_GEMM_NAME
+#undef SKYLOOP_GEMM_TARGET
+#undef SKYLOOP_GEMM_V
+
+#define SKYLOOP_GEMM_NAME gemm_avx512
+#define SKYLOOP_GEMM_TARGET __attribute__((target("avx512f,avx512vl,avx2,fma")))
+#define SKYLOOP_GEMM_V 16
+#include "fast_gemm_kernel.inl"
+#undef SKYLOOP_GEMM_NAME
+#undef SKYLOOP_GEMM_TARGET
+#undef SKYLOOP_GEMM_V
+#endif
+
+using Kernel = void (*)(const float*, int, int, const float*, int, int, const float*, float*, int, bool);
+
+struct Choice {
+  Kernel fn;
+  const char* isa;
+};
+
+Choice choose() {
+  const char* env = std::getenv("ATEN_CPU_CAPABILITY");
+  const std::string cap = env ? env : "";
+#if defined(__x86_64__) && defined(__GNUC__)
+  __builtin_cpu_init();
+  const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
+  if (cap == "default") return {gemm_default, "default"};
+  if (avx512 && cap != "avx2") return {gemm_avx512, "avx512"};
+  if (avx2) return {gemm_avx2, "avx2"};
+#endif
+  return {gemm_default, "default"};
+}
+
+const Choice& chosen() {
+  static const Choice c = choose();
+  return c;
+}
+
+}  // namespace
+
+Dense pack(const float* w, int out, int in_total, int first, int count, const float* bias) {
+  if (first < 0 || count < 0 || first + count > in_total) throw std::logic_error("fast::pack: input columns out of range");
+  Dense d;
+  d.in = count;
+  d.out = out;
+  d.out_pad = pad_cols(out);
+  d.wt.assign(static_cast<std::size_t>(count) * d.out_pad, 0.0f);
+  for (int o = 0; o < out; ++o)
+    for (int i = 0; i < count; ++i)
+      d.wt[static_cast<std::size_t>(i) * d.out_pad + o] = w[static_cast<std::size_t>(o) * in_total + first + i];
+  if (bias) {
+    d.bias.assign(static_cast<std::size_t>(d.out_pad), 0.0f);
+    std::memcpy(d.bias.data(), bias, sizeof(float) * static_cast<std::size_t>(out));
+  }
+  return d;
+}
+
+void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, bool accumulate) {
+  if (rows % kRowBlock != 0 || ldc < w.out_pad) throw std::logic_error("fast::gemm: unpadded buffers");
+  chosen().fn(A, lda, rows, w.wt.data(), w.in, w.out_pad, w.bias.empty() ? nullptr : w.bias.data(), C, ldc, accumulate);
+}
+
+std::string kernel_isa() { return chosen().isa; }
+
+}  // namespace skyloop::nn::fast

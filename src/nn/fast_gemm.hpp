@@ -1,0 +1,37 @@
+#pragma once
+// Dense layers for the fast inference path (fast_model.hpp): y = x W^T + b in float32, with a
+// register-blocked kernel compiled for several instruction sets (generic SSE2, AVX2+FMA,
+// AVX-512) and chosen once at run time from the CPU. ATEN_CPU_CAPABILITY (default | avx2 |
+// avx512), the variable LibTorch reads, caps the choice here too, so one test matrix covers the
+// kernels of both paths. Torch-free.
+#include <string>
+#include <vector>
+
+namespace skyloop::nn::fast {
+
+constexpr int kRowBlock = 6;    // rows per micro-kernel: activation buffers pad rows to a multiple
+constexpr int kColBlock = 32;   // weights pad their output width to a multiple of this
+
+inline int pad_rows(int rows) { return (rows + kRowBlock - 1) / kRowBlock * kRowBlock; }
+inline int pad_cols(int cols) { return (cols + kColBlock - 1) / kColBlock * kColBlock; }
+
+/// A linear map packed for the kernel: W^T as [in x out_pad] row-major (columns >= out are
+/// zero), the bias padded the same way (empty: no bias).
+struct Dense {
+  int in = 0, out = 0, out_pad = 0;
+  std::vector<float> wt, bias;
+};
+
+/// Packs the input columns [first, first + count) of a row-major weight W [out x in_total]
+/// (torch's Linear layout) with an optional bias [out].
+Dense pack(const float* w, int out, int in_total, int first, int count, const float* bias);
+
+/// C[i, :] (+)= A[i, :in] W^T (+ bias) for i < rows, rows a multiple of kRowBlock; A has row
+/// stride lda, C row stride ldc >= w.out_pad (columns out..out_pad are written too).
+/// accumulate = false overwrites C (with the bias, if any); true adds to it.
+void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, bool accumulate);
+
+/// The kernel in use: "avx512", "avx2" or "default".
+std::string kernel_isa();
+
+}  // namespace skyloop::nn::fast

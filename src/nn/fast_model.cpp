@@ -1,0 +1,487 @@
+#include "fast_model.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include "fast_gemm.hpp"
+
+namespace skyloop::nn::fast {
+
+namespace {
+
+/// Row-major float activations; rows padded to the kernel's row block, columns to its width.
+struct Mat {
+  int rows = 0, cols = 0, ld = 0;
+  std::vector<float> v;
+  void resize(int r, int c) {
+    rows = r, cols = c, ld = pad_cols(c);
+    const std::size_t need = static_cast<std::size_t>(pad_rows(r)) * static_cast<std::size_t>(ld);
+    if (v.size() < need) v.resize(need, 0.0f);
+  }
+  float* row(int r) { return v.data() + static_cast<std::size_t>(r) * static_cast<std::size_t>(ld); }
+  const float* row(int r) const { return v.data() + static_cast<std::size_t>(r) * static_cast<std::size_t>(ld); }
+};
+
+/// Which rows belong to which graph instance (cluster): users start[c] .. start[c + 1] - 1.
+struct Segments {
+  std::vector<int> start;  // [C + 1]
+  std::vector<int> seg;    // [U] cluster of each user row
+  int clusters() const { return static_cast<int>(start.size()) - 1; }
+  int users() const { return start.back(); }
+};
+
+enum class NormKind { None, Graph, Layer };
+
+struct Norm {
+  NormKind kind = NormKind::None;
+  std::vector<float> gamma, beta, alpha;  // alpha: GraphNorm's mean shift
+  float eps = 1e-5f;
+};
+
+void relu(Mat& m) {
+  for (int r = 0; r < m.rows; ++r) {
+    float* __restrict x = m.row(r);
+    for (int c = 0; c < m.cols; ++c) x[c] = std::max(x[c], 0.0f);
+  }
+}
+
+/// LayerNorm over each row's columns (biased variance), as torch::nn::LayerNorm. The row sums
+/// run over 8 interleaved partial sums (vectorisable without reassociating across the lanes'
+/// own order).
+void layer_norm(Mat& m, const Norm& n) {
+  const int d = m.cols;
+  const float* __restrict gamma = n.gamma.data();
+  const float* __restrict beta = n.beta.data();
+  for (int r = 0; r < m.rows; ++r) {
+    float* __restrict x = m.row(r);
+    float part[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+    int c = 0;
+    for (; c + 8 <= d; c += 8)
+      for (int i = 0; i < 8; ++i) part[i] += x[c + i];
+    float mean = 0.0f;
+    for (int i = 0; i < 8; ++i) mean += part[i];
+    for (; c < d; ++c) mean += x[c];
+    mean /= static_cast<float>(d);
+    for (int i = 0; i < 8; ++i) part[i] = 0.0f;
+    c = 0;
+    for (; c + 8 <= d; c += 8)
+      for (int i = 0; i < 8; ++i) part[i] += (x[c + i] - mean) * (x[c + i] - mean);
+    float var = 0.0f;
+    for (int i = 0; i < 8; ++i) var += part[i];
+    for (; c < d; ++c) var += (x[c] - mean) * (x[c] - mean);
+    const float inv = 1.0f / std::sqrt(var / static_cast<float>(d) + n.eps);
+    for (c = 0; c < d; ++c) x[c] = (x[c] - mean) * inv * gamma[c] + beta[c];
+  }
+}
+
+/// GraphNorm over each cluster's user rows, as GraphNormImpl (models.cpp).
+void graph_norm(Mat& m, const Norm& n, const Segments& s, std::vector<float>& tmp) {
+  const int d = m.cols;
+  tmp.assign(static_cast<std::size_t>(2 * d), 0.0f);
+  float* __restrict mean = tmp.data();
+  float* __restrict var = tmp.data() + d;
+  const float* __restrict gamma = n.gamma.data();
+  const float* __restrict beta = n.beta.data();
+  const float* __restrict alpha = n.alpha.data();
+  for (int c = 0; c < s.clusters(); ++c) {
+    const int a = s.start[static_cast<std::size_t>(c)], b = s.start[static_cast<std::size_t>(c) + 1];
+    const float inv_k = 1.0f / static_cast<float>(b - a);
+    std::fill(mean, mean + 2 * d, 0.0f);
+    for (int r = a; r < b; ++r) {
+      const float* __restrict x = m.row(r);
+      for (int j = 0; j < d; ++j) mean[j] += x[j];
+    }
+    for (int j = 0; j < d; ++j) mean[j] = alpha[j] * (mean[j] * inv_k);
+    for (int r = a; r < b; ++r) {
+      float* __restrict x = m.row(r);
+      for (int j = 0; j < d; ++j) {
+        x[j] -= mean[j];
+        var[j] += x[j] * x[j];
+      }
+    }
+    for (int j = 0; j < d; ++j) var[j] = gamma[j] / std::sqrt(var[j] * inv_k + n.eps);
+    for (int r = a; r < b; ++r) {
+      float* __restrict x = m.row(r);
+      for (int j = 0; j < d; ++j) x[j] = x[j] * var[j] + beta[j];
+    }
+  }
+}
+
+/// Per-cluster mean of user rows into a [C x d] matrix.
+void segment_mean(const Mat& x, const Segments& s, Mat& out) {
+  out.resize(s.clusters(), x.cols);
+  for (int c = 0; c < s.clusters(); ++c) {
+    float* __restrict o = out.row(c);
+    std::fill(o, o + x.cols, 0.0f);
+    const int a = s.start[static_cast<std::size_t>(c)], b = s.start[static_cast<std::size_t>(c) + 1];
+    for (int r = a; r < b; ++r) {
+      const float* __restrict v = x.row(r);
+      for (int j = 0; j < x.cols; ++j) o[j] += v[j];
+    }
+    const float inv_k = 1.0f / static_cast<float>(b - a);
+    for (int j = 0; j < x.cols; ++j) o[j] *= inv_k;
+  }
+}
+
+/// Per-cluster max of user rows into a [C x d] matrix.
+void segment_max(const Mat& x, const Segments& s, Mat& out) {
+  out.resize(s.clusters(), x.cols);
+  for (int c = 0; c < s.clusters(); ++c) {
+    float* __restrict o = out.row(c);
+    std::fill(o, o + x.cols, -std::numeric_limits<float>::infinity());
+    for (int r = s.start[static_cast<std::size_t>(c)]; r < s.start[static_cast<std::size_t>(c) + 1]; ++r) {
+      const float* __restrict v = x.row(r);
+      for (int j = 0; j < x.cols; ++j) o[j] = std::max(o[j], v[j]);
+    }
+  }
+}
+
+/// For each user, the max over the other users of its cluster (a suffix max, then a running
+/// prefix max: O(K d), branch-free); zeros for a single-user cluster.
+void max_over_others(const Mat& x, const Segments& s, Mat& out, std::vector<float>& tmp) {
+  const int d = x.cols;
+  out.resize(x.rows, d);
+  tmp.resize(static_cast<std::size_t>(d));
+  float* __restrict prefix = tmp.data();
+  for (int c = 0; c < s.clusters(); ++c) {
+    const int a = s.start[static_cast<std::size_t>(c)], b = s.start[static_cast<std::size_t>(c) + 1];
+    if (b - a < 2) {
+      for (int r = a; r < b; ++r) std::fill(out.row(r), out.row(r) + d, 0.0f);
+      continue;
+    }
+    std::copy(x.row(b - 1), x.row(b - 1) + d, out.row(b - 2));  // suffix maxima: out[r] = max_{j > r} x[j]
+    for (int r = b - 3; r >= a; --r) {
+      const float* __restrict next = out.row(r + 1);
+      const float* __restrict v = x.row(r + 1);
+      float* __restrict o = out.row(r);
+      for (int j = 0; j < d; ++j) o[j] = std::max(next[j], v[j]);
+    }
+    std::copy(x.row(a), x.row(a) + d, prefix);  // then out[r] = max(max_{j < r} x[j], out[r])
+    for (int r = a + 1; r < b - 1; ++r) {
+      const float* __restrict v = x.row(r);
+      float* __restrict o = out.row(r);
+      for (int j = 0; j < d; ++j) {
+        o[j] = std::max(prefix[j], o[j]);
+        prefix[j] = std::max(prefix[j], v[j]);
+      }
+    }
+    std::copy(prefix, prefix + d, out.row(b - 1));
+  }
+}
+
+/// A parameter by name, checked against its expected shape.
+const Param& get(const Params& p, const std::string& name, std::vector<long> shape) {
+  const auto it = p.find(name);
+  if (it == p.end()) throw std::invalid_argument("fast inference: the checkpoint has no parameter '" + name + "'");
+  if (it->second.shape != shape) throw std::invalid_argument("fast inference: parameter '" + name + "' has an unexpected shape");
+  return it->second;
+}
+
+/// MlpImpl (models.hpp) packed: Linear(in, hidden) -> norm -> ReLU -> Linear(hidden, out)
+/// [-> norm -> ReLU unless final]. `parts` splits the first layer's input columns.
+struct Block {
+  std::vector<Dense> l1;
+  Dense l2;
+  Norm n1, n2;
+  bool final = false;
+
+  static Block load(const Params& p, const std::string& name, const std::vector<int>& parts, int hidden, int out,
+                    NormKind norm, bool final) {
+    Block b;
+    int in = 0;
+    for (int w : parts) in += w;
+    const auto& w1 = get(p, name + ".l1.weight", {hidden, in});
+    const auto& b1 = get(p, name + ".l1.bias", {hidden});
+    int first = 0;
+    for (std::size_t i = 0; i < parts.size(); ++i) {
+      b.l1.push_back(pack(w1.data.data(), hidden, in, first, parts[i], i == 0 ? b1.data.data() : nullptr));
+      first += parts[i];
+    }
+    b.l2 = pack(get(p, name + ".l2.weight", {out, hidden}).data.data(), out, hidden, 0, hidden,
+                get(p, name + ".l2.bias", {out}).data.data());
+    b.final = final;
+    auto load_norm = [&](const std::string& n, int dim) {
+      Norm r;
+      r.kind = norm;
+      if (norm == NormKind::Graph) {
+        r.gamma = get(p, name + "." + n + ".gamma", {dim}).data;
+        r.beta = get(p, name + "." + n + ".beta", {dim}).data;
+        r.alpha = get(p, name + "." + n + ".alpha", {dim}).data;
+      } else if (norm == NormKind::Layer) {
+        r.gamma = get(p, name + "." + n + ".weight", {dim}).data;
+        r.beta = get(p, name + "." + n + ".bias", {dim}).data;
+      }
+      return r;
+    };
+    b.n1 = load_norm("n1", hidden);
+    if (!final) b.n2 = load_norm("n2", out);
+    return b;
+  }
+};
+
+/// One input part of a block: a matrix with a row per output row, or (broadcast) a row per
+/// cluster, added to every user row of that cluster.
+struct Part {
+  const Mat* m;
+  bool broadcast;
+};
+
+struct Work {
+  Mat h, tmp;
+  std::vector<float> scratch;
+};
+
+void apply_norm(Mat& m, const Norm& n, const Segments& s, Work& w) {
+  if (n.kind == NormKind::Graph) graph_norm(m, n, s, w.scratch);
+  else if (n.kind == NormKind::Layer) layer_norm(m, n);
+}
+
+/// out = block(parts) over `rows` rows (users, or clusters for a UAV block).
+void run(const Block& b, const std::vector<Part>& parts, int rows, const Segments& s, Mat& out, Work& w) {
+  const int hidden = b.l1.front().out;
+  w.h.resize(rows, hidden);
+  gemm(parts[0].m->v.data(), parts[0].m->ld, pad_rows(rows), b.l1[0], w.h.v.data(), w.h.ld, false);
+  for (std::size_t i = 1; i < parts.size(); ++i) {
+    const Mat& in = *parts[i].m;
+    if (!parts[i].broadcast) {
+      gemm(in.v.data(), in.ld, pad_rows(rows), b.l1[i], w.h.v.data(), w.h.ld, true);
+      continue;
+    }
+    w.tmp.resize(in.rows, hidden);
+    gemm(in.v.data(), in.ld, pad_rows(in.rows), b.l1[i], w.tmp.v.data(), w.tmp.ld, false);
+    for (int r = 0; r < rows; ++r) {
+      float* __restrict o = w.h.row(r);
+      const float* __restrict t = w.tmp.row(s.seg[static_cast<std::size_t>(r)]);
+      for (int j = 0; j < hidden; ++j) o[j] += t[j];
+    }
+  }
+  apply_norm(w.h, b.n1, s, w);
+  relu(w.h);
+  out.resize(rows, b.l2.out);
+  gemm(w.h.v.data(), w.h.ld, pad_rows(rows), b.l2, out.v.data(), out.ld, false);
+  if (!b.final) {
+    apply_norm(out, b.n2, s, w);
+    relu(out);
+  }
+}
+
+}  // namespace
+
+struct Model::Impl {
+  std::string kind;  // gnn | deepsets | mspointnet
+  bool structured = false;
+  int antennas = 0;
+  float feature_scale = 1.0f;
+  // gnn
+  Block user_enc, uav_enc, out;
+  std::vector<Block> user_msg, uav_msg, user_upd, uav_upd;
+  // deepsets / mspointnet
+  Block phi1, phi2, head1, head2;
+  Dense conv, mix, proj;  // mspointnet: the three convolutions as one map, 1x1 mix, projection
+  int channels = 0;       // mspointnet: 3c
+
+  /// Per-user head outputs for the batch described by x (features) and s.
+  void head(const Mat& x, const Segments& s, Mat& y, Work& w) const;
+};
+
+namespace {
+
+struct Buffers {
+  Work w;
+  Mat x, u, a, mu, ma, mo, mean, u2, a2, y, pooled;
+};
+
+Buffers& buffers() {
+  thread_local Buffers b;
+  return b;
+}
+
+}  // namespace
+
+void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
+  Buffers& B = buffers();
+  const int U = s.users(), C = s.clusters();
+  if (kind == "gnn") {
+    run(user_enc, {{&x, false}}, U, s, B.u, w);
+    segment_mean(B.u, s, B.mean);
+    run(uav_enc, {{&B.mean, false}}, C, s, B.a, w);
+    for (std::size_t l = 0; l < user_msg.size(); ++l) {
+      run(user_msg[l], {{&B.u, false}}, U, s, B.mu, w);
+      run(uav_msg[l], {{&B.a, false}}, C, s, B.ma, w);
+      max_over_others(B.mu, s, B.mo, w.scratch);
+      run(user_upd[l], {{&B.u, false}, {&B.ma, true}, {&B.mo, false}}, U, s, B.u2, w);
+      segment_mean(B.mu, s, B.mean);
+      run(uav_upd[l], {{&B.a, false}, {&B.mean, false}}, C, s, B.a2, w);
+      std::swap(B.u, B.u2);
+      std::swap(B.a, B.a2);
+    }
+    run(out, {{&B.u, false}}, U, s, y, w);
+    return;
+  }
+  const Mat* feature = &B.u;
+  if (kind == "deepsets") {
+    run(phi1, {{&x, false}}, U, s, B.u2, w);
+    run(phi2, {{&B.u2, false}}, U, s, B.u, w);
+  } else {  // mspointnet: x -> [U, L * 3c] (antenna-major) -> mix per antenna -> projection
+    B.u2.resize(U, antennas * channels);
+    gemm(x.v.data(), x.ld, pad_rows(U), conv, B.u2.v.data(), B.u2.ld, false);
+    relu(B.u2);
+    // Each user row holds L antenna rows of 3c channels: the 1x1 mix is one GEMM over U * L rows.
+    Mat per_antenna;
+    per_antenna.resize(U * antennas, channels);
+    for (int r = 0; r < U; ++r)
+      for (int l = 0; l < antennas; ++l)
+        std::copy(B.u2.row(r) + l * channels, B.u2.row(r) + (l + 1) * channels, per_antenna.row(r * antennas + l));
+    B.mo.resize(U * antennas, channels);
+    gemm(per_antenna.v.data(), per_antenna.ld, pad_rows(U * antennas), mix, B.mo.v.data(), B.mo.ld, false);
+    relu(B.mo);
+    // Back to one row per user: [U, L * mix.out_pad], the projection's input order.
+    B.mu.resize(U, antennas * mix.out_pad);
+    for (int r = 0; r < U; ++r)
+      for (int l = 0; l < antennas; ++l)
+        std::copy(B.mo.row(r * antennas + l), B.mo.row(r * antennas + l) + mix.out_pad, B.mu.row(r) + l * mix.out_pad);
+    B.u.resize(U, proj.out);
+    gemm(B.mu.v.data(), B.mu.ld, pad_rows(U), proj, B.u.v.data(), B.u.ld, false);
+    relu(B.u);
+  }
+  segment_max(*feature, s, B.pooled);
+  run(head1, {{feature, false}, {&B.pooled, true}}, U, s, B.a, w);
+  run(head2, {{&B.a, false}}, U, s, y, w);
+}
+
+Model::Model(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Model::~Model() = default;
+
+std::unique_ptr<Model> Model::build(const ModelInfo& info, const Params& p) {
+  auto m = std::make_unique<Impl>();
+  m->kind = info.model;
+  m->structured = info.readout == "structured";
+  m->antennas = info.antennas;
+  m->feature_scale = static_cast<float>(info.feature_scale);
+  const int L = info.antennas, d = info.hidden, out = m->structured ? 2 : 2 * L;
+  if (info.model == "gnn") {
+    m->user_enc = Block::load(p, "user_enc", {2 * L}, d, d, NormKind::Graph, false);
+    m->uav_enc = Block::load(p, "uav_enc", {d}, d, d, NormKind::Layer, false);
+    for (int l = 0; l < info.layers; ++l) {
+      const std::string i = "." + std::to_string(l);
+      m->user_msg.push_back(Block::load(p, "user_msg" + i, {d}, d, d, NormKind::Graph, false));
+      m->uav_msg.push_back(Block::load(p, "uav_msg" + i, {d}, d, d, NormKind::Layer, false));
+      m->user_upd.push_back(Block::load(p, "user_upd" + i, {d, d, d}, d, d, NormKind::Graph, false));
+      m->uav_upd.push_back(Block::load(p, "uav_upd" + i, {d, d}, d, d, NormKind::Layer, false));
+    }
+    m->out = Block::load(p, "out", {d}, d, out, NormKind::Graph, true);
+  } else if (info.model == "deepsets") {
+    const int w = 2 * d;
+    m->phi1 = Block::load(p, "phi1", {2 * L}, w, w, NormKind::None, false);
+    m->phi2 = Block::load(p, "phi2", {w}, w, w, NormKind::None, false);
+    m->head1 = Block::load(p, "head1", {w, w}, w, w, NormKind::None, false);
+    m->head2 = Block::load(p, "head2", {w}, w, out, NormKind::None, true);
+  } else if (info.model == "mspointnet") {
+    const int c = d / 2, w = 2 * d;
+    m->channels = 3 * c;
+    // Conv1d k = 1, 3, 5 (padding 0, 1, 2) over the antenna axis of s = [Re h; Im h] as one dense
+    // map [2L -> L * 3c], output index l * 3c + (block * c + o).
+    std::vector<float> conv_w(static_cast<std::size_t>(L * 3 * c) * static_cast<std::size_t>(2 * L), 0.0f);
+    std::vector<float> conv_b(static_cast<std::size_t>(L * 3 * c), 0.0f);
+    const int kernels[3] = {1, 3, 5};
+    for (int blk = 0; blk < 3; ++blk) {
+      const int k = kernels[blk], pad = k / 2;
+      const std::string n = "conv" + std::to_string(k);
+      const auto& W = get(p, n + ".weight", {c, 2, k});
+      const auto& bias = get(p, n + ".bias", {c});
+      for (int l = 0; l < L; ++l)
+        for (int o = 0; o < c; ++o) {
+          const int row = l * 3 * c + blk * c + o;
+          conv_b[static_cast<std::size_t>(row)] = bias.data[static_cast<std::size_t>(o)];
+          for (int ch = 0; ch < 2; ++ch)
+            for (int t = 0; t < k; ++t) {
+              const int src = l + t - pad;
+              if (src < 0 || src >= L) continue;
+              conv_w[static_cast<std::size_t>(row) * static_cast<std::size_t>(2 * L) + static_cast<std::size_t>(ch * L + src)] =
+                  W.data[static_cast<std::size_t>((o * 2 + ch) * k + t)];
+            }
+        }
+    }
+    m->conv = pack(conv_w.data(), L * 3 * c, 2 * L, 0, 2 * L, conv_b.data());
+    const auto& mw = get(p, "mix.weight", {3 * c, 3 * c, 1});
+    m->mix = pack(mw.data.data(), 3 * c, 3 * c, 0, 3 * c, get(p, "mix.bias", {3 * c}).data.data());
+    // Projection: torch flattens [3c, L] channel-major (ch * L + l); our rows are l * mix.out_pad + ch.
+    const auto& pw = get(p, "proj.weight", {w, 3 * c * L});
+    const int in = L * m->mix.out_pad;
+    std::vector<float> proj_w(static_cast<std::size_t>(w) * static_cast<std::size_t>(in), 0.0f);
+    for (int o = 0; o < w; ++o)
+      for (int ch = 0; ch < 3 * c; ++ch)
+        for (int l = 0; l < L; ++l)
+          proj_w[static_cast<std::size_t>(o) * static_cast<std::size_t>(in) + static_cast<std::size_t>(l * m->mix.out_pad + ch)] =
+              pw.data[static_cast<std::size_t>(o) * static_cast<std::size_t>(3 * c * L) + static_cast<std::size_t>(ch * L + l)];
+    m->proj = pack(proj_w.data(), w, in, 0, in, get(p, "proj.bias", {w}).data.data());
+    m->head1 = Block::load(p, "head1", {w, w}, w, w, NormKind::None, false);
+    m->head2 = Block::load(p, "head2", {w}, w, out, NormKind::None, true);
+  } else {
+    return nullptr;
+  }
+  return std::unique_ptr<Model>(new Model(std::move(m)));
+}
+
+std::vector<MatrixXcd> Model::forward(const std::vector<const Cluster*>& clusters) const {
+  const Impl& m = *impl_;
+  const int L = m.antennas;
+  Segments s;
+  s.start.assign(1, 0);
+  for (const Cluster* c : clusters) {
+    if (c->size() == 0 || c->antennas() != L) throw std::logic_error("fast::Model::forward: empty cluster or antenna mismatch");
+    for (int k = 0; k < c->size(); ++k) s.seg.push_back(static_cast<int>(s.start.size()) - 1);
+    s.start.push_back(s.start.back() + c->size());
+  }
+  const int U = s.users();
+  Buffers& B = buffers();
+  // Features x = [Re h, Im h] * feature_scale with h = conj(row of G) (eq:node_feature), in
+  // float as the LibTorch batch (its cast happens after the scaling, in double).
+  B.x.resize(U, 2 * L);
+  int r = 0;
+  for (const Cluster* c : clusters)
+    for (int k = 0; k < c->size(); ++k, ++r) {
+      float* x = B.x.row(r);
+      for (int l = 0; l < L; ++l) {
+        x[l] = static_cast<float>(c->G(k, l).real() * static_cast<double>(m.feature_scale));
+        x[L + l] = static_cast<float>(-c->G(k, l).imag() * static_cast<double>(m.feature_scale));
+      }
+    }
+  m.head(B.x, s, B.y, B.w);
+
+  std::vector<MatrixXcd> out;
+  out.reserve(clusters.size());
+  for (int c = 0; c < s.clusters(); ++c) {
+    const int a = s.start[static_cast<std::size_t>(c)], K = s.start[static_cast<std::size_t>(c) + 1] - a;
+    MatrixXcd W(L, K);
+    if (!m.structured) {
+      for (int k = 0; k < K; ++k)
+        for (int l = 0; l < L; ++l) W(l, k) = cdouble(B.y.row(a + k)[l], B.y.row(a + k)[L + l]);
+      out.push_back(std::move(W));
+      continue;
+    }
+    // Structured readout (models.hpp, structured_beams), in double: v_k = (I + sum_j lambda_j
+    // h_j h_j^H)^{-1} h_k, w_k = sqrt(share_k) v_k / ||v_k||, share = softmax over the cluster.
+    MatrixXcd H(L, K);
+    for (int k = 0; k < K; ++k)
+      for (int l = 0; l < L; ++l) H(l, k) = cdouble(B.x.row(a + k)[l], B.x.row(a + k)[L + l]);
+    MatrixXcd A = MatrixXcd::Identity(L, L);
+    double top = -std::numeric_limits<double>::infinity();
+    for (int k = 0; k < K; ++k) {
+      const double lambda = std::exp(std::clamp(static_cast<double>(B.y.row(a + k)[0]), -30.0, 30.0));
+      A.noalias() += lambda * H.col(k) * H.col(k).adjoint();
+      top = std::max(top, static_cast<double>(B.y.row(a + k)[1]));
+    }
+    const MatrixXcd V = A.llt().solve(H);
+    double total = 0.0;
+    VectorXd e(K);
+    for (int k = 0; k < K; ++k) total += (e(k) = std::exp(static_cast<double>(B.y.row(a + k)[1]) - top));
+    for (int k = 0; k < K; ++k) W.col(k) = V.col(k) / (V.col(k).norm() + 1e-30) * std::sqrt(e(k) / total);
+    out.push_back(std::move(W));
+  }
+  return out;
+}
+
+}  // namespace skyloop::nn::fast

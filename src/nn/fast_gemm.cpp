@@ -80,7 +80,7 @@ Dense pack(const float* w, int out, int in_total, int first, int count, const fl
 }
 
 void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, bool accumulate) {
-  if (rows % kRowBlock != 0 || ldc < w.out_pad) throw std::logic_error("fast::gemm: unpadded buffers");
+  if (ldc < w.out_pad) throw std::logic_error("fast::gemm: unpadded buffers");
   chosen().fn(A, lda, rows, w.wt.data(), w.in, w.out_pad, w.bias.empty() ? nullptr : w.bias.data(), C, ldc, accumulate);
 }
 

@@ -9,10 +9,8 @@
 
 namespace skyloop::nn::fast {
 
-constexpr int kRowBlock = 6;    // rows per micro-kernel: activation buffers pad rows to a multiple
 constexpr int kColBlock = 32;   // weights pad their output width to a multiple of this
 
-inline int pad_rows(int rows) { return (rows + kRowBlock - 1) / kRowBlock * kRowBlock; }
 inline int pad_cols(int cols) { return (cols + kColBlock - 1) / kColBlock * kColBlock; }
 
 /// A linear map packed for the kernel: W^T as [in x out_pad] row-major (columns >= out are
@@ -26,8 +24,8 @@ struct Dense {
 /// (torch's Linear layout) with an optional bias [out].
 Dense pack(const float* w, int out, int in_total, int first, int count, const float* bias);
 
-/// C[i, :] (+)= A[i, :in] W^T (+ bias) for i < rows, rows a multiple of kRowBlock; A has row
-/// stride lda, C row stride ldc >= w.out_pad (columns out..out_pad are written too).
+/// C[i, :] (+)= A[i, :in] W^T (+ bias) for i < rows (any count; in blocks of 6 rows);
+/// A has row stride lda, C row stride ldc >= w.out_pad (columns out..out_pad are written too).
 /// accumulate = false overwrites C (with the bias, if any); true adds to it.
 void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, bool accumulate);
 

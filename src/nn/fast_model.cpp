@@ -11,13 +11,22 @@ namespace skyloop::nn::fast {
 
 namespace {
 
-/// Row-major float activations; rows padded to the kernel's row block, columns to its width.
+// The element-wise passes (norms, pooling, ReLU) in SSE2, AVX2 and AVX-512 variants chosen by the
+// loader. They are vertical operations (no reassociation, no contraction: this file is compiled
+// with -ffp-contract=off), so every variant gives the same bits.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define SKYLOOP_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define SKYLOOP_CLONES
+#endif
+
+/// Row-major float activations; columns padded to the kernel's width.
 struct Mat {
   int rows = 0, cols = 0, ld = 0;
   std::vector<float> v;
   void resize(int r, int c) {
     rows = r, cols = c, ld = pad_cols(c);
-    const std::size_t need = static_cast<std::size_t>(pad_rows(r)) * static_cast<std::size_t>(ld);
+    const std::size_t need = static_cast<std::size_t>(r) * static_cast<std::size_t>(ld);
     if (v.size() < need) v.resize(need, 0.0f);
   }
   float* row(int r) { return v.data() + static_cast<std::size_t>(r) * static_cast<std::size_t>(ld); }
@@ -40,7 +49,7 @@ struct Norm {
   float eps = 1e-5f;
 };
 
-void relu(Mat& m) {
+SKYLOOP_CLONES void relu(Mat& m) {
   for (int r = 0; r < m.rows; ++r) {
     float* __restrict x = m.row(r);
     for (int c = 0; c < m.cols; ++c) x[c] = std::max(x[c], 0.0f);
@@ -50,7 +59,7 @@ void relu(Mat& m) {
 /// LayerNorm over each row's columns (biased variance), as torch::nn::LayerNorm. The row sums
 /// run over 8 interleaved partial sums (vectorisable without reassociating across the lanes'
 /// own order).
-void layer_norm(Mat& m, const Norm& n) {
+SKYLOOP_CLONES void layer_norm(Mat& m, const Norm& n) {
   const int d = m.cols;
   const float* __restrict gamma = n.gamma.data();
   const float* __restrict beta = n.beta.data();
@@ -77,7 +86,7 @@ void layer_norm(Mat& m, const Norm& n) {
 }
 
 /// GraphNorm over each cluster's user rows, as GraphNormImpl (models.cpp).
-void graph_norm(Mat& m, const Norm& n, const Segments& s, std::vector<float>& tmp) {
+SKYLOOP_CLONES void graph_norm(Mat& m, const Norm& n, const Segments& s, std::vector<float>& tmp) {
   const int d = m.cols;
   tmp.assign(static_cast<std::size_t>(2 * d), 0.0f);
   float* __restrict mean = tmp.data();
@@ -110,7 +119,7 @@ void graph_norm(Mat& m, const Norm& n, const Segments& s, std::vector<float>& tm
 }
 
 /// Per-cluster mean of user rows into a [C x d] matrix.
-void segment_mean(const Mat& x, const Segments& s, Mat& out) {
+SKYLOOP_CLONES void segment_mean(const Mat& x, const Segments& s, Mat& out) {
   out.resize(s.clusters(), x.cols);
   for (int c = 0; c < s.clusters(); ++c) {
     float* __restrict o = out.row(c);
@@ -126,7 +135,7 @@ void segment_mean(const Mat& x, const Segments& s, Mat& out) {
 }
 
 /// Per-cluster max of user rows into a [C x d] matrix.
-void segment_max(const Mat& x, const Segments& s, Mat& out) {
+SKYLOOP_CLONES void segment_max(const Mat& x, const Segments& s, Mat& out) {
   out.resize(s.clusters(), x.cols);
   for (int c = 0; c < s.clusters(); ++c) {
     float* __restrict o = out.row(c);
@@ -140,7 +149,7 @@ void segment_max(const Mat& x, const Segments& s, Mat& out) {
 
 /// For each user, the max over the other users of its cluster (a suffix max, then a running
 /// prefix max: O(K d), branch-free); zeros for a single-user cluster.
-void max_over_others(const Mat& x, const Segments& s, Mat& out, std::vector<float>& tmp) {
+SKYLOOP_CLONES void max_over_others(const Mat& x, const Segments& s, Mat& out, std::vector<float>& tmp) {
   const int d = x.cols;
   out.resize(x.rows, d);
   tmp.resize(static_cast<std::size_t>(d));
@@ -242,15 +251,15 @@ void apply_norm(Mat& m, const Norm& n, const Segments& s, Work& w) {
 void run(const Block& b, const std::vector<Part>& parts, int rows, const Segments& s, Mat& out, Work& w) {
   const int hidden = b.l1.front().out;
   w.h.resize(rows, hidden);
-  gemm(parts[0].m->v.data(), parts[0].m->ld, pad_rows(rows), b.l1[0], w.h.v.data(), w.h.ld, false);
+  gemm(parts[0].m->v.data(), parts[0].m->ld, rows, b.l1[0], w.h.v.data(), w.h.ld, false);
   for (std::size_t i = 1; i < parts.size(); ++i) {
     const Mat& in = *parts[i].m;
     if (!parts[i].broadcast) {
-      gemm(in.v.data(), in.ld, pad_rows(rows), b.l1[i], w.h.v.data(), w.h.ld, true);
+      gemm(in.v.data(), in.ld, rows, b.l1[i], w.h.v.data(), w.h.ld, true);
       continue;
     }
     w.tmp.resize(in.rows, hidden);
-    gemm(in.v.data(), in.ld, pad_rows(in.rows), b.l1[i], w.tmp.v.data(), w.tmp.ld, false);
+    gemm(in.v.data(), in.ld, in.rows, b.l1[i], w.tmp.v.data(), w.tmp.ld, false);
     for (int r = 0; r < rows; ++r) {
       float* __restrict o = w.h.row(r);
       const float* __restrict t = w.tmp.row(s.seg[static_cast<std::size_t>(r)]);
@@ -260,7 +269,7 @@ void run(const Block& b, const std::vector<Part>& parts, int rows, const Segment
   apply_norm(w.h, b.n1, s, w);
   relu(w.h);
   out.resize(rows, b.l2.out);
-  gemm(w.h.v.data(), w.h.ld, pad_rows(rows), b.l2, out.v.data(), out.ld, false);
+  gemm(w.h.v.data(), w.h.ld, rows, b.l2, out.v.data(), out.ld, false);
   if (!b.final) {
     apply_norm(out, b.n2, s, w);
     relu(out);
@@ -326,7 +335,7 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
     run(phi2, {{&B.u2, false}}, U, s, B.u, w);
   } else {  // mspointnet: x -> [U, L * 3c] (antenna-major) -> mix per antenna -> projection
     B.u2.resize(U, antennas * channels);
-    gemm(x.v.data(), x.ld, pad_rows(U), conv, B.u2.v.data(), B.u2.ld, false);
+    gemm(x.v.data(), x.ld, U, conv, B.u2.v.data(), B.u2.ld, false);
     relu(B.u2);
     // Each user row holds L antenna rows of 3c channels: the 1x1 mix is one GEMM over U * L rows.
     Mat per_antenna;
@@ -335,7 +344,7 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
       for (int l = 0; l < antennas; ++l)
         std::copy(B.u2.row(r) + l * channels, B.u2.row(r) + (l + 1) * channels, per_antenna.row(r * antennas + l));
     B.mo.resize(U * antennas, channels);
-    gemm(per_antenna.v.data(), per_antenna.ld, pad_rows(U * antennas), mix, B.mo.v.data(), B.mo.ld, false);
+    gemm(per_antenna.v.data(), per_antenna.ld, U * antennas, mix, B.mo.v.data(), B.mo.ld, false);
     relu(B.mo);
     // Back to one row per user: [U, L * mix.out_pad], the projection's input order.
     B.mu.resize(U, antennas * mix.out_pad);
@@ -343,7 +352,7 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
       for (int l = 0; l < antennas; ++l)
         std::copy(B.mo.row(r * antennas + l), B.mo.row(r * antennas + l) + mix.out_pad, B.mu.row(r) + l * mix.out_pad);
     B.u.resize(U, proj.out);
-    gemm(B.mu.v.data(), B.mu.ld, pad_rows(U), proj, B.u.v.data(), B.u.ld, false);
+    gemm(B.mu.v.data(), B.mu.ld, U, proj, B.u.v.data(), B.u.ld, false);
     relu(B.u);
   }
   segment_max(*feature, s, B.pooled);

@@ -88,6 +88,28 @@ static void BM_VecEnvStep(benchmark::State& state) {
 }
 BENCHMARK(BM_VecEnvStep)->Arg(16)->Arg(64)->ArgName("envs")->Unit(benchmark::kMicrosecond);
 
+// Vector environment with a cold cache: new users at every reset (env.resample_users), so every
+// episode starts with an empty oracle; the misses of all M environments go to the GNN in one
+// batched call per step (user drawing and oracle construction at reset are timed too).
+static void BM_VecEnvStepCold(benchmark::State& state) {
+  Config cfg;
+  cfg.env.resample_users = true;
+  const int m = static_cast<int>(state.range(0));
+  VecEnv vec(cfg, oracle_beamformer("gnn"), m, 5);
+  const auto actions = random_actions();
+  std::size_t i = 0;
+  std::uint64_t hits = 0, misses = 0;
+  for (auto _ : state) {
+    std::vector<std::vector<int>> a(static_cast<std::size_t>(m));
+    for (auto& x : a) x = actions[i++ % actions.size()];
+    benchmark::DoNotOptimize(vec.step(a));
+  }
+  for (int e = 0; e < m; ++e) hits += vec.env(e).oracle().stats().hits, misses += vec.env(e).oracle().stats().misses;
+  state.SetItemsProcessed(state.iterations() * m);
+  state.SetLabel("hit_rate(current episodes)=" + std::to_string(static_cast<double>(hits) / static_cast<double>(hits + misses)));
+}
+BENCHMARK(BM_VecEnvStepCold)->Arg(1)->Arg(8)->Arg(16)->Arg(64)->ArgName("envs")->Unit(benchmark::kMicrosecond);
+
 // The exact optimum on the paper scenario (K = 12, users seed 3), oracle cold at the start.
 static void BM_OptimalPaper(benchmark::State& state) {
   const Config cfg;

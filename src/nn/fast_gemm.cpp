@@ -8,28 +8,28 @@ namespace skyloop::nn::fast {
 
 namespace {
 
-#define SKYLOOP_GEMM_NAME gemm_default
+#define SKYLOOP_GEMM_NS generic
 #define SKYLOOP_GEMM_TARGET
 #define SKYLOOP_GEMM_V 4
 #include "fast_gemm_kernel.inl"
-#undef SKYLOOP_GEMM_NAME
+#undef SKYLOOP_GEMM_NS
 #undef SKYLOOP_GEMM_TARGET
 #undef SKYLOOP_GEMM_V
 
 #if defined(__x86_64__) && defined(__GNUC__)
-#define SKYLOOP_GEMM_NAME gemm_avx2
+#define SKYLOOP_GEMM_NS avx2
 #define SKYLOOP_GEMM_TARGET __attribute__((target("avx2,fma")))
 #define SKYLOOP_GEMM_V 8
 #include "fast_gemm_kernel.inl"
-#undef SKYLOOP_GEMM_NAME
+#undef SKYLOOP_GEMM_NS
 #undef SKYLOOP_GEMM_TARGET
 #undef SKYLOOP_GEMM_V
 
-#define SKYLOOP_GEMM_NAME gemm_avx512
+#define SKYLOOP_GEMM_NS avx512
 #define SKYLOOP_GEMM_TARGET __attribute__((target("avx512f,avx512vl,avx2,fma")))
 #define SKYLOOP_GEMM_V 16
 #include "fast_gemm_kernel.inl"
-#undef SKYLOOP_GEMM_NAME
+#undef SKYLOOP_GEMM_NS
 #undef SKYLOOP_GEMM_TARGET
 #undef SKYLOOP_GEMM_V
 #endif
@@ -48,11 +48,11 @@ Choice choose() {
   __builtin_cpu_init();
   const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
   const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
-  if (cap == "default") return {gemm_default, "default"};
-  if (avx512 && cap != "avx2") return {gemm_avx512, "avx512"};
-  if (avx2) return {gemm_avx2, "avx2"};
+  if (cap == "default") return {generic::gemm, "default"};
+  if (avx512 && cap != "avx2") return {avx512::gemm, "avx512"};
+  if (avx2) return {avx2::gemm, "avx2"};
 #endif
-  return {gemm_default, "default"};
+  return {generic::gemm, "default"};
 }
 
 const Choice& chosen() {

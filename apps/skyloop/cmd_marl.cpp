@@ -63,7 +63,7 @@ void add_marl_commands(CLI::App& app, Action& action) {
   eval->add_option("--policy", v->policy, "run directory (or policy.pt) of `skyloop train`")->required();
   eval->add_option("--users", v->users, "number of users K (default: as trained)");
   eval->add_option("--seed", v->seed, "users seed (default: the training scenario's marl.users_seed)");
-  eval->add_option("--planner", v->planners, "also run these planners on the same users: random, greedy, optimal");
+  eval->add_option("--planner", v->planners, "also run these planners on the same users: random, greedy, seqgreedy, optimal");
   eval->add_option("--out", v->out, "directory for trajectory.csv, rates.csv, summary.csv, users.csv, config.toml");
   add_config_options(eval, v->config);
   eval->final_callback([&action, v] {
@@ -78,7 +78,7 @@ void add_marl_commands(CLI::App& app, Action& action) {
       if (!over.path.empty()) apply_toml(cfg, read_file(over.path, "config file"), over.path);
       for (const auto& s : over.sets) apply_override(cfg, s);
       for (const auto& s : extra) apply_override(cfg, s);
-      validate(cfg);
+      finalise(cfg);
       PlanOptions opt;
       if (!v->planners.empty()) opt.planners = split_methods(v->planners, "--planner");
       opt.seed = v->seed.empty() ? cfg.marl.users_seed : parse_seed("--seed", v->seed);

@@ -342,17 +342,14 @@ py::dict plan(const Config& cfg, const std::string& planner, std::uint64_t users
   auto bf = builtin_beamformers().create(cfg.env.oracle, cfg);
   const Positions users = users_xy ? positions_from(Array<double>::ensure(*users_xy), cfg, "users")
                                    : make_users(cfg, cfg.scenario.users, users_seed);
-  std::unique_ptr<Planner> p;
   // The random planner's stream: as `skyloop plan --seed S` (derive_seed(S, "RAND")) unless given.
-  if (planner == "random") p = std::make_unique<RandomPlanner>(planner_seed ? *planner_seed : derive_seed(users_seed, 0x52414e44ULL));
-  else if (planner == "greedy") p = std::make_unique<GreedyPlanner>();
-  else if (planner == "optimal") p = std::make_unique<OptimalPlanner>();
+  std::unique_ptr<Planner> p = make_planner(planner, planner_seed ? *planner_seed : derive_seed(users_seed, 0x52414e44ULL));
 #ifdef SKYLOOP_HAS_TORCH
-  else if (!planner.empty() && (std::filesystem::is_directory(planner) || std::filesystem::exists(planner)))
+  if (!p && !planner.empty() && (std::filesystem::is_directory(planner) || std::filesystem::exists(planner)))
     p = MarlPolicy::load(planner);
 #endif
-  else
-    throw InputError("planner '" + planner + "' is unknown: allowed random, greedy, optimal, or a trained policy directory");
+  if (!p)
+    throw InputError("planner '" + planner + "' is unknown: allowed " + kPlannerNames + ", or a trained policy directory");
   EpisodeRecord rec;
   {
     py::gil_scoped_release nogil;

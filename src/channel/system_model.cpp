@@ -1,3 +1,4 @@
+#include <algorithm>
 #include "skyloop/channel/system_model.hpp"
 
 #include <cmath>
@@ -19,7 +20,8 @@ SystemModel::SystemModel(const Config& cfg)
       noise_(cfg.channel.noise_w()),
       area_x_(cfg.scenario.area_x_m),
       area_y_(cfg.scenario.area_y_m),
-      spectrum_(parse_spectrum(cfg.channel.spectrum)) {}
+      spectrum_(parse_spectrum(cfg.channel.spectrum)),
+      scenario_(cfg.scenario) {}
 
 double SystemModel::distance(double ux, double uy, double x, double y) const {
   const double dx = ux - x, dy = uy - y;
@@ -43,25 +45,76 @@ VectorXcd SystemModel::channel(double ux, double uy, double x, double y) const {
   return std::sqrt(path_loss(d)) * steering(altitude_ / d);
 }
 
-Association SystemModel::associate(const Snapshot& s) const {
-  const auto n_uav = static_cast<int>(s.uavs.rows());
-  const auto n_user = static_cast<int>(s.users.rows());
+Association SystemModel::associate(const Snapshot& s) const { return associate(s.uavs, s.users); }
+
+Association SystemModel::associate(const Positions& uavs, const Positions& users) const {
+  const auto n_uav = static_cast<int>(uavs.rows());
+  const auto n_user = static_cast<int>(users.rows());
   Association a;
-  a.serving.assign(n_user, -1);
-  a.users.assign(n_uav, {});
+  a.serving.assign(static_cast<std::size_t>(n_user), -1);
+  a.users.assign(static_cast<std::size_t>(n_uav), {});
+  // Nearest UAV by 3-D distance, lowest index on ties, served if within R_c. Every distance is
+  // the same distance() call on both paths, so both give the same association bit for bit.
+  auto serve = [&](int k, int best, double best_d) {
+    if (best >= 0 && best_d <= coverage_) {
+      a.serving[static_cast<std::size_t>(k)] = best;
+      a.users[static_cast<std::size_t>(best)].push_back(k);
+    }
+  };
+  const double reach2 = coverage_ * coverage_ - altitude_ * altitude_;  // horizontal reach squared
+  if (n_uav <= kAssociationGridFrom || reach2 <= 0) {
+    for (int k = 0; k < n_user; ++k) {
+      int best = -1;
+      double best_d = std::numeric_limits<double>::infinity();
+      for (int n = 0; n < n_uav; ++n) {
+        const double d = distance(uavs(n, 0), uavs(n, 1), users(k, 0), users(k, 1));
+        if (d < best_d) best_d = d, best = n;
+      }
+      serve(k, best, best_d);
+    }
+    return a;
+  }
+  // Spatial index: UAVs bucketed on a grid of cells at least the horizontal reach wide. A user's
+  // nearest UAV, if it is within R_c at all, lies in the 3 x 3 cells around the user's cell; if
+  // none there is within R_c, no UAV is (the global nearest is then unserved on both paths).
+  const double cell = std::sqrt(reach2) * (1 + 1e-9);
+  double x0 = uavs(0, 0), y0 = uavs(0, 1), x1 = x0, y1 = y0;
+  for (int n = 1; n < n_uav; ++n)
+    x0 = std::min(x0, uavs(n, 0)), x1 = std::max(x1, uavs(n, 0)), y0 = std::min(y0, uavs(n, 1)), y1 = std::max(y1, uavs(n, 1));
+  const int cx = static_cast<int>((x1 - x0) / cell) + 1, cy = static_cast<int>((y1 - y0) / cell) + 1;
+  std::vector<int> head(static_cast<std::size_t>(cx) * static_cast<std::size_t>(cy) + 1, 0), order(static_cast<std::size_t>(n_uav));
+  auto cell_of = [&](double x, double y, int& ix, int& iy) {
+    ix = static_cast<int>(std::floor((x - x0) / cell)), iy = static_cast<int>(std::floor((y - y0) / cell));
+  };
+  std::vector<int> cell_id(static_cast<std::size_t>(n_uav));
+  for (int n = 0; n < n_uav; ++n) {
+    int ix, iy;
+    cell_of(uavs(n, 0), uavs(n, 1), ix, iy);
+    cell_id[static_cast<std::size_t>(n)] = iy * cx + ix;
+    ++head[static_cast<std::size_t>(iy * cx + ix) + 1];
+  }
+  for (std::size_t c = 1; c < head.size(); ++c) head[c] += head[c - 1];
+  {
+    std::vector<int> fill(head.begin(), head.end() - 1);
+    for (int n = 0; n < n_uav; ++n) order[static_cast<std::size_t>(fill[static_cast<std::size_t>(cell_id[static_cast<std::size_t>(n)])]++)] = n;
+  }
   for (int k = 0; k < n_user; ++k) {
+    int ix, iy;
+    cell_of(users(k, 0), users(k, 1), ix, iy);
     int best = -1;
     double best_d = std::numeric_limits<double>::infinity();
-    for (int n = 0; n < n_uav; ++n) {
-      const double d = distance(s.uavs(n, 0), s.uavs(n, 1), s.users(k, 0), s.users(k, 1));
-      if (d < best_d) best_d = d, best = n;
-    }
-    if (best >= 0 && best_d <= coverage_) {
-      a.serving[k] = best;
-      a.users[best].push_back(k);
-    }
+    for (int jy = std::max(0, iy - 1); jy <= std::min(cy - 1, iy + 1); ++jy)
+      for (int jx = std::max(0, ix - 1); jx <= std::min(cx - 1, ix + 1); ++jx) {
+        const auto c = static_cast<std::size_t>(jy * cx + jx);
+        for (int i = head[c]; i < head[c + 1]; ++i) {
+          const int n = order[static_cast<std::size_t>(i)];
+          const double d = distance(uavs(n, 0), uavs(n, 1), users(k, 0), users(k, 1));
+          if (d < best_d || (d == best_d && n < best)) best_d = d, best = n;
+        }
+      }
+    serve(k, best, best_d);
   }
-  return a;
+  return a;  // users were visited in ascending order: each cluster's list is ascending
 }
 
 Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions& users_xy,
@@ -119,13 +172,33 @@ Network SystemModel::network(const Snapshot& s) const { return network(s, associ
 
 std::vector<Cluster> SystemModel::clusters(const Snapshot& s) const { return clusters(s, associate(s)); }
 
+Positions draw_users(const ScenarioConfig& s, int users, Rng& rng) {
+  Positions p(users, 2);
+  if (s.user_layout != "hotspot") {
+    for (int k = 0; k < users; ++k) p(k, 0) = rng.uniform(0, s.area_x_m), p(k, 1) = rng.uniform(0, s.area_y_m);
+    return p;
+  }
+  Positions centre(s.hotspots, 2);
+  for (int h = 0; h < s.hotspots; ++h) centre(h, 0) = rng.uniform(0, s.area_x_m), centre(h, 1) = rng.uniform(0, s.area_y_m);
+  for (int k = 0; k < users; ++k) {
+    if (rng.uniform() < s.hotspot_fraction) {
+      const auto h = static_cast<Eigen::Index>(rng.below(static_cast<std::uint64_t>(s.hotspots)));
+      const double x = centre(h, 0) + s.hotspot_radius_m * rng.normal();
+      const double y = centre(h, 1) + s.hotspot_radius_m * rng.normal();
+      p(k, 0) = std::clamp(x, 0.0, s.area_x_m), p(k, 1) = std::clamp(y, 0.0, s.area_y_m);
+    } else {
+      p(k, 0) = rng.uniform(0, s.area_x_m), p(k, 1) = rng.uniform(0, s.area_y_m);
+    }
+  }
+  return p;
+}
+
 Snapshot SystemModel::random_snapshot(int uavs, int users, std::uint64_t seed) const {
   Rng rng(seed);
   Snapshot s;
   s.uavs.resize(uavs, 2);
-  s.users.resize(users, 2);
   for (int n = 0; n < uavs; ++n) s.uavs(n, 0) = rng.uniform(0, area_x_), s.uavs(n, 1) = rng.uniform(0, area_y_);
-  for (int k = 0; k < users; ++k) s.users(k, 0) = rng.uniform(0, area_x_), s.users(k, 1) = rng.uniform(0, area_y_);
+  s.users = draw_users(scenario_, users, rng);
   return s;
 }
 

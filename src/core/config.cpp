@@ -1,4 +1,5 @@
 #include "skyloop/core/config.hpp"
+#include "skyloop/core/rng.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -87,6 +88,14 @@ std::vector<Field> make_fields() {
                       [](Config& c) -> int& { return c.scenario.uavs; }));
   f.push_back(integer("scenario.users", "number of users K in random snapshots", 1, 4096,
                       [](Config& c) -> int& { return c.scenario.users; }));
+  f.push_back(text("scenario.user_layout", "where users stand: uniform in the area (the paper) or in hotspots",
+                   {"uniform", "hotspot"}, [](Config& c) -> std::string& { return c.scenario.user_layout; }));
+  f.push_back(integer("scenario.hotspots", "hotspot centres (uniform in the area) when user_layout = hotspot", 1, 1000,
+                      [](Config& c) -> int& { return c.scenario.hotspots; }));
+  f.push_back(real("scenario.hotspot_radius_m", "std of a hotspot user's offset from its centre, per axis (m)", 0.1, 1e5,
+                   [](Config& c) -> double& { return c.scenario.hotspot_radius_m; }));
+  f.push_back(real("scenario.hotspot_fraction", "share of users in hotspots (the rest uniform)", 0, 1,
+                   [](Config& c) -> double& { return c.scenario.hotspot_fraction; }));
   // [channel]
   f.push_back(integer("channel.antennas", "ULA antennas per UAV, L", 1, 64,
                       [](Config& c) -> int& { return c.channel.antennas; }));
@@ -148,6 +157,11 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.trajectory.d_min_m; }));
   f.push_back(integer("trajectory.t_max", "mission horizon T_max (slots)", 1, 10000,
                       [](Config& c) -> int& { return c.trajectory.t_max; }));
+  f.push_back(text("trajectory.layout",
+                   "given: starts and destinations as listed; generated: scenario.uavs UAVs on the D_fly lattice from layout_seed",
+                   {"given", "generated"}, [](Config& c) -> std::string& { return c.trajectory.layout; }));
+  f.push_back(integer("trajectory.layout_seed", "seed of a generated layout", 0, 4611686018427387904.0,
+                      [](Config& c) -> std::uint64_t& { return c.trajectory.layout_seed; }));
   // [nn]
   f.push_back(text("nn.model", "learned beamformer to train (ignn: the interference-aware network GNN)",
                    {"gnn", "deepsets", "mspointnet", "ignn"},
@@ -354,6 +368,62 @@ void set_field(Config& cfg, const Field& field, const FieldValue& value) {
       return;
     }
   }
+}
+
+void generate_layout(Config& c) {
+  const auto& t = c.trajectory;
+  const int N = c.scenario.uavs;
+  const double d = t.d_fly_m;
+  // Lattice points x = d * i, i = 1 .. nx, inside [d, area - d].
+  const int nx = static_cast<int>(std::floor(c.scenario.area_x_m / d + 1e-9)) - 1;
+  const int ny = static_cast<int>(std::floor(c.scenario.area_y_m / d + 1e-9)) - 1;
+  const std::string what = "trajectory.layout = \"generated\" for scenario.uavs = " + std::to_string(N) + " on a " +
+                           format_double(c.scenario.area_x_m) + " x " + format_double(c.scenario.area_y_m) +
+                           " m area with trajectory.d_fly_m = " + format_double(d);
+  if (nx < 1 || ny < 1 || static_cast<long>(nx) * ny < 2L * N)
+    throw InputError(what + " has only " + std::to_string(std::max(0, nx) * std::max(0, ny)) +
+                     " lattice points: allowed at least 2 per UAV (a larger area or a smaller D_fly)");
+  Rng rng(derive_seed(t.layout_seed, 0x4c41594f5554ULL));  // "LAYOUT"
+  auto far_enough = [&](const std::vector<Point2>& pts, const Point2& p) {
+    for (const auto& q : pts)
+      if (std::hypot(p.x - q.x, p.y - q.y) < t.d_min_m - 1e-9 || p == q) return false;
+    return true;
+  };
+  auto draw = [&] { return Point2{d * static_cast<double>(1 + rng.below(static_cast<std::uint64_t>(nx))),
+                                  d * static_cast<double>(1 + rng.below(static_cast<std::uint64_t>(ny)))}; };
+  constexpr int kTries = 100000;
+  std::vector<Point2> starts, dests;
+  for (int n = 0; n < N; ++n) {
+    int tries = 0;
+    Point2 p = draw();
+    while (!far_enough(starts, p) && ++tries < kTries) p = draw();
+    if (tries >= kTries)
+      throw InputError(what + " cannot place " + std::to_string(N) + " starts D_min = " + format_double(t.d_min_m) +
+                       " m apart: allowed fewer UAVs, a larger area or a smaller trajectory.d_min_m");
+    starts.push_back(p);
+  }
+  for (int n = 0; n < N; ++n) {
+    const Point2 s0 = starts[static_cast<std::size_t>(n)];
+    auto ok = [&](const Point2& p) {
+      const double moves = (std::abs(p.x - s0.x) + std::abs(p.y - s0.y)) / d;
+      return moves >= 1 - 1e-9 && moves <= t.t_max - 1 + 1e-9 && far_enough(dests, p);
+    };
+    int tries = 0;
+    Point2 p = draw();
+    while (!ok(p) && ++tries < kTries) p = draw();
+    if (tries >= kTries)
+      throw InputError(what + " cannot place destination " + std::to_string(n) + " within trajectory.t_max - 1 = " +
+                       std::to_string(t.t_max - 1) + " moves of its start and D_min from the others: allowed a larger "
+                       "trajectory.t_max or fewer UAVs");
+    dests.push_back(p);
+  }
+  c.trajectory.starts = std::move(starts);
+  c.trajectory.destinations = std::move(dests);
+}
+
+void finalise(Config& c) {
+  if (c.trajectory.layout == "generated") generate_layout(c);
+  validate(c);
 }
 
 void validate(const Config& c) {

@@ -142,7 +142,7 @@ Config resolve_config(const std::optional<std::string>& path, const std::vector<
   Config cfg;
   if (path) apply_toml(cfg, read_file(*path, "config file"), *path);
   for (const auto& o : overrides) apply_override(cfg, o);
-  validate(cfg);
+  finalise(cfg);
   return cfg;
 }
 

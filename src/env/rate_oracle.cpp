@@ -14,36 +14,26 @@ namespace skyloop {
 std::size_t RateOracle::KeyHash::operator()(const Key& k) const {
   std::uint64_t h = hash_bytes(&k.x, sizeof k.x);
   h = hash_bytes(&k.y, sizeof k.y, h);
-  return static_cast<std::size_t>(hash_bytes(k.mask.data(), sizeof(std::uint64_t) * k.mask.size(), h));
+  h = hash_bytes(k.small.data(), sizeof(std::uint64_t) * k.small.size(), h);
+  return static_cast<std::size_t>(k.big.empty() ? h : hash_bytes(k.big.data(), sizeof(std::uint64_t) * k.big.size(), h));
 }
 
 RateOracle::RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, Positions users)
-    : model_(cfg), beamformer_(std::move(beamformer)), users_(std::move(users)) {
-  if (users_.rows() > kMaxUsers)
-    throw InputError("the environment has " + std::to_string(users_.rows()) + " users: allowed at most " +
-                     std::to_string(kMaxUsers));
-}
+    : model_(cfg), beamformer_(std::move(beamformer)), users_(std::move(users)) {}
 
 void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const {
-  const auto n = static_cast<int>(uavs.rows());
-  keys.assign(static_cast<std::size_t>(n), Key{0, 0, {}});
-  members.assign(static_cast<std::size_t>(n), {});
-  for (int i = 0; i < n; ++i) keys[static_cast<std::size_t>(i)].x = uavs(i, 0), keys[static_cast<std::size_t>(i)].y = uavs(i, 1);
-  // Nearest UAV by 3-D distance (lowest index on ties), served if within R_c (as SystemModel::associate).
-  const double h2 = model_.altitude() * model_.altitude();
-  for (int k = 0; k < static_cast<int>(users_.rows()); ++k) {
-    int best = -1;
-    double best_d2 = std::numeric_limits<double>::infinity();
-    for (int i = 0; i < n; ++i) {
-      const double dx = uavs(i, 0) - users_(k, 0), dy = uavs(i, 1) - users_(k, 1);
-      const double d2 = dx * dx + dy * dy + h2;
-      if (d2 < best_d2) best_d2 = d2, best = i;
-    }
-    if (best >= 0 && std::sqrt(best_d2) <= model_.coverage()) {
-      keys[static_cast<std::size_t>(best)].mask[static_cast<std::size_t>(k / 64)] |= std::uint64_t{1} << (k % 64);
-      members[static_cast<std::size_t>(best)].push_back(k);
-    }
+  const auto n = static_cast<std::size_t>(uavs.rows());
+  Association a = model_.associate(uavs, users_);
+  keys.assign(n, Key{});
+  const std::size_t words = (static_cast<std::size_t>(users_.rows()) + 63) / 64;
+  for (std::size_t i = 0; i < n; ++i) {
+    Key& key = keys[i];
+    key.x = uavs(static_cast<Eigen::Index>(i), 0), key.y = uavs(static_cast<Eigen::Index>(i), 1);
+    if (words > key.small.size()) key.big.assign(words, 0);
+    std::uint64_t* mask = words > key.small.size() ? key.big.data() : key.small.data();
+    for (int k : a.users[i]) mask[static_cast<std::size_t>(k) / 64] |= std::uint64_t{1} << (k % 64);
   }
+  members = std::move(a.users);
 }
 
 std::size_t RateOracle::JointHash::operator()(const std::vector<double>& k) const {

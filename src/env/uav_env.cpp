@@ -21,9 +21,7 @@ Positions make_users(const Config& cfg, int users, std::uint64_t seed) {
     return positions_in_area(lists[0], cfg, cfg.env.users_file + ": users");
   }
   Rng rng(seed);
-  Positions p(users, 2);
-  for (int k = 0; k < users; ++k) p(k, 0) = rng.uniform(0, cfg.scenario.area_x_m), p(k, 1) = rng.uniform(0, cfg.scenario.area_y_m);
-  return p;
+  return draw_users(cfg.scenario, users, rng);
 }
 
 namespace {

@@ -176,7 +176,7 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
       if (s.algos.empty()) s.algos = {"mappo"};
       for (const auto& a : s.algos) check_in(source, "experiment.algos", a, {"mappo", "ippo", "vdn", "qmix"});
     }
-    for (const auto& p : s.planners) check_in(source, "experiment.planners", p, {"random", "greedy", "optimal"});
+    for (const auto& p : s.planners) check_in(source, "experiment.planners", p, {"random", "greedy", "seqgreedy", "optimal"});
   }
   return s;
 }

@@ -13,7 +13,7 @@ namespace skyloop {
 
 std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& opt, const BeamformerRegistry& registry,
                                         std::ostream* progress, std::vector<double>* seconds) {
-  if (opt.planners.empty() && opt.extra.empty()) throw InputError("--planner is empty: allowed random, greedy, optimal");
+  if (opt.planners.empty() && opt.extra.empty()) throw InputError(std::string("--planner is empty: allowed ") + kPlannerNames);
   std::vector<std::shared_ptr<Planner>> planners;
   const Positions users = make_users(cfg, cfg.scenario.users, opt.seed);
   // The exact optimum depends on the resolved config (not the learners' [marl] settings) and the
@@ -23,10 +23,9 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
   const std::string memo = to_toml(key) + "|users " +
                            std::to_string(hash_bytes(users.data(), sizeof(double) * static_cast<std::size_t>(users.size())));
   for (const auto& p : opt.planners) {
-    if (p == "random") planners.push_back(std::make_shared<RandomPlanner>(derive_seed(opt.seed, 0x52414e44ULL)));
-    else if (p == "greedy") planners.push_back(std::make_shared<GreedyPlanner>());
-    else if (p == "optimal") planners.push_back(std::make_shared<OptimalPlanner>(progress, memo));
-    else throw InputError("--planner '" + p + "' is unknown: allowed random, greedy, optimal");
+    auto planner = make_planner(p, derive_seed(opt.seed, 0x52414e44ULL), progress, memo);
+    if (!planner) throw InputError("--planner '" + p + "' is unknown: allowed " + kPlannerNames);
+    planners.push_back(std::move(planner));
   }
   planners.insert(planners.end(), opt.extra.begin(), opt.extra.end());
   if (!opt.out_dir.empty()) check_output_dir(opt.out_dir);  // before the work, not after it
@@ -51,10 +50,10 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
     write_file_atomic((dir / "config.toml").string(), to_toml(cfg));
     write_file_atomic((dir / "trajectory.csv").string(), trajectory_csv(out, opt.seed));
     write_file_atomic((dir / "rates.csv").string(), rates_csv(out, opt.seed));
-    std::string users = "seed,user,x,y\n";
+    std::string users_csv = "seed,user,x,y\n";
     for (Eigen::Index k = 0; k < oracle->users().rows(); ++k)
-      users += fmt::format("{},{},{},{}\n", opt.seed, k, format_double(oracle->users()(k, 0)), format_double(oracle->users()(k, 1)));
-    write_file_atomic((dir / "users.csv").string(), users);
+      users_csv += fmt::format("{},{},{},{}\n", opt.seed, k, format_double(oracle->users()(k, 0)), format_double(oracle->users()(k, 1)));
+    write_file_atomic((dir / "users.csv").string(), users_csv);
     write_file_atomic((dir / "summary.csv").string(), summary_csv(out, opt.seed, secs));
   }
   return out;

@@ -188,7 +188,7 @@ class Runner {
     std::vector<std::string> sets = s.set;
     Config c = resolve(sets);
     for (const auto& e : extra) apply_override(c, e);
-    validate(c);
+    finalise(c);
     // The environment's oracle and the MARL runs use this run's models.
     if (auto it = model_paths_.find(c.env.oracle); it != model_paths_.end())
       c.env.oracle = model_labels().at(c.env.oracle).base + "=" + it->second;

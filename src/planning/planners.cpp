@@ -41,6 +41,13 @@ std::vector<int> RandomPlanner::act(UavEnv& env) {
   return a;
 }
 
+void GreedyPlanner::reset(UavEnv& env) {
+  if (env.uavs() > kMaxUavs)
+    throw InputError("planner greedy enumerates 5^N joint actions and takes at most " + std::to_string(kMaxUavs) +
+                     " UAVs, while the scenario has " + std::to_string(env.uavs()) +
+                     ": allowed seqgreedy (the sequential greedy, linear in N) for larger fleets");
+}
+
 std::vector<int> GreedyPlanner::act(UavEnv& env) {
   const int n = env.uavs(), total = pow5(n);
   std::vector<std::vector<int>> candidates;
@@ -61,6 +68,60 @@ std::vector<int> GreedyPlanner::act(UavEnv& env) {
   for (std::size_t c = 1; c < candidates.size(); ++c)
     if (colliding[c] < colliding[best] || (colliding[c] == colliding[best] && rates[c] > rates[best])) best = c;
   return candidates[best];
+}
+
+std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
+  const int n = env.uavs();
+  const int left = env.t_max() - env.t();
+  std::vector<int> order(static_cast<std::size_t>(n)), slack(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i) {
+    order[static_cast<std::size_t>(i)] = i;
+    slack[static_cast<std::size_t>(i)] = left - env.min_moves(i, env.positions()(i, 0), env.positions()(i, 1));
+  }
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int a, int b) { return slack[static_cast<std::size_t>(a)] < slack[static_cast<std::size_t>(b)]; });
+  std::vector<int> a(static_cast<std::size_t>(n), kStay);
+  Positions placed = env.positions();  // chosen moves so far; the others still in place
+  const double dmin = env.d_min() - 1e-9;
+  for (int i : order) {
+    if (env.arrived(i)) continue;
+    std::vector<int> options;
+    std::vector<Positions> next;
+    std::vector<char> clear;
+    for (int k = 0; k < kActions; ++k) {
+      if (!env.feasible(i, k)) continue;
+      Positions p = placed;
+      double nx = p(i, 0), ny = p(i, 1);
+      env.move(p(i, 0), p(i, 1), k, nx, ny);
+      p(i, 0) = nx, p(i, 1) = ny;
+      bool ok = true;
+      for (int m = 0; m < n && ok; ++m)
+        if (m != i && std::hypot(nx - p(m, 0), ny - p(m, 1)) < dmin) ok = false;
+      options.push_back(k);
+      next.push_back(std::move(p));
+      clear.push_back(ok ? 1 : 0);
+    }
+    if (options.empty()) continue;  // cannot happen on a feasible mission: STAY keeps it as it was
+    const bool any_clear = std::find(clear.begin(), clear.end(), 1) != clear.end();
+    const auto rates = env.oracle().sum_rates(next);
+    std::size_t best = options.size();
+    for (std::size_t c = 0; c < options.size(); ++c) {
+      if (any_clear && !clear[c]) continue;
+      if (best == options.size() || rates[c] > rates[best]) best = c;
+    }
+    a[static_cast<std::size_t>(i)] = options[best];
+    placed = next[best];
+  }
+  return a;
+}
+
+std::unique_ptr<Planner> make_planner(const std::string& name, std::uint64_t random_seed, std::ostream* progress,
+                                      std::string memo_key) {
+  if (name == "random") return std::make_unique<RandomPlanner>(random_seed);
+  if (name == "greedy") return std::make_unique<GreedyPlanner>();
+  if (name == "seqgreedy") return std::make_unique<SequentialGreedyPlanner>();
+  if (name == "optimal") return std::make_unique<OptimalPlanner>(progress, std::move(memo_key));
+  return nullptr;
 }
 
 // ---- exact optimum --------------------------------------------------------------------------
@@ -94,9 +155,16 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   }
   double Sd = 1;
   for (int n = 0; n < N; ++n) Sd *= G;
-  if (Sd > 5e6)
+  if (Sd > 5e6) {
+    // The largest instances within the limit: UAVs on this grid, and the grid for this many UAVs.
+    int max_uavs = 0;
+    for (double s = G; s <= 5e6; s *= G) ++max_uavs;
+    const int max_cells = static_cast<int>(std::floor(std::pow(5e6, 1.0 / N) + 1e-9));
     throw InputError("the optimal planner's joint grid has " + format_double(Sd) + " states (" + std::to_string(G) +
-                     " cells ^ " + std::to_string(N) + " UAVs): allowed at most 5e6");
+                     " cells ^ " + std::to_string(N) + " UAVs): allowed at most 5e6, i.e. at most " + std::to_string(max_uavs) +
+                     " UAVs on this " + std::to_string(nx) + " x " + std::to_string(ny) + " grid, or at most " +
+                     std::to_string(max_cells) + " cells for " + std::to_string(N) + " UAVs; use seqgreedy or a learned planner beyond");
+  }
   const std::size_t S = static_cast<std::size_t>(Sd);
   std::vector<std::size_t> stride(static_cast<std::size_t>(N));
   for (int n = 0; n < N; ++n) stride[static_cast<std::size_t>(n)] = n == 0 ? 1 : stride[static_cast<std::size_t>(n - 1)] * static_cast<std::size_t>(G);

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "skyloop/core/config.hpp"
+#include "skyloop/core/rng.hpp"
 #include "skyloop/core/types.hpp"
 
 namespace skyloop {
@@ -39,6 +40,12 @@ struct Cluster {
   int size() const { return static_cast<int>(G.rows()); }
   int antennas() const { return static_cast<int>(G.cols()); }
 };
+
+/// K user positions [K x 2] drawn from `rng` under scenario.user_layout: uniform in the area (the
+/// paper; two draws per user, x then y), or hotspot: `hotspots` centres uniform in the area, then
+/// each user with probability hotspot_fraction at a centre chosen uniformly plus a Gaussian offset
+/// of std hotspot_radius_m per axis (clipped to the area), else uniform.
+Positions draw_users(const ScenarioConfig& s, int users, Rng& rng);
 
 /// User association of one snapshot (eq:cluster_association).
 struct Association {
@@ -70,6 +77,11 @@ class SystemModel {
 
   /// Nearest UAV by 3-D distance (lowest index on ties), served only if that distance <= R_c.
   Association associate(const Snapshot& s) const;
+  /// The same for UAV positions [N x 2] and user positions [K x 2]. Above kAssociationGridFrom
+  /// UAVs a spatial index (a grid of cells one horizontal coverage radius wide) visits only the
+  /// UAVs around each user: O(K + N) for spread-out UAVs instead of O(K N), same result.
+  Association associate(const Positions& uavs, const Positions& users) const;
+  static constexpr int kAssociationGridFrom = 8;
   /// The non-empty clusters of a snapshot, ascending UAV index (noise and bandwidth share of the
   /// spectrum model; a per-cluster beamformer sees nothing else).
   std::vector<Cluster> clusters(const Snapshot& s) const;
@@ -91,6 +103,7 @@ class SystemModel {
   int antennas_;
   double spacing_, altitude_, beta0_, d0_, coverage_, p_max_, noise_, area_x_, area_y_;
   Spectrum spectrum_;
+  ScenarioConfig scenario_;  // area and user layout of random snapshots
 };
 
 /// Snapshots i = 0..count-1 of a run seeded `seed`: snapshot i uses derive_seed(seed, i).

@@ -42,8 +42,12 @@ struct ScenarioConfig {       // [scenario]
   double area_x_m = 200.0;    // service area [0, area_x] x [0, area_y] (eq:range_x, eq:range_y)
   double area_y_m = 200.0;
   double altitude_m = 100.0;  // UAV flight altitude H
-  int uavs = 3;               // N for random snapshots
+  int uavs = 3;               // N for random snapshots (and for a generated trajectory layout)
   int users = 12;             // K for random snapshots
+  std::string user_layout = "uniform";  // uniform (the paper) | hotspot
+  int hotspots = 4;                     // hotspot centres, uniform in the area
+  double hotspot_radius_m = 40.0;       // std of a hotspot user's offset from its centre (each axis)
+  double hotspot_fraction = 0.8;        // share of users in hotspots; the rest uniform
 };
 
 struct ChannelConfig {                     // [channel]
@@ -85,6 +89,8 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   double d_fly_m = 20.0;            // distance flown per slot
   double d_min_m = 25.0;            // minimum UAV separation (eq:collision_constraint)
   int t_max = 24;                   // mission horizon in slots
+  std::string layout = "given";     // given (starts, destinations above) | generated (scenario.uavs UAVs from layout_seed)
+  std::uint64_t layout_seed = 1;    // seed of a generated layout
 };
 
 struct EnvConfig {                  // [env] the trajectory environment (Sections III-A, V-B)
@@ -192,6 +198,14 @@ void set_field(Config& cfg, const Field& field, const FieldValue& value);
 /// Cross-field rules (starts and destinations in the area, same count, R_c >= H, ...).
 /// Throws InputError naming the fields.
 void validate(const Config& cfg);
+/// Completes a configuration after its fields are set, then validates it: a generated trajectory
+/// layout (trajectory.layout = "generated") fills trajectory.starts and .destinations.
+void finalise(Config& cfg);
+/// Starts and destinations for scenario.uavs UAVs, from trajectory.layout_seed: distinct points
+/// of the D_fly lattice inside the area (one D_fly from its edges), starts pairwise at least
+/// D_min apart and so are the destinations, each destination 1 .. T_max - 1 moves from its start.
+/// Throws InputError naming the settings when they cannot be placed.
+void generate_layout(Config& cfg);
 
 /// Human text of a value, TOML syntax ("3", "0.5", "\"full\"", "[[20, 20], [20, 180]]").
 std::string format_value(const FieldValue& v);

@@ -26,8 +26,7 @@ struct OracleStats {
 
 class RateOracle {
  public:
-  static constexpr int kMaxUsers = 256;
-  /// `users` [K x 2] (K <= 256). The beamformer is shared, not copied.
+  /// `users` [K x 2] (any K). The beamformer is shared, not copied.
   RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, Positions users);
 
   /// Network sum rate R for UAV positions [N x 2].
@@ -46,10 +45,12 @@ class RateOracle {
  private:
   friend std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles,
                                              const std::vector<const Positions*>& uavs);
+  /// A cluster: its UAV's position and its user set as a bit mask (inline up to 256 users).
   struct Key {
-    double x, y;
-    std::array<std::uint64_t, kMaxUsers / 64> mask;
-    bool operator==(const Key& o) const { return x == o.x && y == o.y && mask == o.mask; }
+    double x = 0, y = 0;
+    std::array<std::uint64_t, 4> small{};
+    std::vector<std::uint64_t> big;  // the mask when K > 256 (small stays zero)
+    bool operator==(const Key& o) const { return x == o.x && y == o.y && small == o.small && big == o.big; }
   };
   struct KeyHash {
     std::size_t operator()(const Key& k) const;

@@ -39,9 +39,25 @@ class RandomPlanner final : public Planner {
 /// Exhaustive search over the 5^N joint actions for the highest next-slot sum rate, among joint
 /// actions that keep every destination reachable, stay in the area and avoid collisions (if none
 /// avoids collisions, the fewest colliding UAVs first). Ties go to the lowest joint index.
+/// Exponential in N: refused (InputError) above kMaxUavs, where SequentialGreedyPlanner serves.
 class GreedyPlanner final : public Planner {
  public:
+  static constexpr int kMaxUavs = 8;  // 5^8 = 390,625 joint actions per slot
   std::string name() const override { return "greedy"; }
+  void reset(UavEnv& env) override;
+  std::vector<int> act(UavEnv& env) override;
+};
+
+/// Greedy one UAV at a time, linear in N (5 N candidate positions per slot): the UAVs choose in
+/// order of least slack (moves left minus moves needed to reach the destination; ties by index),
+/// each the feasible action (in the area, destination still reachable) with the highest
+/// next-slot sum rate given the moves already chosen, the UAVs still to choose held in place.
+/// An action that brings the UAV within D_min of a UAV already placed (or of one still in place)
+/// is masked whenever another feasible action avoids it. Ties go to the lowest action index.
+/// The 5 candidates of each UAV go to the oracle in one batched call.
+class SequentialGreedyPlanner final : public Planner {
+ public:
+  std::string name() const override { return "seqgreedy"; }
   std::vector<int> act(UavEnv& env) override;
 };
 
@@ -85,6 +101,13 @@ class OptimalPlanner final : public Planner {
   std::string memo_key_;
   OptimalPlan plan_;
 };
+
+/// The heuristic and exact planners by name: "random" (seeded by random_seed), "greedy",
+/// "seqgreedy", "optimal" (progress and memo_key as OptimalPlanner); nullptr for another name.
+std::unique_ptr<Planner> make_planner(const std::string& name, std::uint64_t random_seed, std::ostream* progress = nullptr,
+                                      std::string memo_key = {});
+/// The names make_planner knows, for error messages: "random, greedy, seqgreedy, optimal".
+constexpr const char* kPlannerNames = "random, greedy, seqgreedy, optimal";
 
 /// Best objective by enumerating every feasible joint action sequence (tiny instances only; the
 /// check of solve_optimal). -1 if no sequence brings every UAV home by T_max.

@@ -242,6 +242,10 @@ std::vector<Field> make_fields() {
     f.push_back(std::move(b));
   }
   {
+    f.push_back(text("env.state",
+                     "global state for critics and mixers: paper = every UAV, user and destination (4N + 2K reals); "
+                     "compact = 8 x 8 density maps of users, UAVs and pending destinations (194 reals, any N and K)",
+                     {"paper", "compact"}, [](Config& c) -> std::string& { return c.env.state; }));
     Field u{"env.users_file", Type::Text, "TOML file with users = [[x, y], ...] (empty: uniform users from the seed)", 0, 0, {}, {}, {}};
     u.get = [](const Config& c) { return FieldValue(c.env.users_file); };
     u.set = [](Config& c, const FieldValue& v) { c.env.users_file = std::get<std::string>(v); };

@@ -1,3 +1,4 @@
+#include <algorithm>
 #include "skyloop/env/uav_env.hpp"
 
 #include <cmath>
@@ -40,6 +41,7 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       w_bud_(cfg.env.w_bud),
       w_col_(cfg.env.w_col),
       w_fea_(cfg.env.w_fea),
+      compact_(cfg.env.state == "compact"),
       start_(positions_in_area(cfg.trajectory.starts, cfg, "trajectory.starts")),
       dest_(positions_in_area(cfg.trajectory.destinations, cfg, "trajectory.destinations")),
       oracle_(std::move(oracle)) {
@@ -214,14 +216,56 @@ std::vector<float> UavEnv::observation(int n) const {
   return o;
 }
 
-int UavEnv::state_size() const { return 4 * n_ + 2 * static_cast<int>(oracle_->users().rows()); }
+int UavEnv::state_size() const {
+  return compact_ ? 3 * kStateGrid * kStateGrid + 2 : 4 * n_ + 2 * static_cast<int>(oracle_->users().rows());
+}
 
 void UavEnv::write_state(float* s) const {
-  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(pos_(n, 0) / area_x_), *s++ = static_cast<float>(pos_(n, 1) / area_y_);
   const auto& users = oracle_->users();
+  if (compact_) {
+    constexpr int G = kStateGrid;
+    std::fill(s, s + 3 * G * G + 2, 0.0f);
+    auto cell = [&](double x, double y) {
+      const int ix = std::min(G - 1, std::max(0, static_cast<int>(x / area_x_ * G)));
+      const int iy = std::min(G - 1, std::max(0, static_cast<int>(y / area_y_ * G)));
+      return iy * G + ix;
+    };
+    const float per_user = 1.0f / static_cast<float>(std::max<Eigen::Index>(1, users.rows()));
+    const float per_uav = 1.0f / static_cast<float>(n_);
+    for (Eigen::Index k = 0; k < users.rows(); ++k) s[cell(users(k, 0), users(k, 1))] += per_user;
+    int home = 0;
+    for (int n = 0; n < n_; ++n) {
+      s[G * G + cell(pos_(n, 0), pos_(n, 1))] += per_uav;
+      if (arrived(n)) ++home;
+      else s[2 * G * G + cell(dest_(n, 0), dest_(n, 1))] += per_uav;
+    }
+    s[3 * G * G] = static_cast<float>(t_) / static_cast<float>(t_max_);
+    s[3 * G * G + 1] = static_cast<float>(home) * per_uav;
+    return;
+  }
+  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(pos_(n, 0) / area_x_), *s++ = static_cast<float>(pos_(n, 1) / area_y_);
   for (Eigen::Index k = 0; k < users.rows(); ++k)
     *s++ = static_cast<float>(users(k, 0) / area_x_), *s++ = static_cast<float>(users(k, 1) / area_y_);
   for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(dest_(n, 0) / area_x_), *s++ = static_cast<float>(dest_(n, 1) / area_y_);
+}
+
+void UavEnv::write_agent_context(int n, float* out) const {
+  if (!compact_) {
+    for (int m = 0; m < n_; ++m) out[m] = m == n ? 1.0f : 0.0f;
+    return;
+  }
+  // The kNeighbours nearest other UAVs (distance, then index), nearest first.
+  std::vector<std::pair<double, int>> near;
+  for (int m = 0; m < n_; ++m)
+    if (m != n) near.emplace_back(std::hypot(pos_(m, 0) - pos_(n, 0), pos_(m, 1) - pos_(n, 1)), m);
+  const std::size_t take = std::min<std::size_t>(kNeighbours, near.size());
+  std::partial_sort(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(take), near.end());
+  std::fill(out, out + 2 * kNeighbours, 0.0f);
+  for (std::size_t i = 0; i < take; ++i) {
+    const int m = near[i].second;
+    out[2 * i] = static_cast<float>((pos_(m, 0) - pos_(n, 0)) / area_x_);
+    out[2 * i + 1] = static_cast<float>((pos_(m, 1) - pos_(n, 1)) / area_y_);
+  }
 }
 
 std::vector<float> UavEnv::state() const {
@@ -231,10 +275,10 @@ std::vector<float> UavEnv::state() const {
 }
 
 std::vector<float> UavEnv::agent_state(int n) const {
-  std::vector<float> s = state();
-  for (int m = 0; m < n_; ++m) s.push_back(m == n ? 1.0f : 0.0f);
-  const auto o = observation(n);
-  s.insert(s.end(), o.begin(), o.end());
+  std::vector<float> s(static_cast<std::size_t>(agent_state_size()));
+  write_state(s.data());
+  write_agent_context(n, s.data() + state_size());
+  write_observation(n, s.data() + state_size() + agent_context_size());
   return s;
 }
 

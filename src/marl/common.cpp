@@ -113,7 +113,8 @@ EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Pl
 
 std::vector<float> obs_with_id(const UavEnv& env, int n) {
   auto o = env.observation(n);
-  for (int m = 0; m < env.uavs(); ++m) o.push_back(m == n ? 1.0f : 0.0f);
+  o.resize(static_cast<std::size_t>(UavEnv::observation_size() + env.agent_context_size()));
+  env.write_agent_context(n, o.data() + UavEnv::observation_size());
   return o;
 }
 

@@ -53,7 +53,8 @@ std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeSta
 /// Evaluates `planner` on the training scenario (deterministic) and returns the record.
 EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner);
 
-/// Local observations with one-hot agent ids appended (the Q-network input), [N, 11 + N].
+/// Local observation with the agent's context appended (the Q-network input): one-hot id
+/// (11 + N reals) under env.state = "paper", nearest UAVs (11 + 8) under "compact".
 std::vector<float> obs_with_id(const UavEnv& env, int n);
 
 torch::Device device_of(const Config& cfg);

@@ -39,7 +39,8 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   if (impl->algo == "mappo" || impl->algo == "ippo") {
     impl->nets.actor = marl::MlpNet(obs, hidden, kActions);
   } else if (impl->algo == "vdn" || impl->algo == "qmix") {
-    impl->nets.q = marl::MlpNet(obs + uavs, hidden, kActions);
+    // The agent context: a one-hot id (uavs reals; policies written before env.state) or nearest UAVs.
+    impl->nets.q = marl::MlpNet(obs + meta.value("context_dim", uavs), hidden, kActions);
     impl->q_based = true;
   } else {
     throw InputError("policy '" + path + "' names algo '" + impl->algo + "': allowed mappo, ippo, vdn, qmix");

@@ -54,7 +54,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   const auto& device = run.device;
   VecEnv& vec = run.vec;
   const int N = vec.env(0).uavs(), M = vec.size(), Tm = vec.env(0).t_max();
-  const int D = UavEnv::observation_size() + N, S = vec.env(0).state_size();
+  const int D = UavEnv::observation_size() + vec.env(0).agent_context_size(), S = vec.env(0).state_size();
 
   torch::manual_seed(cfg.run.seed);
   Nets nets, target;
@@ -78,7 +78,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   std::string metrics = metrics_header();
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
-                          {"obs_dim", UavEnv::observation_size()}, {"state_dim", S}, {"hidden", m.hidden},
+                          {"obs_dim", UavEnv::observation_size()}, {"context_dim", D - UavEnv::observation_size()}, {"state_dim", S}, {"hidden", m.hidden},
                           {"mixer_embed", m.mixer_embed}, {"env_steps", steps}, {"grad_steps", grad_steps},
                           {"episodes", episodes}, {"config", to_toml(cfg)}};
   };

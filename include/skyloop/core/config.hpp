@@ -103,6 +103,7 @@ struct EnvConfig {                  // [env] the trajectory environment (Section
   double w_fea = 1.0;               // per UAV reachability indicator Phi_n[t] (+1 / -1)
   bool resample_users = false;      // draw new users at every reset (else fixed per environment)
   std::string users_file;           // TOML with users = [[x, y], ...]; empty = uniform from the seed
+  std::string state = "paper";      // global state of the critics / mixers: paper (4N + 2K reals) | compact (independent of N and K)
 };
 
 struct MarlConfig {                 // [marl] trajectory learning (Section V, VI-C)

@@ -97,12 +97,21 @@ class UavEnv {
   void write_observation(int n, float* out) const;
   /// state() written into out[0..state_size()-1].
   void write_state(float* out) const;
-  /// s[t]: all UAV positions, all user positions, all destinations, each / area (4N + 2K reals).
+  /// s[t] under env.state = "paper": all UAV positions, all user positions, all destinations,
+  /// each / area (4N + 2K reals). Under "compact" (any N and K, 3 G^2 + 2 reals, G = 8): the
+  /// share of users, of UAVs and of not-yet-arrived UAVs' destinations in each cell of a G x G
+  /// grid over the area, then t / T_max and the share of UAVs arrived.
   std::vector<float> state() const;
   int state_size() const;
-  /// Agent-specific global state: s[t], one-hot agent id, o_n[t].
+  static constexpr int kStateGrid = 8;
+  /// Who agent n is, for networks shared by all agents: paper: one-hot id (N reals); compact:
+  /// displacements / area to its kNeighbours nearest other UAVs, nearest first (zeros past N - 1).
+  int agent_context_size() const { return compact_ ? 2 * kNeighbours : n_; }
+  void write_agent_context(int n, float* out) const;
+  static constexpr int kNeighbours = 4;
+  /// Agent-specific global state: s[t], agent n's context, o_n[t].
   std::vector<float> agent_state(int n) const;
-  int agent_state_size() const { return state_size() + n_ + observation_size(); }
+  int agent_state_size() const { return state_size() + agent_context_size() + observation_size(); }
 
   // ---- episode record -----------------------------------------------------------------------
   const std::vector<double>& rates() const { return rates_; }  // R[1..t]
@@ -124,6 +133,7 @@ class UavEnv {
   int n_, t_max_;
   double d_fly_, d_min_, area_x_, area_y_;
   double w_rate_, w_arr_, w_bud_, w_col_, w_fea_;
+  bool compact_ = false;  // env.state = "compact"
   Positions start_, dest_, pos_;
   std::shared_ptr<RateOracle> oracle_;
   std::vector<bool> arrived_;

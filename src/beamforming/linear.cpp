@@ -76,13 +76,13 @@ MatrixXcd zf_select(const Cluster& c, std::vector<int>* selected) {
     return MatrixXcd(L, 0);
   }
   // Score a set by its water-filled ZF sum rate, from the diagonal of its inverse Gram matrix:
-  // ||v_k||^2 = [(G_S G_S^H)^{-1}]_kk.
-  const MatrixXcd gram = c.G * c.G.adjoint();
+  // ||v_k||^2 = [(G_S G_S^H)^{-1}]_kk. Only the set's rows are touched (|S| <= L), so a greedy
+  // pass costs O(K L^4), never the K x K Gram matrix of a cluster of hundreds of users.
   auto score = [&](const std::vector<int>& set) {
     const auto n = static_cast<Eigen::Index>(set.size());
-    MatrixXcd sub(n, n);
-    for (Eigen::Index i = 0; i < n; ++i)
-      for (Eigen::Index j = 0; j < n; ++j) sub(i, j) = gram(set[static_cast<std::size_t>(i)], set[static_cast<std::size_t>(j)]);
+    MatrixXcd rows(n, L);
+    for (Eigen::Index i = 0; i < n; ++i) rows.row(i) = c.G.row(set[static_cast<std::size_t>(i)]);
+    const MatrixXcd sub = rows * rows.adjoint();
     Eigen::LLT<MatrixXcd> llt(sub);
     if (llt.info() != Eigen::Success) return -1.0;
     const MatrixXcd inv = llt.solve(MatrixXcd::Identity(n, n));

@@ -102,7 +102,9 @@ TEST(Experiments, PaperProfileUsesThePapersSettings) {
                   std::count(s.methods.begin(), s.methods.end(), "mrt"))
           << s.path << ": every beamforming figure shows WMMSE, ZF and MRT";
     }
-    if (s.kind == "planning_users" || s.kind == "trajectories") {
+    // The exact optimum beside every planning figure where the DP can solve it (the scale study's
+    // 16 UAVs are far beyond it: 2401^16 joint states, which the DP refuses by name).
+    if ((s.kind == "planning_users" || s.kind == "trajectories") && resolve_config(std::nullopt, s.set).scenario.uavs <= 3) {
       EXPECT_TRUE(std::count(s.planners.begin(), s.planners.end(), "optimal")) << s.path;
     }
   }
@@ -153,7 +155,7 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   ASSERT_EQ(r.code, 0) << r.err;
 
   const auto manifest = nlohmann::json::parse(slurp(out / "manifest.json"));
-  ASSERT_EQ(manifest["experiments"].size(), 14u);
+  ASSERT_EQ(manifest["experiments"].size(), 17u);
   for (const auto& e : manifest["experiments"]) {
     const std::string name = e["name"];
     EXPECT_TRUE(fs::exists(out / name / "config.toml")) << name;

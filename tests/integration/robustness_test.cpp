@@ -151,9 +151,20 @@ const fs::path& tiny_policy() {
   return dir;
 }
 
+/// 64 bytes flipped in the middle of the archive's largest entry (the weights), between two local
+/// headers, so that the damage is in stored data (found by the checksums), not in a header.
 std::string flipped(const std::string& good) {
   std::string s = good;
-  for (std::size_t i = 0; i < 64; ++i) s[good.size() / 2 + i] = static_cast<char>(~s[good.size() / 2 + i]);
+  const std::string sig("PK\x03\x04", 4);
+  std::size_t best = 0, best_len = 0;
+  for (std::size_t at = s.find(sig); at != std::string::npos;) {
+    const std::size_t next = s.find(sig, at + 4);
+    const std::size_t end = next == std::string::npos ? s.size() : next;
+    if (end - at > best_len) best = at, best_len = end - at;
+    at = next;
+  }
+  const std::size_t mid = best + best_len / 2;
+  for (std::size_t i = 0; i < 64; ++i) s[mid + i] = static_cast<char>(~s[mid + i]);
   return s;
 }
 

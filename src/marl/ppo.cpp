@@ -130,6 +130,8 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
       const auto probs = logp_all.exp();
       auto pa = probs.accessor<float, 2>();
       auto la = logp_all.accessor<float, 2>();
+      const auto values_c = values.contiguous();
+      auto va = values_c.accessor<float, 1>();  // not values[i].item(): one tensor per agent and step
       std::vector<std::vector<int>> actions(static_cast<std::size_t>(M), std::vector<int>(static_cast<std::size_t>(N)));
       for (int i = 0; i < M * N; ++i) {
         int a = kStay;
@@ -144,7 +146,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
         actions[static_cast<std::size_t>(i / N)][static_cast<std::size_t>(i % N)] = a;
         act_buf.push_back(a);
         logp_buf.push_back(la[i][a]);
-        val_buf.push_back(values[i].item<float>());
+        val_buf.push_back(va[i]);
       }
       obs_buf.insert(obs_buf.end(), obs.begin(), obs.end());
       crit_buf.insert(crit_buf.end(), crit.begin(), crit.end());
@@ -169,6 +171,8 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
       torch::NoGradGuard ng;
       v_last = vnorm.denormalise(nets.critic(torch::from_blob(crit_last.data(), {M * N, cin}).to(device)).to(torch::kCPU)).view({M * N});
     }
+    const auto v_last_c = v_last.contiguous();
+    const auto v_last_a = v_last_c.accessor<float, 1>();
     // ---- GAE per (environment, agent), with the team reward ------------------------------------
     std::vector<float> adv_buf(static_cast<std::size_t>(T * M * N)), ret_buf(adv_buf.size());
     for (int e = 0; e < M; ++e)
@@ -180,7 +184,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
           d[static_cast<std::size_t>(t)] = done_buf[static_cast<std::size_t>(t * M + e)] > 0;
           v[static_cast<std::size_t>(t)] = val_buf[static_cast<std::size_t>((t * M + e) * N + n)];
         }
-        v[static_cast<std::size_t>(T)] = v_last[e * N + n].item<double>();
+        v[static_cast<std::size_t>(T)] = v_last_a[e * N + n];
         const auto a = gae(r, v, d, m.gamma, m.gae_lambda);
         for (int t = 0; t < T; ++t) {
           const auto i = static_cast<std::size_t>((t * M + e) * N + n);

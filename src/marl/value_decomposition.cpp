@@ -191,12 +191,13 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
           in.insert(in.end(), o.begin(), o.end());
         }
       torch::NoGradGuard ng;
-      const auto greedy = nets.q(torch::from_blob(in.data(), {M * N, D}).to(device)).argmax(1).to(torch::kCPU);
+      const auto greedy = nets.q(torch::from_blob(in.data(), {M * N, D}).to(device)).argmax(1).to(torch::kCPU).contiguous();
+      const auto ga = greedy.accessor<int64_t, 1>();
       for (int i = 0; i < M * N; ++i) {
         const int e = i / N, n = i % N;
         if (!vec.env(e).mask(n)) continue;  // arrived: STAY
         actions[static_cast<std::size_t>(e)][static_cast<std::size_t>(n)] =
-            rng.uniform() < eps ? static_cast<int>(rng.below(kActions)) : static_cast<int>(greedy[i].item<int64_t>());
+            rng.uniform() < eps ? static_cast<int>(rng.below(kActions)) : static_cast<int>(ga[i]);
       }
     }
     const auto infos = vec.step(actions);

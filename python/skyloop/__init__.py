@@ -130,7 +130,7 @@ def beamformer(spec: str, cfg=None) -> Beamformer:
 
 
 def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, planner_seed: int | None = None) -> dict:
-    """One episode of a planner on the trajectory scenario of ``cfg``: "random", "greedy", "optimal"
+    """One episode of a planner on the trajectory scenario of ``cfg``: "random", "greedy", "seqgreedy", "optimal"
     (the exact optimum of P2.2) or the path of a trained policy directory (``skyloop train``).
     Users: K uniform users from ``users_seed`` (as ``skyloop plan --seed``), or an explicit [K, 2] array;
     the random planner's stream is the CLI's for that seed unless ``planner_seed`` is given.

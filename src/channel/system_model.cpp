@@ -48,11 +48,17 @@ VectorXcd SystemModel::channel(double ux, double uy, double x, double y) const {
 Association SystemModel::associate(const Snapshot& s) const { return associate(s.uavs, s.users); }
 
 Association SystemModel::associate(const Positions& uavs, const Positions& users) const {
+  Association a;
+  associate(uavs, users, a);
+  return a;
+}
+
+void SystemModel::associate(const Positions& uavs, const Positions& users, Association& a) const {
   const auto n_uav = static_cast<int>(uavs.rows());
   const auto n_user = static_cast<int>(users.rows());
-  Association a;
   a.serving.assign(static_cast<std::size_t>(n_user), -1);
-  a.users.assign(static_cast<std::size_t>(n_uav), {});
+  a.users.resize(static_cast<std::size_t>(n_uav));
+  for (auto& members : a.users) members.clear();  // capacity kept for the next call
   // Nearest UAV by 3-D distance, lowest index on ties, served if within R_c. Every distance is
   // the same distance() call on both paths, so both give the same association bit for bit.
   auto serve = [&](int k, int best, double best_d) {
@@ -72,7 +78,7 @@ Association SystemModel::associate(const Positions& uavs, const Positions& users
       }
       serve(k, best, best_d);
     }
-    return a;
+    return;
   }
   // Spatial index: UAVs bucketed on a grid of cells at least the horizontal reach wide. A user's
   // nearest UAV, if it is within R_c at all, lies in the 3 x 3 cells around the user's cell; if
@@ -114,7 +120,7 @@ Association SystemModel::associate(const Positions& uavs, const Positions& users
       }
     serve(k, best, best_d);
   }
-  return a;  // users were visited in ascending order: each cluster's list is ascending
+  // Users were visited in ascending order: each cluster's list is ascending.
 }
 
 Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions& users_xy,

@@ -23,7 +23,8 @@ RateOracle::RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beam
 
 void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const {
   const auto n = static_cast<std::size_t>(uavs.rows());
-  Association a = model_.associate(uavs, users_);
+  thread_local Association a;  // storage reused across calls
+  model_.associate(uavs, users_, a);
   keys.assign(n, Key{});
   const std::size_t words = (static_cast<std::size_t>(users_.rows()) + 63) / 64;
   for (std::size_t i = 0; i < n; ++i) {
@@ -33,7 +34,8 @@ void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vec
     std::uint64_t* mask = words > key.small.size() ? key.big.data() : key.small.data();
     for (int k : a.users[i]) mask[static_cast<std::size_t>(k) / 64] |= std::uint64_t{1} << (k % 64);
   }
-  members = std::move(a.users);
+  members.resize(n);
+  for (std::size_t i = 0; i < n; ++i) members[i].assign(a.users[i].begin(), a.users[i].end());
 }
 
 std::size_t RateOracle::JointHash::operator()(const std::vector<double>& k) const {

@@ -81,6 +81,8 @@ class SystemModel {
   /// UAVs a spatial index (a grid of cells one horizontal coverage radius wide) visits only the
   /// UAVs around each user: O(K + N) for spread-out UAVs instead of O(K N), same result.
   Association associate(const Positions& uavs, const Positions& users) const;
+  /// The same into `out`, reusing its storage (the rate oracle's hot path).
+  void associate(const Positions& uavs, const Positions& users, Association& out) const;
   static constexpr int kAssociationGridFrom = 8;
   /// The non-empty clusters of a snapshot, ascending UAV index (noise and bandwidth share of the
   /// spectrum model; a per-cluster beamformer sees nothing else).

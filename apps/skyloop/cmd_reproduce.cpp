@@ -1,8 +1,11 @@
 // `skyloop reproduce`: every figure of the paper's Section VI from configs/experiments/.
+// Under mpirun the pieces run on every rank (rank 0 assembles); --shard i/n runs one slice.
 #include <iostream>
 
 #include "common.hpp"
 #include "skyloop/beamforming/registry.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/experiments/farm.hpp"
 #include "skyloop/experiments/reproduce.hpp"
 
 namespace skyloop::cli {
@@ -10,8 +13,25 @@ namespace skyloop::cli {
 namespace {
 struct Opts {
   ReproduceOptions r;
-  std::string only;
+  std::string only, shard;
+  bool mpi = false;
 };
+
+/// "i/n" -> (i, n); one error line otherwise.
+void parse_shard(const std::string& text, int& i, int& n) {
+  const auto slash = text.find('/');
+  try {
+    std::size_t a = 0, b = 0;
+    if (slash == std::string::npos) throw std::invalid_argument(text);
+    i = std::stoi(text.substr(0, slash), &a);
+    n = std::stoi(text.substr(slash + 1), &b);
+    if (a != slash || b != text.size() - slash - 1) throw std::invalid_argument(text);
+  } catch (const std::exception&) {
+    throw InputError("--shard '" + text + "' is invalid: allowed i/n with 1 <= i <= n, e.g. 3/8");
+  }
+  if (n < 1 || i < 1 || i > n || n > 100000)
+    throw InputError("--shard '" + text + "' is invalid: allowed i/n with 1 <= i <= n <= 100000");
+}
 }  // namespace
 
 void add_reproduce_command(CLI::App& app, Action& action) {
@@ -23,19 +43,46 @@ void add_reproduce_command(CLI::App& app, Action& action) {
   cmd->add_option("--experiments", o->r.experiments_dir, "directory of experiment files (default configs/experiments)");
   cmd->add_option("--only", o->only, "comma-separated experiment names to run (the models stage always runs)");
   cmd->add_option("--set", o->r.sets, "override one config field in every experiment (repeatable)")->type_name("KEY=VALUE");
-  cmd->add_option("--threads", o->r.threads, "worker threads, 0 = all cores")->capture_default_str();
+  cmd->add_option("--threads", o->r.threads,
+                  "worker threads, 0 = the cores this process may use (under mpirun: shared by the ranks on a machine)")
+      ->capture_default_str();
   cmd->add_option("--jobs", o->r.jobs, "MARL runs trained in parallel, one core each; 0 = --threads")->capture_default_str();
+  cmd->add_option("--shard", o->shard,
+                  "run only slice i of n of the pieces and assemble nothing (a Slurm array task: "
+                  "--shard $((SLURM_ARRAY_TASK_ID+1))/$SLURM_ARRAY_TASK_COUNT); a later run without --shard assembles")
+      ->type_name("I/N");
+  cmd->add_flag("--mpi", o->mpi, "use MPI even when no MPI launcher is detected (under mpirun it is on by itself)");
   cmd->add_flag("--force", o->r.force, "redo the selected experiments instead of reusing cached results");
   cmd->add_flag("--no-plots", [o](std::int64_t) { o->r.plots = false; }, "write the CSVs only (no figures, no report)");
   cmd->add_option("--python", o->r.python, "python interpreter with matplotlib")->capture_default_str();
   cmd->final_callback([&action, o] {
     action = [o] {
       if (!o->only.empty()) o->r.only = split_methods(o->only, "--only");
+      if (!o->shard.empty()) parse_shard(o->shard, o->r.shard_index, o->r.shard_count);
+      const auto transport = open_transport(o->mpi);
+      const int rank = transport ? transport->rank() : 0;
+      o->r.transport = transport.get();
       o->r.progress = &std::cerr;
-      const int rc = reproduce(o->r);
-      std::cout << "reproduce (" << o->r.profile << "): results in "
-                << (o->r.out_dir.empty() ? "results/" + o->r.profile : o->r.out_dir)
-                << (o->r.plots ? " (report.html, figures/, one CSV per figure)\n" : " (CSVs; plots skipped)\n");
+      int rc = 0;
+      try {
+        rc = reproduce(o->r);
+      } catch (const InputError&) {
+        // Every rank reads the same files and options, so every rank fails alike: rank 0 says it.
+        if (rank != 0) return 2;
+        throw;
+      } catch (const std::exception& e) {
+        if (!transport || transport->size() == 1) throw;
+        std::cerr << "skyloop: failed on rank " << rank << ": " << e.what() << "\n" << std::flush;
+        transport->abort(1);  // the other ranks may be waiting for this one
+      }
+      if (rank != 0) return rc;
+      const std::string out = o->r.out_dir.empty() ? "results/" + o->r.profile : o->r.out_dir;
+      if (o->r.shard_count > 0)
+        std::cout << "reproduce (" << o->r.profile << "): shard " << o->r.shard_index << "/" << o->r.shard_count
+                  << " computed its pieces in " << out << "; run without --shard to assemble\n";
+      else
+        std::cout << "reproduce (" << o->r.profile << "): results in " << out
+                  << (o->r.plots ? " (report.html, figures/, one CSV per figure)\n" : " (CSVs; plots skipped)\n");
       return rc;
     };
   });

@@ -8,6 +8,7 @@
 
 #include "skyloop/channel/network.hpp"
 #include "skyloop/channel/system_model.hpp"
+#include "skyloop/core/csv.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/parallel.hpp"
@@ -30,7 +31,7 @@ std::vector<BeamformEvalRow> run_beamform_eval(const Config& cfg, const Beamform
   if (progress) bar = std::make_unique<Progress>("beamform eval", opt.samples, *progress);
 
   parallel_for(opt.samples, opt.threads, [&](std::size_t i) {
-    const Snapshot snap = model.random_snapshot(opt.uavs, opt.users, derive_seed(opt.seed, i));
+    const Snapshot snap = model.random_snapshot(opt.uavs, opt.users, derive_seed(opt.seed, opt.first + i));
     const Network net = model.network(snap);
     for (std::size_t j = 0; j < m; ++j) {
       const Beamformer& bf = *methods[j];
@@ -41,7 +42,7 @@ std::vector<BeamformEvalRow> run_beamform_eval(const Config& cfg, const Beamform
       const double total = network_sum_rate(net, W);
       BeamformEvalRow& r = rows[i * m + j];
       r.seed = opt.seed;
-      r.sample = i;
+      r.sample = opt.first + i;
       r.method = opt.methods[j];
       r.uavs = opt.uavs;
       r.users = opt.users;
@@ -66,6 +67,24 @@ std::string beamform_eval_csv(const std::vector<BeamformEvalRow>& rows, const Co
                        r.clusters, r.served_users, format_double(r.sum_rate), format_double(r.latency_ms));
   }
   return out;
+}
+
+std::vector<BeamformEvalRow> parse_beamform_eval_csv(const std::string& csv, const std::string& source) {
+  const CsvTable t = CsvTable::parse(csv, source);
+  std::vector<BeamformEvalRow> rows(t.size());
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    BeamformEvalRow& r = rows[i];
+    r.seed = std::stoull(t.at(i, "seed"));
+    r.sample = std::stoull(t.at(i, "sample"));
+    r.method = t.at(i, "method");
+    r.uavs = std::stoi(t.at(i, "uavs"));
+    r.users = std::stoi(t.at(i, "users"));
+    r.clusters = std::stoi(t.at(i, "clusters"));
+    r.served_users = std::stoi(t.at(i, "served_users"));
+    r.sum_rate = t.number(i, "sum_rate_bps_hz");
+    r.latency_ms = t.number(i, "latency_ms");
+  }
+  return rows;
 }
 
 std::vector<MethodSummary> summarise(const std::vector<BeamformEvalRow>& rows) {

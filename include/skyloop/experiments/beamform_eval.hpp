@@ -17,6 +17,7 @@ struct BeamformEvalOptions {
   int users = 12;
   std::size_t samples = 200;
   std::uint64_t seed = 1;            // snapshot i uses derive_seed(seed, i)
+  std::size_t first = 0;             // snapshots first .. first + samples - 1 (a slice of a longer run)
   int threads = 1;                   // samples run in parallel; each decision is timed on one thread
 };
 
@@ -42,6 +43,9 @@ std::vector<BeamformEvalRow> run_beamform_eval(const Config& cfg, const Beamform
 
 /// Tidy CSV, one row per (snapshot, method), with the seed and the channel settings in every row.
 std::string beamform_eval_csv(const std::vector<BeamformEvalRow>& rows, const Config& cfg);
+
+/// Rows back from beamform_eval_csv() text (columns found by name; `source` names it in errors).
+std::vector<BeamformEvalRow> parse_beamform_eval_csv(const std::string& csv, const std::string& source);
 
 /// Per-method summary in the order methods first appear in `rows`.
 std::vector<MethodSummary> summarise(const std::vector<BeamformEvalRow>& rows);

@@ -10,6 +10,8 @@
 
 namespace skyloop {
 
+class Transport;
+
 /// One experiment file after its profile has been applied.
 struct ExperimentSpec {
   std::string path;     // the file it came from
@@ -59,6 +61,12 @@ struct ReproduceOptions {
   int threads = 0;                     // run.threads for every stage (0 = all cores)
   int jobs = 0;                        // MARL runs trained in parallel (child processes); 0 = threads
   bool plots = true;                   // run scripts/plot_figures.py at the end
+  // Scale-out (farm.hpp). Under an MPI transport of several ranks every rank calls reproduce()
+  // with the same options: the pieces run on all of them and rank 0 assembles. With shard_count
+  // > 0 this process runs only slice shard_index (1-based) of the pieces and assembles nothing;
+  // a later run without a shard assembles.
+  Transport* transport = nullptr;
+  int shard_index = 0, shard_count = 0;
   std::string python = "/usr/bin/python3";
   std::ostream* progress = nullptr;
 };

@@ -1,0 +1,180 @@
+#include "context.hpp"
+
+#include <cmath>
+#include <fmt/format.h>
+
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+#include "skyloop/experiments/builtin.hpp"
+#include "skyloop/experiments/planning_run.hpp"
+#include "skyloop/marl/marl.hpp"
+#include "skyloop/nn/learned.hpp"
+
+namespace skyloop::repro {
+
+double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+const std::map<std::string, ModelLabel>& model_labels() {
+  static const std::map<std::string, ModelLabel> m = {
+      {"gnn", {"gnn", {"nn.model=gnn", "nn.readout=direct"}}},
+      {"deepsets", {"deepsets", {"nn.model=deepsets", "nn.readout=direct"}}},
+      {"mspointnet", {"mspointnet", {"nn.model=mspointnet", "nn.readout=direct"}}},
+      {"gnn_structured", {"gnn", {"nn.model=gnn", "nn.readout=structured"}}},
+      // The interference-aware GNN, trained on the network sum rate under the shared spectrum.
+      {"ignn", {"ignn", {"nn.model=ignn", "nn.readout=direct", "channel.spectrum=shared", "nn.hidden=64", "nn.layers=2"}}},
+      {"ignn_structured", {"ignn", {"nn.model=ignn", "nn.readout=structured", "channel.spectrum=shared", "nn.hidden=64", "nn.layers=2"}}},
+  };
+  return m;
+}
+
+StageContext::StageContext(const ReproduceOptions& o, std::ostream& l, int t)
+    : opt(o), out(o.out_dir), log(l), threads(t), cache(o.out_dir) {}
+
+Config StageContext::resolve(const std::vector<std::string>& sets) const {
+  // --threads first, so an experiment may pin its own (the latency figure runs on one core).
+  std::vector<std::string> all = {"run.threads=" + std::to_string(threads)};
+  all.insert(all.end(), sets.begin(), sets.end());
+  all.insert(all.end(), opt.sets.begin(), opt.sets.end());
+  return resolve_config(std::nullopt, all);
+}
+
+Config StageContext::base(const ExperimentSpec& s, const std::vector<std::string>& extra) const {
+  Config c = resolve(s.set);
+  for (const auto& e : extra) apply_override(c, e);
+  finalise(c);
+  // The environment's oracle and the MARL runs use this run's models.
+  if (auto it = model_paths.find(c.env.oracle); it != model_paths.end())
+    c.env.oracle = model_labels().at(c.env.oracle).base + "=" + it->second;
+  return c;
+}
+
+std::uint64_t StageContext::oracle_hash(const Config& c) const {
+  for (const auto& [label, path] : model_paths)
+    if (c.env.oracle == model_labels().at(label).base + "=" + path) return model_hashes.at(label);
+  return 0;
+}
+
+Config StageContext::run_config(const ExperimentSpec& s, const std::string& algo, std::uint64_t seed, int users) const {
+  // One thread per run (results do not depend on the core count); runs go in parallel instead.
+  return base(s, {"marl.algo=" + algo, "run.seed=" + std::to_string(seed), "marl.total_steps=" + std::to_string(s.steps),
+                  "scenario.users=" + std::to_string(users), "run.threads=1"});
+}
+
+fs::path StageContext::run_dir(const Config& cfg) const {
+  return out / "runs" /
+         fmt::format("{}_K{}_s{}-{}", cfg.marl.algo, cfg.scenario.users, cfg.run.seed,
+                     hex(hash_text(config_key(cfg), oracle_hash(cfg))).substr(0, 12));
+}
+
+fs::path StageContext::eval_dir(const Config& cfg, const std::string& what, const std::vector<std::string>& planners) const {
+  // Shared between experiments: the same planners on the same users run once.
+  std::string key = config_key(cfg);
+  for (const auto& p : planners) key += "|" + p;
+  return out / "evals" / fmt::format("{}_K{}-{}", what, cfg.scenario.users, hex(hash_text(key, oracle_hash(cfg))).substr(0, 12));
+}
+
+namespace {
+bool trained(const fs::path& dir) { return fs::exists(dir / "train.json") && fs::exists(dir / "policy.pt"); }
+
+/// Runs planners and/or a policy on the users of cfg (seed marl.users_seed) into `dir`.
+void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::string>& planners, const fs::path& policy) {
+  PlanOptions p;
+  p.planners = planners;
+  p.seed = cfg.marl.users_seed;
+  p.out_dir = dir.string();
+  if (!policy.empty()) p.extra.push_back(std::shared_ptr<Planner>(MarlPolicy::load(policy.string())));
+  set_torch_threads(1);
+  std::ostringstream quiet;
+  std::vector<double> seconds;
+  run_planners(cfg, p, builtin_beamformers(), &quiet, &seconds);
+}
+
+/// Rough seconds on one core (only the order of the pieces depends on it).
+double marl_cost(const Config& cfg) {
+  return static_cast<double>(cfg.marl.total_steps) / 13000.0 * std::pow(cfg.scenario.uavs / 3.0, 1.3);
+}
+double planner_cost(const Config& cfg, const std::string& p) {
+  const double shared = cfg.channel.spectrum == "shared" ? 3.0 : 1.0;
+  if (p == "optimal") return 150.0 * shared;
+  if (p == "greedy") return 5.0 * shared;
+  return 1.0;
+}
+
+std::string id_of(const fs::path& p, const fs::path& root) { return p.lexically_relative(root).generic_string(); }
+}  // namespace
+
+Piece StageContext::marl_piece(const Config& cfg) const {
+  Piece p;
+  const fs::path dir = run_dir(cfg);
+  p.id = id_of(dir, out);
+  p.kind = "marl";
+  p.label = fmt::format("{} K={} seed {}", cfg.marl.algo, cfg.scenario.users, cfg.run.seed);
+  p.cost = marl_cost(cfg);
+  p.train_config = cfg;
+  p.done = [dir] { return trained(dir) && fs::exists(dir / "eval" / "summary.csv"); };
+  p.run = [this, cfg, dir] {
+    if (!trained(dir)) {
+      log << fmt::format("  training {} (K = {}, seed {}, {} steps) in {}\n", cfg.marl.algo, cfg.scenario.users, cfg.run.seed,
+                         cfg.marl.total_steps, dir.string())
+          << std::flush;
+      set_torch_threads(cfg.run.threads);
+      MarlTrainOptions t;
+      t.out_dir = dir.string();
+      t.resume = fs::exists(dir / "last.pt");
+      t.force = !t.resume;
+      t.progress = &log;
+      t.registry = &builtin_beamformers();
+      const auto r = train_marl(cfg, t);
+      nlohmann::json j = {{"seconds", r.seconds}, {"steps_per_second", r.steps_per_second}, {"env_steps", r.env_steps},
+                          {"resumed", t.resume}};
+      write_file_atomic((dir / "train.json").string(), j.dump(2) + "\n");
+    }
+    evaluate(cfg, dir / "eval", {}, dir);
+  };
+  return p;
+}
+
+Piece StageContext::eval_piece(const Config& cfg, const fs::path& dir, const std::vector<std::string>& planners,
+                               const fs::path& policy_run) const {
+  Piece p;
+  p.id = id_of(dir, out);
+  p.kind = "eval";
+  std::string names;
+  for (const auto& n : planners) names += (names.empty() ? "" : ",") + n;
+  p.label = fmt::format("{} K={}{}", names, cfg.scenario.users, policy_run.empty() ? "" : " + policy");
+  for (const auto& n : planners) p.cost += planner_cost(cfg, n);
+  if (!policy_run.empty()) p.deps.push_back(id_of(policy_run, out));
+  p.done = [dir] { return fs::exists(dir / "summary.csv"); };
+  p.run = [this, cfg, dir, planners, policy_run] {
+    if (!policy_run.empty()) ensure(marl_piece(cfg));
+    evaluate(cfg, dir, planners, policy_run);
+  };
+  return p;
+}
+
+StageContext::RunInfo StageContext::run_info(const Config& cfg) const {
+  RunInfo info;
+  info.dir = run_dir(cfg);
+  ensure(marl_piece(cfg));
+  const auto j = nlohmann::json::parse(read_file((info.dir / "train.json").string()));
+  info.seconds = j.at("seconds").get<double>();
+  info.steps_per_second = j.at("steps_per_second").get<double>();
+  return info;
+}
+
+bool StageContext::ensure(const Piece& p) const { return cache.ensure(p.id, p.done, p.run, &log); }
+
+void StageContext::eta(const std::string& what, std::size_t done, std::size_t total, double elapsed, double computed_s,
+                       std::size_t computed) const {
+  const double per = computed ? computed_s / static_cast<double>(computed) : 0.0;
+  log << fmt::format("  {} {}/{} ({:.0f} s{})\n", what, done, total, elapsed,
+                     computed && done < total ? fmt::format(", ETA {:.0f} s", per * static_cast<double>(total - done)) : "")
+      << std::flush;
+}
+
+void StageContext::write(const fs::path& relative_path, const std::string& text) const {
+  if (write_outputs) write_file_atomic((out / relative_path).string(), text);
+}
+
+}  // namespace skyloop::repro

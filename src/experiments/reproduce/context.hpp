@@ -1,0 +1,121 @@
+#pragma once
+// What the stages of `skyloop reproduce` share: the run's options and directory, the models the
+// models stage resolved, and the pieces every stage kind is made of. One file per stage kind
+// (stage_*.cpp) defines its pieces (what can run anywhere, in any order its dependencies allow)
+// and its assembly (the figure's CSVs, read back from the pieces by column name); the kinds are
+// looked up in one table (kinds.cpp).
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <ostream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "piece_cache.hpp"
+#include "skyloop/core/config.hpp"
+#include "skyloop/experiments/reproduce.hpp"
+
+namespace skyloop::repro {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t0);
+
+/// One cached unit of work. run() computes it unless it is done (under the piece's lock);
+/// nothing else writes its files.
+struct Piece {
+  std::string id;                  // its path under the run directory: unique and stable
+  std::string kind;                // model | chunk | marl | eval
+  std::string label;               // for the log
+  double cost = 1.0;               // estimated seconds on one core
+  std::vector<std::string> deps;   // ids of pieces it reads
+  std::function<bool()> done;
+  std::function<void()> run;
+  Config train_config;             // marl pieces: what a child `skyloop train` process gets
+};
+
+/// A learned-model label of the models stage: registry name and the overrides that make it.
+struct ModelLabel {
+  std::string base;
+  std::vector<std::string> sets;
+};
+const std::map<std::string, ModelLabel>& model_labels();
+
+class StageContext {
+ public:
+  StageContext(const ReproduceOptions& opt, std::ostream& log, int threads);
+
+  const ReproduceOptions& opt;
+  const fs::path out;
+  std::ostream& log;
+  const int threads;
+  const PieceCache cache;
+  bool write_outputs = true;       // false on MPI ranks other than 0: they compute, rank 0 assembles
+
+  // Filled by the models stage: label -> absolute path, hash of the bytes, path shown in reports.
+  std::map<std::string, std::string> model_paths;
+  std::map<std::string, std::uint64_t> model_hashes;
+  std::map<std::string, std::string> shown_models;
+
+  /// The run's config with `sets` (after --threads, before the command line's --set).
+  Config resolve(const std::vector<std::string>& sets) const;
+  /// An experiment's config (+ extra overrides), finalised; a learned env.oracle names this run's model.
+  Config base(const ExperimentSpec& s, const std::vector<std::string>& extra = {}) const;
+  /// Hash of the model env.oracle names (0 for a classical oracle).
+  std::uint64_t oracle_hash(const Config& c) const;
+
+  // --- MARL runs and planner evaluations (shared by the three trajectory-level kinds) ---------
+  /// One training run of `algo` on K = users: one thread, its own seed and step budget.
+  Config run_config(const ExperimentSpec& s, const std::string& algo, std::uint64_t seed, int users) const;
+  fs::path run_dir(const Config& cfg) const;
+  /// Where the planners (and/or a policy) are evaluated on the users of cfg.
+  fs::path eval_dir(const Config& cfg, const std::string& what, const std::vector<std::string>& planners) const;
+  /// The piece that trains one MARL run and evaluates its policy on its users (<run>/eval).
+  Piece marl_piece(const Config& cfg) const;
+  /// The piece that runs `planners` (and the policy of `policy_run`, if not empty) into `dir`.
+  Piece eval_piece(const Config& cfg, const fs::path& dir, const std::vector<std::string>& planners,
+                   const fs::path& policy_run) const;
+
+  struct RunInfo {
+    fs::path dir;
+    double seconds = 0, steps_per_second = 0;
+  };
+  /// A finished run's directory and timing (computing it first if needed).
+  RunInfo run_info(const Config& cfg) const;
+
+  /// Runs a piece now (if it is not done) and says whether it computed anything.
+  bool ensure(const Piece& p) const;
+
+  /// "  what done/total (elapsed s, ETA s)" progress lines of an assembly.
+  void eta(const std::string& what, std::size_t done, std::size_t total, double elapsed, double computed_s,
+           std::size_t computed) const;
+  /// Writes a file of the assembled results (on the rank that assembles).
+  void write(const fs::path& relative, const std::string& text) const;
+};
+
+/// One kind of experiment: the pieces it needs and how its CSVs are assembled from them.
+struct StageKind {
+  std::string name;
+  int phase = 1;  // 0: its pieces decide others' cache keys (the models), so they run first
+  std::function<std::vector<Piece>(StageContext&, const ExperimentSpec&)> pieces;
+  /// Writes the experiment's CSVs (computing any piece that is missing); returns their paths.
+  /// (--force deletes the experiment's directory and its pieces before it runs again.)
+  std::function<nlohmann::json(StageContext&, const ExperimentSpec&)> assemble;
+};
+
+/// The kind named `name`; an unknown kind throws InputError naming the kinds there are.
+const StageKind& stage_kind(const std::string& name);
+const std::vector<StageKind>& stage_kinds();
+
+// Defined in stage_*.cpp.
+StageKind models_stage();
+StageKind sweep_stage();
+StageKind marl_training_stage();
+StageKind planning_users_stage();
+StageKind trajectories_stage();
+
+}  // namespace skyloop::repro

@@ -1,0 +1,74 @@
+// Stage kind "planning_users": planners and trained policies at several user counts K (the
+// paper's comparison of trajectory planners vs. the number of users).
+#include <fmt/format.h>
+
+#include "context.hpp"
+#include "skyloop/core/csv.hpp"
+#include "skyloop/core/io.hpp"
+
+namespace skyloop::repro {
+
+namespace {
+
+Piece planners_at(const StageContext& ctx, const ExperimentSpec& s, int k) {
+  const Config cfg = ctx.base(s, {"scenario.users=" + std::to_string(k)});
+  return ctx.eval_piece(cfg, ctx.eval_dir(cfg, "planners", s.planners), s.planners, {});
+}
+
+std::vector<Piece> pieces(StageContext& ctx, const ExperimentSpec& s) {
+  std::vector<Piece> out;
+  for (int k : s.users) {
+    if (!s.planners.empty()) out.push_back(planners_at(ctx, s, k));
+    for (const auto& algo : s.algos)
+      for (auto seed : s.seeds) out.push_back(ctx.marl_piece(ctx.run_config(s, algo, seed, k)));
+  }
+  return out;
+}
+
+nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
+  std::string out = "experiment,users,planner,train_seed,users_seed,objective,T,success,arrivals,collisions,boundary_events,reward\n";
+  const std::size_t total = s.users.size() * (1 + s.algos.size() * s.seeds.size());
+  std::size_t done = 0, computed = 0;
+  double computed_s = 0;
+  const auto t0 = Clock::now();
+  auto add = [&](int k, const std::string& train_seed, const fs::path& summary) {
+    const CsvTable e = CsvTable::parse(read_file(summary.string()), summary.string());
+    for (std::size_t r = 0; r < e.size(); ++r)
+      out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{}\n", s.name, k, e.at(r, "planner"), train_seed, e.at(r, "seed"),
+                         e.at(r, "objective"), e.at(r, "T"), e.at(r, "success"), e.at(r, "arrivals"), e.at(r, "collisions"),
+                         e.at(r, "boundary_events"), e.at(r, "reward"));
+  };
+  for (int k : s.users) {
+    if (!s.planners.empty()) {
+      const auto tp = Clock::now();
+      const Piece p = planners_at(ctx, s, k);
+      if (ctx.ensure(p)) computed_s += since(tp), ++computed;
+      add(k, "", ctx.out / p.id / "summary.csv");
+    }
+    ctx.eta(fmt::format("K = {} planners", k), ++done, total, since(t0), computed_s, computed);
+    for (const auto& algo : s.algos)
+      for (auto seed : s.seeds) {
+        const Config cfg = ctx.run_config(s, algo, seed, k);
+        const auto tr = Clock::now();
+        const bool fresh = ctx.ensure(ctx.marl_piece(cfg));
+        if (fresh) computed_s += since(tr), ++computed;
+        add(k, std::to_string(seed), ctx.run_dir(cfg) / "eval" / "summary.csv");
+        ctx.eta(fmt::format("K = {} {} seed {}{}", k, algo, seed, fresh ? "" : " (ready)"), ++done, total, since(t0),
+                computed_s, computed);
+      }
+  }
+  ctx.write(fs::path(s.name) / (s.name + ".csv"), out);
+  return {s.name + "/" + s.name + ".csv"};
+}
+
+}  // namespace
+
+StageKind planning_users_stage() {
+  StageKind k;
+  k.name = "planning_users";
+  k.pieces = pieces;
+  k.assemble = assemble;
+  return k;
+}
+
+}  // namespace skyloop::repro

@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <filesystem>
 #include <fmt/format.h>
 #include <iostream>
@@ -7,6 +8,7 @@
 #include "skyloop/core/rng.hpp"
 #include "skyloop/experiments/beamform_eval.hpp"
 #include "skyloop/experiments/builtin.hpp"
+#include "skyloop/experiments/farm.hpp"
 #ifdef SKYLOOP_HAS_TORCH
 #include "skyloop/nn/learned.hpp"
 #endif
@@ -14,6 +16,9 @@
 namespace skyloop::cli {
 
 namespace {
+struct EvalOptions;
+int run_eval_here(const EvalOptions& o, Transport* transport);
+
 struct EvalOptions {
   ConfigOptions config;
   std::string methods = "mrt,zf,rzf,wmmse,ga";
@@ -23,18 +28,56 @@ struct EvalOptions {
   bool quiet = false;
   bool test_set = false;
   bool samples_given = false;
+  bool mpi = false;
 };
 
+/// The snapshots cut into chunks over the ranks of an MPI job; rank 0 gets the rows back in
+/// snapshot order (the same rows as one process: snapshot i is seeded by its index alone).
+std::vector<BeamformEvalRow> eval_on_ranks(Transport& t, const Config& cfg, const BeamformEvalOptions& opt, bool quiet) {
+  const std::size_t chunk =
+      std::clamp<std::size_t>((opt.samples + 4 * static_cast<std::size_t>(t.size()) - 1) / (4 * static_cast<std::size_t>(t.size())), 1, 100);
+  std::vector<FarmTask> tasks;
+  for (std::size_t first = 0; first < opt.samples; first += chunk) {
+    const std::size_t last = std::min(opt.samples, first + chunk) - 1;
+    tasks.push_back({fmt::format("snapshots {}-{}", first, last), "chunk", fmt::format("snapshots {}-{}", first, last),
+                     static_cast<double>(last - first + 1), {}});
+  }
+  std::vector<std::vector<BeamformEvalRow>> parts(tasks.size());
+  const auto records = farm_run(
+      &t, tasks,
+      [&](std::size_t i) {
+        BeamformEvalOptions part = opt;
+        part.first = opt.first + i * chunk;
+        part.samples = std::min(opt.samples, (i + 1) * chunk) - i * chunk;
+        return beamform_eval_csv(run_beamform_eval(cfg, part, builtin_beamformers(), nullptr), cfg);
+      },
+      [&](std::size_t i, const std::string& csv) { parts[i] = parse_beamform_eval_csv(csv, tasks[i].id); },
+      quiet ? nullptr : &std::cerr);
+  std::vector<BeamformEvalRow> rows;
+  for (const auto& r : records)
+    if (!r.ok) throw std::runtime_error(tasks[r.task].id + " failed: " + r.error);
+  for (auto& p : parts) rows.insert(rows.end(), p.begin(), p.end());
+  return rows;
+}
+
 int run_eval(const EvalOptions& o) {
+  const auto transport = open_transport(o.mpi);
+  if (transport && transport->size() == 1) return run_eval_here(o, nullptr);
+  return on_every_rank(transport.get(), [&] { return run_eval_here(o, transport.get()); });
+}
+
+int run_eval_here(const EvalOptions& o, Transport* transport) {
   std::vector<std::string> extra;
   if (!o.uavs.empty()) extra.push_back("scenario.uavs=" + o.uavs);
   if (!o.users.empty()) extra.push_back("scenario.users=" + o.users);
   if (!o.seed.empty()) extra.push_back("run.seed=" + o.seed);
   if (!o.threads.empty()) extra.push_back("run.threads=" + o.threads);
-  const Config cfg = o.config.resolve(extra);
+  Config cfg = o.config.resolve(extra);
+  if (transport) cfg.run.threads = threads_per_rank(cfg.run.threads, transport);
+  const bool rank0 = !transport || transport->rank() == 0;
   std::filesystem::path csv_path(o.out), config_path(o.out);
   config_path.replace_extension(".config.toml");
-  if (!o.out.empty()) check_output_path(csv_path.string()), check_output_path(config_path.string());
+  if (!o.out.empty() && rank0) check_output_path(csv_path.string()), check_output_path(config_path.string());
 #ifdef SKYLOOP_HAS_TORCH
   set_torch_threads(1);  // decisions are timed on one core each; samples run in parallel instead
 #endif
@@ -50,14 +93,17 @@ int run_eval(const EvalOptions& o) {
     // The learned models' held-out test split: snapshot i = derive_seed(derive_seed(nn.data_seed, 3), i).
     opt.seed = derive_seed(cfg.nn.data_seed, 3);
     if (!o.samples_given) opt.samples = static_cast<std::size_t>(cfg.nn.test_samples);
-    std::cout << "evaluating on the test split of nn.data_seed = " << cfg.nn.data_seed << "\n";
+    if (rank0) std::cout << "evaluating on the test split of nn.data_seed = " << cfg.nn.data_seed << "\n";
   }
-  std::cout << fmt::format("beamform eval: N = {} UAVs, K = {} users, L = {}, P_max = {} dBm, noise = {} dBm, "
-                           "{} samples, seed {}\n",
-                           opt.uavs, opt.users, cfg.channel.antennas, cfg.channel.p_max_dbm, cfg.channel.noise_dbm,
-                           opt.samples, opt.seed)
-            << std::flush;
-  const auto rows = run_beamform_eval(cfg, opt, builtin_beamformers(), o.quiet ? nullptr : &std::cerr);
+  if (rank0)
+    std::cout << fmt::format("beamform eval: N = {} UAVs, K = {} users, L = {}, P_max = {} dBm, noise = {} dBm, "
+                             "{} samples, seed {}{}\n",
+                             opt.uavs, opt.users, cfg.channel.antennas, cfg.channel.p_max_dbm, cfg.channel.noise_dbm,
+                             opt.samples, opt.seed, transport ? fmt::format(", {} ranks", transport->size()) : "")
+              << std::flush;
+  const auto rows = transport ? eval_on_ranks(*transport, cfg, opt, o.quiet)
+                              : run_beamform_eval(cfg, opt, builtin_beamformers(), o.quiet ? nullptr : &std::cerr);
+  if (!rank0) return 0;
   if (!o.out.empty()) {
     const auto& csv = csv_path;
     const auto& resolved = config_path;
@@ -112,6 +158,8 @@ void add_beamform_command(CLI::App& app, Action& action) {
   eval->add_option("--threads", o->threads, "worker threads, 0 = all (sets run.threads)");
   eval->add_option("--out", o->out, "tidy CSV output; the resolved config is written beside it (.config.toml)");
   eval->add_flag("--quiet", o->quiet, "no progress lines");
+  eval->add_flag("--mpi", o->mpi,
+                 "spread the snapshots over the ranks of an MPI job (on by itself under mpirun; rank 0 writes the output)");
   eval->add_flag("--test-set", o->test_set,
                  "evaluate on the learned models' held-out test snapshots (nn.data_seed, nn.test_samples)");
   add_config_options(eval, o->config);

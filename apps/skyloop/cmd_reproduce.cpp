@@ -5,7 +5,6 @@
 #include "common.hpp"
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/core/error.hpp"
-#include "skyloop/experiments/farm.hpp"
 #include "skyloop/experiments/reproduce.hpp"
 
 namespace skyloop::cli {
@@ -63,18 +62,7 @@ void add_reproduce_command(CLI::App& app, Action& action) {
       const int rank = transport ? transport->rank() : 0;
       o->r.transport = transport.get();
       o->r.progress = &std::cerr;
-      int rc = 0;
-      try {
-        rc = reproduce(o->r);
-      } catch (const InputError&) {
-        // Every rank reads the same files and options, so every rank fails alike: rank 0 says it.
-        if (rank != 0) return 2;
-        throw;
-      } catch (const std::exception& e) {
-        if (!transport || transport->size() == 1) throw;
-        std::cerr << "skyloop: failed on rank " << rank << ": " << e.what() << "\n" << std::flush;
-        transport->abort(1);  // the other ranks may be waiting for this one
-      }
+      const int rc = on_every_rank(transport.get(), [&] { return reproduce(o->r); });
       if (rank != 0) return rc;
       const std::string out = o->r.out_dir.empty() ? "results/" + o->r.profile : o->r.out_dir;
       if (o->r.shard_count > 0)

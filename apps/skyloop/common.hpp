@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "skyloop/core/config_io.hpp"
+#include "skyloop/experiments/farm.hpp"
 
 namespace skyloop::cli {
 
@@ -17,6 +18,12 @@ struct ConfigOptions {
 };
 
 void add_config_options(CLI::App* cmd, ConfigOptions& o);
+
+/// Runs `body` on this rank of an MPI job (`transport` null: one process). Every rank reads the
+/// same input, so a bad input fails alike everywhere: rank 0 says it in one line, the others
+/// exit with the same status quietly. Any other failure ends every rank at once (the others may
+/// be waiting for this one).
+int on_every_rank(Transport* transport, const std::function<int()>& body);
 
 /// The command chosen on the command line, run after parsing succeeds.
 using Action = std::function<int()>;

@@ -23,6 +23,20 @@ void add_config_options(CLI::App* cmd, ConfigOptions& o) {
       ->type_name("KEY=VALUE");
 }
 
+int on_every_rank(Transport* transport, const std::function<int()>& body) {
+  const int rank = transport ? transport->rank() : 0;
+  try {
+    return body();
+  } catch (const InputError&) {
+    if (rank != 0) return 2;
+    throw;
+  } catch (const std::exception& e) {
+    if (!transport || transport->size() == 1) throw;
+    std::cerr << "skyloop: failed on rank " << rank << ": " << e.what() << "\n" << std::flush;
+    transport->abort(1);
+  }
+}
+
 /// The first word that names no subcommand where one is required: "unknown command 'x': allowed
 /// a, b, c" (CLI11 alone says only that a subcommand is required). Empty if the words are fine.
 std::string unknown_command(CLI::App& app, int argc, char** argv) {

@@ -14,6 +14,7 @@
 #include <mutex>
 #include <ostream>
 #include <queue>
+#include <sched.h>
 #include <stdexcept>
 #include <thread>
 
@@ -186,6 +187,21 @@ class LocalWorker {
 };
 
 }  // namespace
+
+int threads_per_rank(int requested, const Transport* transport) {
+  if (requested > 0) return requested;
+  int cores = 0;
+  cpu_set_t set;
+  if (sched_getaffinity(0, sizeof set, &set) == 0) cores = CPU_COUNT(&set);
+  const int machine = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  if (cores <= 0) cores = machine;
+  const int ranks = transport ? transport->size() : 1;
+  if (ranks > 1 && cores >= machine) {
+    const char* local = std::getenv("OMPI_COMM_WORLD_LOCAL_SIZE");
+    cores = std::max(1, cores / (local ? std::max(1, std::atoi(local)) : ranks));
+  }
+  return cores;
+}
 
 bool launched_by_mpi() {
   for (const char* v : {"OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"})

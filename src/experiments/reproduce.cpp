@@ -15,7 +15,6 @@
 #include <fmt/format.h>
 #include <fstream>
 #include <mutex>
-#include <sched.h>
 #include <thread>
 #include <unordered_map>
 
@@ -23,7 +22,6 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
-#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/process.hpp"
 #include "skyloop/experiments/farm.hpp"
 
@@ -351,13 +349,6 @@ class Runner {
   }
 };
 
-/// Cores this process may run on (its affinity mask: what Slurm or mpirun gave it).
-int available_cores() {
-  cpu_set_t set;
-  if (sched_getaffinity(0, sizeof set, &set) == 0) return std::max(1, CPU_COUNT(&set));
-  return resolve_threads(0);
-}
-
 }  // namespace
 
 int reproduce(const ReproduceOptions& o) {
@@ -380,16 +371,7 @@ int reproduce(const ReproduceOptions& o) {
   const auto specs = load_experiments(opt.experiments_dir, opt.profile);
 
   const int ranks = opt.transport ? opt.transport->size() : 1, rank = opt.transport ? opt.transport->rank() : 0;
-  int threads = opt.threads;
-  if (threads <= 0) {
-    // All the cores this process may use, shared with the other ranks on this machine unless
-    // the launcher bound each rank to its own.
-    threads = available_cores();
-    if (ranks > 1 && threads >= resolve_threads(0)) {
-      const char* local = std::getenv("OMPI_COMM_WORLD_LOCAL_SIZE");
-      threads = std::max(1, threads / (local ? std::max(1, std::atoi(local)) : ranks));
-    }
-  }
+  const int threads = threads_per_rank(opt.threads, opt.transport);
   const int jobs = opt.jobs > 0 ? opt.jobs : threads;
   std::ostringstream null;
   std::ofstream rank_log;

@@ -69,6 +69,11 @@ std::vector<std::size_t> shard_slice(const std::vector<FarmTask>& tasks, int i, 
 /// The order one process runs the tasks in: dependencies first, longest estimated first.
 std::vector<std::size_t> priority_order(const std::vector<FarmTask>& tasks);
 
+/// Worker threads for one rank: `requested` if > 0, else the cores this process may run on (its
+/// affinity mask, which Slurm and mpirun set), shared with the other ranks on this machine when
+/// the launcher did not bind each rank to its own cores.
+int threads_per_rank(int requested, const Transport* transport);
+
 /// The transport for this process: MPI when this binary has it and was started by an MPI
 /// launcher (or `force` is set), else null. `force` without MPI support throws InputError.
 /// Defined in mpi_transport.cpp; builds without MPI get the stub in farm.cpp.

@@ -16,6 +16,7 @@
 #include <fstream>
 #include <mutex>
 #include <thread>
+#include <unistd.h>
 #include <unordered_map>
 
 #include "reproduce/context.hpp"
@@ -220,12 +221,14 @@ class Runner {
       const FarmTask& t = tasks[r.task];
       std::string deps, error = r.error;
       for (auto d : t.deps) deps += (deps.empty() ? "" : ";") + tasks[d].id;
+      std::string label = t.label;
       std::replace(error.begin(), error.end(), ',', ';');
+      std::replace(label.begin(), label.end(), ',', ';');
       std::replace(error.begin(), error.end(), '\n', ' ');
       const std::string status = r.ok ? "done" : r.rank < 0 ? "not run" : "failed: " + error;
       if (!r.ok) note_failure(t.id, r.rank < 0 ? r.error : error);
       if (r.rank >= 0) busy += r.seconds, overhead.push_back(r.overhead());
-      csv += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", phase, ranks_, t.id, t.kind, t.label, r.rank,
+      csv += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", phase, ranks_, t.id, t.kind, label, r.rank,
                          format_double(t.cost), format_double(r.assigned), format_double(r.received), format_double(r.seconds),
                          format_double(r.rank >= 0 ? 1e3 * r.overhead() : 0.0), status, deps);
     }
@@ -272,7 +275,8 @@ class Runner {
             [&] {
               write_file_atomic((dir / "request.toml").string(), to_toml(cfg));
               std::vector<std::string> argv = {exe, "train", "--config", (dir / "request.toml").string(), "--out", dir.string()};
-              argv.push_back(fs::exists(dir / "last.pt") ? "--resume" : "--force");
+              if (fs::exists(dir / "last.pt")) log_ << restart_note(dir) << std::flush;
+              argv.push_back("--force");
               const auto tr = Clock::now();
               rc = run_process(argv, (dir / "train.log").string());
               sec = since(tr);
@@ -381,6 +385,7 @@ int reproduce(const ReproduceOptions& o) {
     fs::create_directories(fs::path(opt.out_dir) / "farm");
     rank_log.open(fs::path(opt.out_dir) / "farm" / fmt::format("rank{}.log", rank));
     log = &rank_log;
+    rank_log << fmt::format("rank {} of {}, pid {}\n", rank, ranks, static_cast<long>(::getpid())) << std::flush;
   }
   const int rc = Runner(opt, *log, threads, jobs).run(specs);
   if (rank != 0 || opt.shard_count > 0 || !opt.plots) return rc;

@@ -104,6 +104,12 @@ double planner_cost(const Config& cfg, const std::string& p) {
 std::string id_of(const fs::path& p, const fs::path& root) { return p.lexically_relative(root).generic_string(); }
 }  // namespace
 
+std::string restart_note(const fs::path& dir) {
+  return "  " + dir.string() +
+         ": an interrupted MARL run starts again from its first step (a resumed run would not give the numbers of an "
+         "uninterrupted one: the environments' episodes are not checkpointed)\n";
+}
+
 Piece StageContext::marl_piece(const Config& cfg) const {
   Piece p;
   const fs::path dir = run_dir(cfg);
@@ -121,13 +127,12 @@ Piece StageContext::marl_piece(const Config& cfg) const {
       set_torch_threads(cfg.run.threads);
       MarlTrainOptions t;
       t.out_dir = dir.string();
-      t.resume = fs::exists(dir / "last.pt");
-      t.force = !t.resume;
+      t.force = true;  // an interrupted run starts again (see restart_note)
+      if (fs::exists(dir / "last.pt")) log << restart_note(dir) << std::flush;
       t.progress = &log;
       t.registry = &builtin_beamformers();
       const auto r = train_marl(cfg, t);
-      nlohmann::json j = {{"seconds", r.seconds}, {"steps_per_second", r.steps_per_second}, {"env_steps", r.env_steps},
-                          {"resumed", t.resume}};
+      nlohmann::json j = {{"seconds", r.seconds}, {"steps_per_second", r.steps_per_second}, {"env_steps", r.env_steps}};
       write_file_atomic((dir / "train.json").string(), j.dump(2) + "\n");
     }
     evaluate(cfg, dir / "eval", {}, dir);
@@ -141,7 +146,7 @@ Piece StageContext::eval_piece(const Config& cfg, const fs::path& dir, const std
   p.id = id_of(dir, out);
   p.kind = "eval";
   std::string names;
-  for (const auto& n : planners) names += (names.empty() ? "" : ",") + n;
+  for (const auto& n : planners) names += (names.empty() ? "" : "+") + n;
   p.label = fmt::format("{} K={}{}", names, cfg.scenario.users, policy_run.empty() ? "" : " + policy");
   for (const auto& n : planners) p.cost += planner_cost(cfg, n);
   if (!policy_run.empty()) p.deps.push_back(id_of(policy_run, out));

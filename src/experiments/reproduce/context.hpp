@@ -38,6 +38,11 @@ struct Piece {
   Config train_config;             // marl pieces: what a child `skyloop train` process gets
 };
 
+/// The log line of a MARL run that was interrupted and starts again from scratch: the cache
+/// holds only results equal to an uninterrupted run's (a resumed beamformer training is exact and
+/// resumes; a resumed MARL run is not).
+std::string restart_note(const fs::path& dir);
+
 /// A learned-model label of the models stage: registry name and the overrides that make it.
 struct ModelLabel {
   std::string base;

@@ -1,0 +1,162 @@
+"""`skyloop reproduce` beyond one process: under mpirun (2 and 3 ranks), after a rank is killed
+mid-run and the job rerun, and as shards 1/2 and 2/2 plus an assembling run, the tiny profile
+gives the same CSVs (every column but the timings) and manifest as one process.
+
+Run by ctest (farm.*) with SKYLOOP_BIN=<the skyloop binary> and SKYLOOP_MPI=1 when the build has
+MPI; as root, mpirun needs --allow-run-as-root; --oversubscribe lets 3 ranks share 2 cores."""
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+BIN = os.environ.get("SKYLOOP_BIN", "build/skyloop")
+HAVE_MPI = os.environ.get("SKYLOOP_MPI") == "1"
+# Columns that hold wall times or rates: they differ from run to run by nature.
+TIMING = {"median_latency_ms", "mean_latency_ms", "latency_ms", "seconds", "train_seconds", "steps_per_second",
+          "charts/steps_per_s"}
+ARGS = ["reproduce", "--profile", "tiny", "--no-plots"]
+
+
+def mpirun(n):
+    exe = shutil.which("mpirun")
+    assert exe, "the build has MPI but mpirun is not on PATH (scripts/install-deps installs openmpi-bin)"
+    cmd = [exe, "--oversubscribe", "-np", str(n)]
+    if os.geteuid() == 0:
+        cmd.insert(1, "--allow-run-as-root")
+    return cmd
+
+
+def run(cmd, **kw):
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=600, **kw)
+
+
+def results(out: Path):
+    """{experiment/file.csv: rows without timing columns} and the manifest's experiments and models."""
+    manifest = json.loads((out / "manifest.json").read_text())
+    tables = {}
+    for e in manifest["experiments"]:
+        for f in e["files"]:
+            with open(out / f) as fh:
+                tables[f] = [{k: v for k, v in row.items() if k not in TIMING} for row in csv.DictReader(fh)]
+    shape = [(e["name"], e["kind"], e["files"]) for e in manifest["experiments"]]
+    return tables, shape, manifest["models"]
+
+
+def same(a: Path, b: Path):
+    ta, sa, ma = results(a)
+    tb, sb, mb = results(b)
+    assert sa == sb
+    assert ma == mb
+    assert ta.keys() == tb.keys()
+    for f in ta:
+        assert len(ta[f]) == len(tb[f]), f
+        for i, (x, y) in enumerate(zip(ta[f], tb[f])):
+            assert x == y, f"{f} row {i}: {x} != {y}"
+    return len(ta)
+
+
+@pytest.fixture(scope="module")
+def single(tmp_path_factory):
+    out = tmp_path_factory.mktemp("single") / "run"
+    r = run([BIN, *ARGS, "--threads", "2", "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+needs_mpi = pytest.mark.skipif(not HAVE_MPI, reason="this build has no MPI (SKYLOOP_MPI != 1)")
+
+
+@needs_mpi
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_mpi_matches_one_process(single, tmp_path, ranks):
+    out = tmp_path / "run"
+    r = run(mpirun(ranks) + [BIN, *ARGS, "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    assert f"on {ranks} ranks" in r.stderr
+    assert same(single, out) >= 30
+    pieces = list(csv.DictReader(open(out / "farm" / "pieces.csv")))
+    assert {p["rank"] for p in pieces} == {str(i) for i in range(ranks)}, "every rank computed pieces"
+    assert all(p["status"] == "done" for p in pieces)
+    # Dependencies ran first: an evaluation of a policy starts after its training run ended.
+    at = {(p["phase"], p["piece"]): p for p in pieces}
+    for p in pieces:
+        for d in filter(None, p["deps"].split(";")):
+            assert float(at[(p["phase"], d)]["received_s"]) <= float(p["assigned_s"])
+    # The farm's own time per piece (assignment to result, minus the work) stays small.
+    overhead = sorted(float(p["overhead_ms"]) for p in pieces)
+    assert overhead[len(overhead) // 2] < 50, overhead
+
+
+@needs_mpi
+def test_killed_rank_resumes_from_the_cache(single, tmp_path):
+    out = tmp_path / "run"
+    job = subprocess.Popen(mpirun(2) + [BIN, *ARGS, "--out", str(out)], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    # Kill rank 1 once it is into the MARL runs (phase 1, some pieces done, others not).
+    log = out / "farm" / "rank1.log"
+    deadline = time.time() + 300
+    while time.time() < deadline and job.poll() is None:
+        if log.exists() and "steps) in" in log.read_text():  # "training mappo (K = 12, seed 1, 1024 steps) in ..."
+            break
+        time.sleep(0.05)
+    assert job.poll() is None, "the job ended before rank 1 was killed: " + job.communicate()[1][-2000:]
+    pid = int(log.read_text().split("pid ")[1].split()[0])
+    os.kill(pid, signal.SIGKILL)
+    _, err = job.communicate(timeout=120)
+    assert job.returncode != 0, "mpirun reports the lost rank"
+    assert not (out / "manifest.json").exists(), "nothing was assembled from a broken job"
+
+    again = run(mpirun(2) + [BIN, *ARGS, "--out", str(out)])
+    assert again.returncode == 0, again.stderr
+    # The rerun computes only what was left: the models and finished pieces come from the cache.
+    assert "phase 0: 0 of 6 pieces" in again.stderr, again.stderr
+    line = next(l for l in again.stderr.splitlines() if l.startswith("phase 1:") and "to compute" in l)
+    left, total = int(line.split()[2]), int(line.split()[4])
+    assert 0 < left < total, line
+    same(single, out)
+
+
+def test_shards_then_assembly_match_one_process(single, tmp_path):
+    out = tmp_path / "run"
+    shards = [subprocess.Popen([BIN, *ARGS, "--threads", "1", "--shard", f"{i}/2", "--out", str(out)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in (1, 2)]
+    for s in shards:
+        _, err = s.communicate(timeout=600)
+        assert s.returncode == 0, err
+        assert "assemble" in err
+    assert not (out / "manifest.json").exists(), "a shard assembles nothing"
+    r = run([BIN, *ARGS, "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    assert not [l for l in r.stderr.splitlines() if l.startswith("  training ")], "the shards computed every piece"
+    same(single, out)
+
+
+@pytest.mark.parametrize("shard", ["0/2", "3/2", "1/0", "x", "1/2/3", "1-2"])
+def test_bad_shard_is_one_line(tmp_path, shard):
+    r = run([BIN, *ARGS, "--shard", shard, "--out", str(tmp_path / "o")])
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and "--shard" in r.stderr, r.stderr
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_force_with_shard_is_refused(tmp_path):
+    r = run([BIN, *ARGS, "--shard", "1/2", "--force", "--out", str(tmp_path / "o")])
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--force" in r.stderr, r.stderr
+
+
+@needs_mpi
+def test_beamform_eval_over_ranks_gives_the_same_rows(tmp_path):
+    base = [BIN, "beamform", "eval", "--methods", "mrt,zf,wmmse,gnn", "--samples", "30", "--quiet"]
+    one = run(base + ["--out", str(tmp_path / "one.csv")])
+    assert one.returncode == 0, one.stderr
+    three = run(mpirun(3) + base + ["--out", str(tmp_path / "three.csv")])
+    assert three.returncode == 0, three.stderr
+    assert "3 ranks" in three.stdout
+    strip = lambda p: [{k: v for k, v in r.items() if k not in TIMING} for r in csv.DictReader(open(p))]
+    assert strip(tmp_path / "one.csv") == strip(tmp_path / "three.csv")

@@ -13,7 +13,7 @@ namespace {
 struct Opts {
   ReproduceOptions r;
   std::string only, shard;
-  bool mpi = false;
+  bool mpi = false, plan = false;
 };
 
 /// "i/n" -> (i, n); one error line otherwise.
@@ -51,6 +51,8 @@ void add_reproduce_command(CLI::App& app, Action& action) {
                   "--shard $((SLURM_ARRAY_TASK_ID+1))/$SLURM_ARRAY_TASK_COUNT); a later run without --shard assembles")
       ->type_name("I/N");
   cmd->add_flag("--mpi", o->mpi, "use MPI even when no MPI launcher is detected (under mpirun it is on by itself)");
+  cmd->add_flag("--plan", o->plan,
+                "compute nothing: print every piece (phase, id, kind, estimated seconds, done, dependencies) as CSV");
   cmd->add_flag("--force", o->r.force, "redo the selected experiments instead of reusing cached results");
   cmd->add_flag("--no-plots", [o](std::int64_t) { o->r.plots = false; }, "write the CSVs only (no figures, no report)");
   cmd->add_option("--python", o->r.python, "python interpreter with matplotlib")->capture_default_str();
@@ -62,6 +64,10 @@ void add_reproduce_command(CLI::App& app, Action& action) {
       const int rank = transport ? transport->rank() : 0;
       o->r.transport = transport.get();
       o->r.progress = &std::cerr;
+      if (o->plan) {
+        o->r.plan_out = &std::cout;
+        return reproduce(o->r);
+      }
       const int rc = on_every_rank(transport.get(), [&] { return reproduce(o->r); });
       if (rank != 0) return rc;
       const std::string out = o->r.out_dir.empty() ? "results/" + o->r.profile : o->r.out_dir;

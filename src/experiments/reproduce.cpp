@@ -46,12 +46,13 @@ class Runner {
     const auto selected = select(specs);
     // Every experiment's kind and configuration resolve before any work starts: a typo fails at once.
     for (const auto* s : selected) (void)stage_kind(s->kind), (void)ctx_.base(*s);
-    if (ctx_.write_outputs) {
+    if (ctx_.write_outputs && !opt_.plan_out) {
       remove_stale_temporaries(ctx_.out.string(), true);  // debris of a run killed mid-write
       write_file_atomic((ctx_.out / "config.toml").string(), to_toml(ctx_.resolve({})));
     }
     std::vector<const ExperimentSpec*> models, others;
     for (const auto* s : selected) (stage_kind(s->kind).phase == 0 ? models : others).push_back(s);
+    if (opt_.plan_out) return print_plan(models, others);
 
     if (opt_.force && ctx_.write_outputs) forget(models);
     if (t_) t_->barrier();  // workers start once rank 0 has cleaned up
@@ -202,6 +203,33 @@ class Runner {
     const auto records = farm_run(t_, tasks, work, [](std::size_t, const std::string&) {}, rank_ == 0 ? &log_ : nullptr);
     if (rank_ != 0) return;
     record_farm(phase, tasks, records, since(t0));
+  }
+
+  /// --plan: every piece with its estimate, done or not; phase 1 needs the models to exist.
+  int print_plan(const std::vector<const ExperimentSpec*>& models, const std::vector<const ExperimentSpec*>& others) {
+    std::ostream& out = *opt_.plan_out;
+    out << "phase,piece,kind,label,cost_estimate,done,deps\n";
+    auto print = [&](int phase, const std::vector<Piece>& pieces) {
+      std::size_t missing = 0;
+      for (const auto& p : pieces) {
+        std::string deps, label = p.label;
+        for (const auto& d : p.deps) deps += (deps.empty() ? "" : ";") + d;
+        std::replace(label.begin(), label.end(), ',', ';');
+        const bool done = p.done();
+        missing += done ? 0 : 1;
+        out << fmt::format("{},{},{},{},{},{},{}\n", phase, p.id, p.kind, label, format_double(p.cost), done ? 1 : 0, deps);
+      }
+      return missing;
+    };
+    if (print(0, plan(models)) > 0) {
+      log_ << "--plan: phase 1 is planned once the models exist (its cache keys hold their bytes); run the models stage "
+              "first (e.g. --only models)\n";
+      return 0;
+    }
+    ctx_.write_outputs = false;
+    for (const auto* s : models) stage_kind(s->kind).assemble(ctx_, *s);
+    print(1, plan(others));
+    return 0;
   }
 
   void note_failure(const std::string& id, const std::string& what) {
@@ -388,7 +416,7 @@ int reproduce(const ReproduceOptions& o) {
     rank_log << fmt::format("rank {} of {}, pid {}\n", rank, ranks, static_cast<long>(::getpid())) << std::flush;
   }
   const int rc = Runner(opt, *log, threads, jobs).run(specs);
-  if (rank != 0 || opt.shard_count > 0 || !opt.plots) return rc;
+  if (rank != 0 || opt.shard_count > 0 || opt.plan_out || !opt.plots) return rc;
   const std::string script = (fs::path(source_dir()) / "scripts" / "plot_figures.py").string();
   const std::string cmd = fmt::format("'{}' '{}' '{}'", opt.python, script, opt.out_dir);
   if (opt.progress) *opt.progress << "plots and report: " << cmd << "\n" << std::flush;

@@ -122,10 +122,16 @@ def test_killed_rank_resumes_from_the_cache(single, tmp_path):
     same(single, out)
 
 
+SBATCH = Path(__file__).resolve().parents[2] / "scripts" / "slurm" / "reproduce.sbatch"
+
+
 def test_shards_then_assembly_match_one_process(single, tmp_path):
+    """The documented Slurm array script, as Slurm would start its two tasks (at the same time)."""
     out = tmp_path / "run"
-    shards = [subprocess.Popen([BIN, *ARGS, "--threads", "1", "--shard", f"{i}/2", "--out", str(out)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for i in (1, 2)]
+    env = lambda i: {**os.environ, "SLURM_ARRAY_TASK_ID": str(i), "SLURM_ARRAY_TASK_COUNT": "2", "SKYLOOP": BIN,
+                     "PROFILE": "tiny", "OUT": str(out), "EXTRA": "--no-plots"}
+    shards = [subprocess.Popen(["bash", str(SBATCH)], env=env(i), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True) for i in (0, 1)]
     for s in shards:
         _, err = s.communicate(timeout=600)
         assert s.returncode == 0, err

@@ -67,6 +67,9 @@ struct ReproduceOptions {
   // a later run without a shard assembles.
   Transport* transport = nullptr;
   int shard_index = 0, shard_count = 0;
+  /// Compute nothing: write the pieces as CSV to `plan_out` (phase, piece, kind, label, estimated
+  /// seconds on one core, done, dependencies), for scheduling projections (scripts/farm_projection.py).
+  std::ostream* plan_out = nullptr;
   std::string python = "/usr/bin/python3";
   std::ostream* progress = nullptr;
 };

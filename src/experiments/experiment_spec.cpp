@@ -14,9 +14,13 @@ namespace skyloop {
 
 std::string source_dir() { return data_dir(); }
 
+const std::vector<std::string>& experiment_kinds() {
+  static const std::vector<std::string> kinds = {"models", "beamform_sweep", "marl_training", "planning_users", "trajectories"};
+  return kinds;
+}
+
 namespace {
 
-const std::vector<std::string> kKinds = {"models", "beamform_sweep", "marl_training", "planning_users", "trajectories"};
 const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "set",   "models", "reuse_shipped",
                                         "sweep", "values", "methods", "samples", "seed", "algos", "seeds",
                                         "steps", "users",  "planners"};
@@ -154,7 +158,7 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
   if (s.name.empty()) throw InputError(source + ": experiment.name is missing: allowed a directory name");
   if (s.name.find_first_not_of("abcdefghijklmnopqrstuvwxyz0123456789_") != std::string::npos)
     throw InputError(source + ": experiment.name = \"" + s.name + "\" is invalid: allowed lower-case letters, digits and _");
-  check_in(source, "experiment.kind", s.kind, kKinds);
+  check_in(source, "experiment.kind", s.kind, experiment_kinds());
   auto need = [&](bool ok, const std::string& key, const std::string& what) {
     if (!ok) throw InputError(source + ": " + key + " is missing for kind \"" + s.kind + "\": allowed " + what);
   };

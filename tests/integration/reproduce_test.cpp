@@ -16,6 +16,8 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/experiments/reproduce.hpp"
+// The stage kind table (internal to the library).
+#include "../../src/experiments/reproduce/context.hpp"
 
 namespace fs = std::filesystem;
 using namespace skyloop;
@@ -133,6 +135,25 @@ TEST(Experiments, BadFilesGiveOneClearError) {
       EXPECT_NE(msg.find(want), std::string::npos) << msg;
       EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
     }
+  }
+}
+
+// Every kind an experiment file may name has a stage, and the table holds no other; an unknown
+// kind is an error naming the kinds there are, never a silent fall-through to another stage.
+TEST(Reproduce, EveryExperimentKindHasAStage) {
+  std::set<std::string> table;
+  for (const auto& k : repro::stage_kinds()) {
+    EXPECT_TRUE(table.insert(k.name).second) << k.name << " twice";
+    EXPECT_TRUE(k.pieces && k.assemble) << k.name;
+  }
+  EXPECT_EQ(table, std::set<std::string>(experiment_kinds().begin(), experiment_kinds().end()));
+  EXPECT_EQ(repro::stage_kind("models").phase, 0);
+  try {
+    repro::stage_kind("beamform_swep");
+    ADD_FAILURE() << "an unknown kind was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("beamform_swep"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("trajectories"), std::string::npos) << e.what();
   }
 }
 

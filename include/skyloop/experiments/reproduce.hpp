@@ -48,6 +48,9 @@ struct ExperimentSpec {
 /// not define throw InputError naming the file, the key and what is allowed.
 ExperimentSpec parse_experiment(const std::string& toml_text, const std::string& source, const std::string& profile);
 
+/// The kinds an experiment file may name (each has a stage in reproduce's kind table).
+const std::vector<std::string>& experiment_kinds();
+
 /// Every *.toml in `dir`, in file-name order.
 std::vector<ExperimentSpec> load_experiments(const std::string& dir, const std::string& profile);
 

@@ -64,7 +64,7 @@ int main(int argc, char** argv) {
   using namespace skyloop;
   install_interrupt_handlers();
   CLI::App app{"skyloop: joint beamforming and trajectory optimisation for multi-UAV downlink networks"};
-  app.set_version_flag("--version", std::string("skyloop ") + SKYLOOP_VERSION);
+  app.set_version_flag("--version", std::string("skyloop ") + SKYLOOP_VERSION + (mpi_available() ? " (MPI)" : " (no MPI)"));
   app.require_subcommand(1);
   cli::Action action;
   cli::add_beamform_command(app, action);

@@ -197,10 +197,26 @@ class Runner {
       return;
     }
     if (rank_ == 0)
-      log_ << fmt::format("phase {}: {} of {} pieces to compute on {} ranks\n", phase, tasks.size(), pieces.size(), ranks_)
+      log_ << fmt::format("phase {}: {} of {} pieces to compute on {} ranks (their logs: {})\n", phase, tasks.size(),
+                          pieces.size(), ranks_, (ctx_.out / "farm" / "rank<r>.log").string())
            << std::flush;
+    // Rank 0 prints one line per piece; the pieces it computes itself log to farm/rank0.log.
+    std::ofstream own;
+    std::streambuf* const shown = ctx_.log.rdbuf();
+    if (rank_ == 0) {
+      fs::create_directories(ctx_.out / "farm");
+      own.open(ctx_.out / "farm" / "rank0.log", std::ios::app);
+      ctx_.log.rdbuf(own.rdbuf());
+    }
     const auto t0 = Clock::now();
-    const auto records = farm_run(t_, tasks, work, [](std::size_t, const std::string&) {}, rank_ == 0 ? &log_ : nullptr);
+    std::vector<FarmRecord> records;
+    try {
+      records = farm_run(t_, tasks, work, [](std::size_t, const std::string&) {}, rank_ == 0 ? &log_ : nullptr);
+    } catch (...) {
+      ctx_.log.rdbuf(shown);
+      throw;
+    }
+    ctx_.log.rdbuf(shown);
     if (rank_ != 0) return;
     record_farm(phase, tasks, records, since(t0));
   }

@@ -56,7 +56,7 @@ class StageContext {
 
   const ReproduceOptions& opt;
   const fs::path out;
-  std::ostream& log;
+  mutable std::ostream log;        // progress of the pieces and the assembly (its buffer can be redirected)
   const int threads;
   const PieceCache cache;
   bool write_outputs = true;       // false on MPI ranks other than 0: they compute, rank 0 assembles

@@ -17,16 +17,20 @@ namespace skyloop::repro {
 
 namespace {
 
-constexpr std::size_t kChunk = 25;  // snapshots per piece
+constexpr std::size_t kChunk = 10;  // snapshots per piece: fine enough that the last pieces of a run balance the ranks
 
-/// Rough seconds of one snapshot on one core for `method` (only the pieces' order depends on it).
+/// Rough seconds of one snapshot on one core for `method` (the farm's order and the projections
+/// depend on it, never a result). Calibrated on this project's measurements: a decision costs
+/// about linearly in the users served (BENCHMARKS.md, "Scale and fast inference"); the GA about
+/// 0.85 s per paper snapshot at 2000 x 100.
 double method_cost(const Config& cfg, const std::string& method) {
-  const double size = cfg.scenario.uavs * cfg.scenario.users / 36.0;
-  if (method == "ga") return 0.8 * size * (cfg.ga.generations * cfg.ga.population) / 200000.0;
-  if (method.rfind("nwmmse", 0) == 0 || method.rfind("crzf", 0) == 0 || method.rfind("czf", 0) == 0) return 0.03 * size;
-  if (method.rfind("wmmse", 0) == 0) return 0.01 * size;
-  return 0.002 * size;
+  const double users = cfg.scenario.users;
+  if (method == "ga") return 0.85 * users / 12.0 * (cfg.ga.generations * cfg.ga.population) / 200000.0;
+  if (method.rfind("nwmmse", 0) == 0 || method.rfind("crzf", 0) == 0 || method.rfind("czf", 0) == 0) return 1e-4 * users;
+  if (method.rfind("wmmse", 0) == 0) return 2.5e-6 * users;
+  return 1.5e-6 * users;
 }
+constexpr double kChunkSetup = 0.05;  // seconds: a chunk loads its models and builds its beamformers
 
 struct Point {
   std::string value;               // the swept value as written in the CSVs
@@ -69,7 +73,7 @@ Sweep plan(StageContext& ctx, const ExperimentSpec& s) {
       c.id = (p.dir / file.filename()).generic_string();
       c.kind = "chunk";
       c.label = fmt::format("{} {} = {} snapshots {}-{}", s.name, s.sweep, p.value, first, first + count - 1);
-      c.cost = per_snapshot * static_cast<double>(count);
+      c.cost = kChunkSetup + (per_snapshot + 1e-6 * p.cfg.scenario.users) * static_cast<double>(count);
       c.done = [file] { return fs::exists(file); };
       c.run = [&ctx, cfg = p.cfg, specs = w.specs, labels = s.methods, file, first, count, seed = s.seed] {
         BeamformEvalOptions o;

@@ -384,6 +384,7 @@ def reported(run, exp):
 def runs_text(manifest):
     runs = manifest.get("runs") or [{"seconds": manifest.get("seconds", 0)}]
     return "; ".join(f"{fnum(r.get('seconds', 0), 1)} s" + (" (--force)" if r.get("force") else "")
+                     + (f" on {r['ranks']} MPI ranks" if r.get("ranks", 1) > 1 else "")
                      + (f" ({', '.join(r['experiments'])})" if r.get("experiments") and len(r["experiments"]) < 9 else "")
                      for r in runs)
 

@@ -181,6 +181,11 @@ void StageContext::eta(const std::string& what, std::size_t done, std::size_t to
       << std::flush;
 }
 
+std::string episode_columns(const CsvTable& e, std::size_t r) {
+  return fmt::format("{},{},{},{},{},{},{}", e.at(r, "objective"), e.at(r, "T"), e.at(r, "success"), e.at(r, "arrivals"),
+                     e.at(r, "collisions"), e.at(r, "boundary_events"), e.at(r, "reward"));
+}
+
 void StageContext::write(const fs::path& relative_path, const std::string& text) const {
   if (write_outputs) write_file_atomic((out / relative_path).string(), text);
 }

@@ -17,6 +17,7 @@
 
 #include "piece_cache.hpp"
 #include "skyloop/core/config.hpp"
+#include "skyloop/core/csv.hpp"
 #include "skyloop/experiments/reproduce.hpp"
 
 namespace skyloop::repro {
@@ -101,6 +102,10 @@ class StageContext {
   /// Writes a file of the assembled results (on the rank that assembles).
   void write(const fs::path& relative, const std::string& text) const;
 };
+
+/// "objective,T,success,arrivals,collisions,boundary_events,reward" of row `r` of a planner or
+/// policy evaluation's summary.csv (read by column name).
+std::string episode_columns(const CsvTable& summary, std::size_t r);
 
 /// One kind of experiment: the pieces it needs and how its CSVs are assembled from them.
 struct StageKind {

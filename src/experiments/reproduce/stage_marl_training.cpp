@@ -47,9 +47,7 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
       const fs::path eval = info.dir / "eval" / "summary.csv";
       const CsvTable e = CsvTable::parse(read_file(eval.string()), eval.string());
       for (std::size_t r = 0; r < e.size(); ++r)
-        finals += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", s.name, algo, seed, k, e.at(r, "seed"),
-                              e.at(r, "objective"), e.at(r, "T"), e.at(r, "success"), e.at(r, "arrivals"),
-                              e.at(r, "collisions"), e.at(r, "boundary_events"), e.at(r, "reward"),
+        finals += fmt::format("{},{},{},{},{},{},{},{}\n", s.name, algo, seed, k, e.at(r, "seed"), episode_columns(e, r),
                               format_double(info.seconds), format_double(info.steps_per_second));
       ctx.eta(fmt::format("{} seed {}{}", algo, seed, fresh ? "" : " (ready)"), ++done, total, since(t0), computed_s, computed);
     }
@@ -61,9 +59,8 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
     const fs::path file = ctx.out / p.id / "summary.csv";
     const CsvTable e = CsvTable::parse(read_file(file.string()), file.string());
     for (std::size_t r = 0; r < e.size(); ++r)
-      refs += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{}\n", s.name, k, e.at(r, "seed"), e.at(r, "planner"),
-                          e.at(r, "objective"), e.at(r, "T"), e.at(r, "success"), e.at(r, "arrivals"), e.at(r, "collisions"),
-                          e.at(r, "boundary_events"), e.at(r, "reward"), e.at(r, "seconds"));
+      refs += fmt::format("{},{},{},{},{},{}\n", s.name, k, e.at(r, "seed"), e.at(r, "planner"), episode_columns(e, r),
+                          e.at(r, "seconds"));
   }
   ctx.write(fs::path(s.name) / "curves.csv", curves);
   ctx.write(fs::path(s.name) / (s.name + ".csv"), finals);
@@ -73,12 +70,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind marl_training_stage() {
-  StageKind k;
-  k.name = "marl_training";
-  k.pieces = pieces;
-  k.assemble = assemble;
-  return k;
-}
+StageKind marl_training_stage() { return {"marl_training", 1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

@@ -97,13 +97,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind models_stage() {
-  StageKind k;
-  k.name = "models";
-  k.phase = 0;
-  k.pieces = pieces;
-  k.assemble = assemble;
-  return k;
-}
+StageKind models_stage() { return {"models", 0, pieces, assemble}; }
 
 }  // namespace skyloop::repro

@@ -34,9 +34,8 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
   auto add = [&](int k, const std::string& train_seed, const fs::path& summary) {
     const CsvTable e = CsvTable::parse(read_file(summary.string()), summary.string());
     for (std::size_t r = 0; r < e.size(); ++r)
-      out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{}\n", s.name, k, e.at(r, "planner"), train_seed, e.at(r, "seed"),
-                         e.at(r, "objective"), e.at(r, "T"), e.at(r, "success"), e.at(r, "arrivals"), e.at(r, "collisions"),
-                         e.at(r, "boundary_events"), e.at(r, "reward"));
+      out += fmt::format("{},{},{},{},{},{}\n", s.name, k, e.at(r, "planner"), train_seed, e.at(r, "seed"),
+                         episode_columns(e, r));
   };
   for (int k : s.users) {
     if (!s.planners.empty()) {
@@ -63,12 +62,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind planning_users_stage() {
-  StageKind k;
-  k.name = "planning_users";
-  k.pieces = pieces;
-  k.assemble = assemble;
-  return k;
-}
+StageKind planning_users_stage() { return {"planning_users", 1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

@@ -139,12 +139,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind sweep_stage() {
-  StageKind k;
-  k.name = "beamform_sweep";
-  k.pieces = pieces;
-  k.assemble = assemble;
-  return k;
-}
+StageKind sweep_stage() { return {"beamform_sweep", 1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

@@ -77,12 +77,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind trajectories_stage() {
-  StageKind k;
-  k.name = "trajectories";
-  k.pieces = pieces;
-  k.assemble = assemble;
-  return k;
-}
+StageKind trajectories_stage() { return {"trajectories", 1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

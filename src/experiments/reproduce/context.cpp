@@ -173,12 +173,14 @@ StageContext::RunInfo StageContext::run_info(const Config& cfg) const {
 
 bool StageContext::ensure(const Piece& p) const { return cache.ensure(p.id, p.done, p.run, &log); }
 
-void StageContext::eta(const std::string& what, std::size_t done, std::size_t total, double elapsed, double computed_s,
-                       std::size_t computed) const {
-  const double per = computed ? computed_s / static_cast<double>(computed) : 0.0;
-  log << fmt::format("  {} {}/{} ({:.0f} s{})\n", what, done, total, elapsed,
-                     computed && done < total ? fmt::format(", ETA {:.0f} s", per * static_cast<double>(total - done)) : "")
-      << std::flush;
+void AssemblyProgress::done(const std::string& what, bool computed) {
+  ++done_;
+  if (computed) computed_s_ += since(item_), ++computed_;
+  const double per = computed_ ? computed_s_ / static_cast<double>(computed_) : 0.0;
+  ctx_.log << fmt::format("  {} {}/{} ({:.0f} s{})\n", what, done_, total_, since(t0_),
+                          computed_ && done_ < total_ ? fmt::format(", ETA {:.0f} s", per * static_cast<double>(total_ - done_))
+                                                      : "")
+           << std::flush;
 }
 
 std::string episode_columns(const CsvTable& e, std::size_t r) {

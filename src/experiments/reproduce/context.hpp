@@ -96,11 +96,25 @@ class StageContext {
   /// Runs a piece now (if it is not done) and says whether it computed anything.
   bool ensure(const Piece& p) const;
 
-  /// "  what done/total (elapsed s, ETA s)" progress lines of an assembly.
-  void eta(const std::string& what, std::size_t done, std::size_t total, double elapsed, double computed_s,
-           std::size_t computed) const;
   /// Writes a file of the assembled results (on the rank that assembles).
   void write(const fs::path& relative, const std::string& text) const;
+};
+
+/// An assembly's progress lines, "  what done/total (elapsed s, ETA s)": the ETA comes from the
+/// mean time of the items that had to compute something.
+class AssemblyProgress {
+ public:
+  AssemblyProgress(const StageContext& ctx, std::size_t total) : ctx_(ctx), total_(total) {}
+  /// Starts timing the next item.
+  void start() { item_ = Clock::now(); }
+  /// Ends it (`computed`: it computed a piece, rather than reading the cache) and prints its line.
+  void done(const std::string& what, bool computed);
+
+ private:
+  const StageContext& ctx_;
+  std::size_t total_, done_ = 0, computed_ = 0;
+  double computed_s_ = 0;
+  Clock::time_point t0_ = Clock::now(), item_ = Clock::now();
 };
 
 /// "objective,T,success,arrivals,collisions,boundary_events,reward" of row `r` of a planner or

@@ -30,16 +30,12 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
   std::string curves, finals =
       "experiment,algo,train_seed,users,users_seed,objective,T,success,arrivals,collisions,boundary_events,reward,"
       "train_seconds,steps_per_second\n";
-  const std::size_t total = s.algos.size() * s.seeds.size();
-  std::size_t done = 0, computed = 0;
-  double computed_s = 0;
-  const auto t0 = Clock::now();
+  AssemblyProgress progress(ctx, s.algos.size() * s.seeds.size());
   for (const auto& algo : s.algos)
     for (auto seed : s.seeds) {
       const Config cfg = ctx.run_config(s, algo, seed, k);
-      const auto tr = Clock::now();
+      progress.start();
       const bool fresh = ctx.ensure(ctx.marl_piece(cfg));
-      if (fresh) computed_s += since(tr), ++computed;
       const auto info = ctx.run_info(cfg);
       const std::string m = read_file((info.dir / "metrics.csv").string());
       if (curves.empty()) curves = "algo,users," + csv_header(m) + "\n";
@@ -49,7 +45,7 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
       for (std::size_t r = 0; r < e.size(); ++r)
         finals += fmt::format("{},{},{},{},{},{},{},{}\n", s.name, algo, seed, k, e.at(r, "seed"), episode_columns(e, r),
                               format_double(info.seconds), format_double(info.steps_per_second));
-      ctx.eta(fmt::format("{} seed {}{}", algo, seed, fresh ? "" : " (ready)"), ++done, total, since(t0), computed_s, computed);
+      progress.done(fmt::format("{} seed {}{}", algo, seed, fresh ? "" : " (ready)"), fresh);
     }
   // The heuristic references on the same users.
   std::string refs = "experiment,users,users_seed,planner,objective,T,success,arrivals,collisions,boundary_events,reward,seconds\n";

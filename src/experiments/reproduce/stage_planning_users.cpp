@@ -27,10 +27,7 @@ std::vector<Piece> pieces(StageContext& ctx, const ExperimentSpec& s) {
 
 nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
   std::string out = "experiment,users,planner,train_seed,users_seed,objective,T,success,arrivals,collisions,boundary_events,reward\n";
-  const std::size_t total = s.users.size() * (1 + s.algos.size() * s.seeds.size());
-  std::size_t done = 0, computed = 0;
-  double computed_s = 0;
-  const auto t0 = Clock::now();
+  AssemblyProgress progress(ctx, s.users.size() * (1 + s.algos.size() * s.seeds.size()));
   auto add = [&](int k, const std::string& train_seed, const fs::path& summary) {
     const CsvTable e = CsvTable::parse(read_file(summary.string()), summary.string());
     for (std::size_t r = 0; r < e.size(); ++r)
@@ -38,22 +35,21 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
                          episode_columns(e, r));
   };
   for (int k : s.users) {
+    progress.start();
+    bool computed = false;
     if (!s.planners.empty()) {
-      const auto tp = Clock::now();
       const Piece p = planners_at(ctx, s, k);
-      if (ctx.ensure(p)) computed_s += since(tp), ++computed;
+      computed = ctx.ensure(p);
       add(k, "", ctx.out / p.id / "summary.csv");
     }
-    ctx.eta(fmt::format("K = {} planners", k), ++done, total, since(t0), computed_s, computed);
+    progress.done(fmt::format("K = {} planners", k), computed);
     for (const auto& algo : s.algos)
       for (auto seed : s.seeds) {
         const Config cfg = ctx.run_config(s, algo, seed, k);
-        const auto tr = Clock::now();
+        progress.start();
         const bool fresh = ctx.ensure(ctx.marl_piece(cfg));
-        if (fresh) computed_s += since(tr), ++computed;
         add(k, std::to_string(seed), ctx.run_dir(cfg) / "eval" / "summary.csv");
-        ctx.eta(fmt::format("K = {} {} seed {}{}", k, algo, seed, fresh ? "" : " (ready)"), ++done, total, since(t0),
-                computed_s, computed);
+        progress.done(fmt::format("K = {} {} seed {}{}", k, algo, seed, fresh ? "" : " (ready)"), fresh);
       }
   }
   ctx.write(fs::path(s.name) / (s.name + ".csv"), out);

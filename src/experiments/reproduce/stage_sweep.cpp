@@ -108,15 +108,12 @@ std::vector<Piece> pieces(StageContext& ctx, const ExperimentSpec& s) {
 nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
   const Sweep w = plan(ctx, s);
   std::string samples, summary = "seed,experiment,x_name,x,method,samples,mean,std,sem,median_latency_ms,mean_latency_ms\n";
-  std::size_t computed = 0;
-  double computed_s = 0;
-  const auto t0 = Clock::now();
+  AssemblyProgress progress(ctx, w.points.size());
   for (std::size_t i = 0; i < w.points.size(); ++i) {
     const Point& p = w.points[i];
-    const auto tp = Clock::now();
+    progress.start();
     bool cached = true;
     for (const auto& c : p.chunks) cached = !ctx.ensure(c) && cached;
-    if (!cached) computed_s += since(tp), ++computed;
     std::vector<BeamformEvalRow> rows;
     for (const auto& c : p.chunks) {
       const std::string text = read_file((ctx.out / c.id).string());
@@ -130,7 +127,7 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
                              format_double(m.mean), format_double(m.std),
                              format_double(m.samples > 1 ? m.std / std::sqrt(static_cast<double>(m.samples)) : 0.0),
                              format_double(m.median_latency_ms), format_double(m.mean_latency_ms));
-    ctx.eta(s.sweep + " = " + p.value + (cached ? " (cached)" : ""), i + 1, w.points.size(), since(t0), computed_s, computed);
+    progress.done(s.sweep + " = " + p.value + (cached ? " (cached)" : ""), !cached);
   }
   ctx.write(fs::path(s.name) / "samples.csv", samples);
   ctx.write(fs::path(s.name) / (s.name + ".csv"), summary);

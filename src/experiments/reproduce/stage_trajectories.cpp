@@ -37,17 +37,13 @@ std::vector<Piece> pieces(StageContext& ctx, const ExperimentSpec& s) {
 
 nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
   std::string traj, users, summary;
-  const std::size_t total = s.users.size();
-  std::size_t done = 0, computed = 0;
-  double computed_s = 0;
-  const auto t0 = Clock::now();
+  AssemblyProgress progress(ctx, s.users.size());
   const auto seed = s.seeds.front();
   for (int k : s.users) {
     const Paths p = paths_at(ctx, s, k);
-    const auto tr = Clock::now();
+    progress.start();
     const bool trained = ctx.ensure(p.run);
     const bool evaluated = ctx.ensure(p.eval);
-    if (trained || evaluated) computed_s += since(tr), ++computed;
     const fs::path dir = ctx.out / p.eval.id;
     const std::string t = read_file((dir / "trajectory.csv").string()), u = read_file((dir / "users.csv").string()),
                       e = read_file((dir / "summary.csv").string());
@@ -59,7 +55,7 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
     traj += csv_prefixed(t, fmt::format("{},{},{},", s.name, k, seed));
     users += csv_prefixed(u, fmt::format("{},{},", s.name, k));
     summary += csv_prefixed(e, fmt::format("{},{},{},", s.name, k, seed));
-    ctx.eta(fmt::format("K = {}", k), ++done, total, since(t0), computed_s, computed);
+    progress.done(fmt::format("K = {}", k), trained || evaluated);
   }
   // Starts and destinations for the plots.
   const Config c = ctx.base(s);

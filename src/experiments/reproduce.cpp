@@ -156,15 +156,15 @@ class Runner {
     }
     // A shard slices every piece, done or not, so the slices do not depend on when each shard
     // starts; it skips what is done. Under MPI rank 0 hands out what is left.
-    std::vector<std::size_t> todo;
+    std::vector<std::size_t> open_pieces;
     if (shard_)
-      for (std::size_t i = 0; i < pieces.size(); ++i) todo.push_back(i);
+      for (std::size_t i = 0; i < pieces.size(); ++i) open_pieces.push_back(i);
     else
-      todo = pending(pieces);
+      open_pieces = pending(pieces);
     std::vector<FarmTask> tasks;
     std::unordered_map<std::string, std::size_t> task_of;
-    for (std::size_t t = 0; t < todo.size(); ++t) task_of[pieces[todo[t]].id] = t;
-    for (std::size_t i : todo) {
+    for (std::size_t t = 0; t < open_pieces.size(); ++t) task_of[pieces[open_pieces[t]].id] = t;
+    for (std::size_t i : open_pieces) {
       const Piece& p = pieces[i];
       FarmTask f{p.id, p.kind, p.label, p.cost, {}};
       for (const auto& d : p.deps)
@@ -172,7 +172,7 @@ class Runner {
       tasks.push_back(std::move(f));
     }
     auto work = [&](std::size_t t) {
-      ctx_.ensure(pieces[todo[t]]);
+      ctx_.ensure(pieces[open_pieces[t]]);
       return std::string();
     };
     if (shard_) {

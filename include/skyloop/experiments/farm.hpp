@@ -76,7 +76,7 @@ int threads_per_rank(int requested, const Transport* transport);
 
 /// The transport for this process: MPI when this binary has it and was started by an MPI
 /// launcher (or `force` is set), else null. `force` without MPI support throws InputError.
-/// Defined in mpi_transport.cpp; builds without MPI get the stub in farm.cpp.
+/// Defined in mpi_transport.cpp (builds with MPI) or no_mpi_transport.cpp (builds without).
 std::unique_ptr<Transport> open_transport(bool force);
 /// True when started by an MPI launcher (OMPI_COMM_WORLD_SIZE, PMI_SIZE or PMIX_RANK set).
 bool launched_by_mpi();

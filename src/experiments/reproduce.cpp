@@ -57,7 +57,7 @@ class Runner {
     if (opt_.force && ctx_.write_outputs) forget(models);
     if (t_) t_->barrier();  // workers start once rank 0 has cleaned up
     run_phase(0, models);
-    if (failed_) throw std::runtime_error(first_failure_);  // rank 0; under MPI the CLI then ends every rank
+    if (failed_) throw_failures();  // rank 0; under MPI the CLI then ends every rank
     for (const auto* s : models) stage_kind(s->kind).assemble(ctx_, *s);  // every process loads the models
     if (opt_.force && ctx_.write_outputs) forget(others);
     if (t_) t_->barrier();
@@ -68,7 +68,7 @@ class Runner {
       return failed_ ? 1 : 0;
     }
     if (rank_ != 0) return 0;
-    if (failed_) throw std::runtime_error(first_failure_);
+    if (failed_) throw_failures();
     assemble(selected, since(t_all), t_all);
     return 0;
   }
@@ -246,6 +246,11 @@ class Runner {
     for (const auto* s : models) stage_kind(s->kind).assemble(ctx_, *s);
     print(1, plan(others));
     return 0;
+  }
+
+  [[noreturn]] void throw_failures() const {
+    throw std::runtime_error(fmt::format("{} piece{} failed (see {}); the first: {}", failed_, failed_ == 1 ? "" : "s",
+                                         (ctx_.out / "farm" / "pieces.csv").string(), first_failure_));
   }
 
   void note_failure(const std::string& id, const std::string& what) {

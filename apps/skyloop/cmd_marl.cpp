@@ -5,7 +5,9 @@
 #include "common.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/config_io.hpp"
 #include "skyloop/experiments/builtin.hpp"
+#include "skyloop/experiments/layout_eval.hpp"
 #include "skyloop/experiments/planning_run.hpp"
 #include "skyloop/marl/marl.hpp"
 
@@ -19,8 +21,13 @@ struct TrainOpts {
 };
 struct EvalOpts {
   ConfigOptions config;
-  std::string policy, users, out, planners;
+  std::vector<std::string> policies;
+  std::string users, out, planners;
   std::string seed;
+  int layouts = 0;
+  std::uint64_t first = 0;
+  std::string split = "test", cache;
+  bool unsafe = false;
 };
 }  // namespace
 
@@ -59,26 +66,69 @@ void add_marl_commands(CLI::App& app, Action& action) {
   });
 
   auto v = std::make_shared<EvalOpts>();
-  auto* eval = app.add_subcommand("eval", "run a trained policy (deterministic) and write the same files as `skyloop plan`");
-  eval->add_option("--policy", v->policy, "run directory (or policy.pt) of `skyloop train`")->required();
+  auto* eval = app.add_subcommand("eval", "run trained policies (deterministic) on one layout, or on many held-out layouts (--layouts)");
+  eval->add_option("--policy", v->policies, "run directory (or policy.pt) of `skyloop train`; repeat for several");
   eval->add_option("--users", v->users, "number of users K (default: as trained)");
-  eval->add_option("--seed", v->seed, "users seed (default: the training scenario's marl.users_seed)");
+  eval->add_option("--seed", v->seed, "one layout: users seed (default: the training scenario's marl.users_seed)");
   eval->add_option("--planner", v->planners, "also run these planners on the same users: random, greedy, seqgreedy, optimal");
-  eval->add_option("--out", v->out, "directory for trajectory.csv, rates.csv, summary.csv, users.csv, config.toml");
+  eval->add_option("--layouts", v->layouts, "evaluate on this many layouts of --split, each against its exact optimum");
+  eval->add_option("--split", v->split, "layouts from: test (default), validation or train (skyloop/env/layouts.hpp)");
+  eval->add_option("--first", v->first, "index of the first layout (default 0)");
+  eval->add_flag("--unsafe", v->unsafe, "with --layouts: also run every policy without action mask and shield (\"<algo>/raw\")");
+  eval->add_option("--cache", v->cache, "with --layouts: directory of cached optima (default OUT/optimum)");
+  eval->add_option("--out", v->out, "one layout: trajectory.csv, rates.csv, summary.csv, users.csv, config.toml; "
+                                    "--layouts: layouts.csv, summary.csv, config.toml");
   add_config_options(eval, v->config);
   eval->final_callback([&action, v] {
     action = [v] {
-      auto policy = MarlPolicy::load(v->policy);
-      // The policy's own configuration, then the command line.
+      if (v->policies.empty() && v->layouts == 0) throw InputError("--policy is missing: allowed a run directory of `skyloop train`");
+      if (v->layouts == 0 && v->policies.size() > 1)
+        throw InputError("--policy is given " + std::to_string(v->policies.size()) + " times: allowed once without --layouts");
+      if (v->layouts > 0 && !v->seed.empty()) throw InputError("--seed with --layouts: allowed --first to choose the layouts");
+      // The first policy's own configuration, then the command line.
       Config cfg;
-      apply_toml(cfg, policy->config_toml(), v->policy + " (training config)");
+      std::unique_ptr<MarlPolicy> policy;
+      if (!v->policies.empty()) {
+        policy = MarlPolicy::load(v->policies.front());
+        apply_toml(cfg, policy->config_toml(), v->policies.front() + " (training config)");
+      }
       ConfigOptions over = v->config;
       std::vector<std::string> extra;
-      if (!v->users.empty()) extra.push_back("scenario.users=" + v->users);
+      if (!v->users.empty()) {
+        extra.push_back("scenario.users=" + v->users);
+        extra.push_back("env.users_min=0");
+        extra.push_back("env.users_max=0");
+      }
       if (!over.path.empty()) apply_toml(cfg, read_file(over.path, "config file"), over.path);
       for (const auto& s : over.sets) apply_override(cfg, s);
       for (const auto& s : extra) apply_override(cfg, s);
       finalise(cfg);
+      if (v->layouts > 0) {
+        LayoutEvalOptions opt;
+        opt.layouts = v->layouts;
+        opt.first = v->first;
+        opt.split = parse_layout_split(v->split, "--split");
+        if (!v->planners.empty()) opt.planners = split_methods(v->planners, "--planner");
+        opt.policies = v->policies;
+        opt.unsafe = v->unsafe;
+        opt.cache_dir = !v->cache.empty() ? v->cache : !v->out.empty() ? v->out + "/optimum" : "";
+        if (!v->out.empty()) check_output_dir(v->out);
+        const auto rows = evaluate_layouts(cfg, opt, builtin_beamformers(), &std::cerr);
+        const auto sum = summarise_layouts(rows);
+        if (!v->out.empty()) {
+          write_file_atomic(v->out + "/config.toml", to_toml(cfg));
+          write_file_atomic(v->out + "/layouts.csv", layout_rows_csv(rows, cfg.run.seed, opt.split));
+          write_file_atomic(v->out + "/summary.csv", layout_summary_csv(sum, cfg.run.seed, opt.split));
+        }
+        std::cout << fmt::format("eval: {} {} layouts from {} ({} UAVs, K = {}), oracle {}\n", opt.layouts, to_string(opt.split),
+                                 opt.first, cfg.trajectory.starts.size(),
+                                 cfg.env.users_min && cfg.env.users_max ? fmt::format("{}..{}", cfg.env.users_min, cfg.env.users_max)
+                                                                        : std::to_string(cfg.scenario.users),
+                                 cfg.env.oracle)
+                  << format_layout_summary(sum);
+        if (!v->out.empty()) std::cout << "wrote " << v->out << "/layouts.csv, summary.csv, config.toml\n";
+        return 0;
+      }
       PlanOptions opt;
       if (!v->planners.empty()) opt.planners = split_methods(v->planners, "--planner");
       opt.seed = v->seed.empty() ? cfg.marl.users_seed : parse_seed("--seed", v->seed);

@@ -180,7 +180,8 @@ std::vector<Cluster> SystemModel::clusters(const Snapshot& s) const { return clu
 
 Positions draw_users(const ScenarioConfig& s, int users, Rng& rng) {
   Positions p(users, 2);
-  if (s.user_layout != "hotspot") {
+  const bool hotspot = s.user_layout == "hotspot" || (s.user_layout == "mixed" && rng.uniform() < 0.5);
+  if (!hotspot) {
     for (int k = 0; k < users; ++k) p(k, 0) = rng.uniform(0, s.area_x_m), p(k, 1) = rng.uniform(0, s.area_y_m);
     return p;
   }

@@ -88,8 +88,8 @@ std::vector<Field> make_fields() {
                       [](Config& c) -> int& { return c.scenario.uavs; }));
   f.push_back(integer("scenario.users", "number of users K in random snapshots", 1, 4096,
                       [](Config& c) -> int& { return c.scenario.users; }));
-  f.push_back(text("scenario.user_layout", "where users stand: uniform in the area (the paper) or in hotspots",
-                   {"uniform", "hotspot"}, [](Config& c) -> std::string& { return c.scenario.user_layout; }));
+  f.push_back(text("scenario.user_layout", "where users stand: uniform in the area (the paper), in hotspots, or mixed (each layout one of the two, even odds)",
+                   {"uniform", "hotspot", "mixed"}, [](Config& c) -> std::string& { return c.scenario.user_layout; }));
   f.push_back(integer("scenario.hotspots", "hotspot centres (uniform in the area) when user_layout = hotspot", 1, 1000,
                       [](Config& c) -> int& { return c.scenario.hotspots; }));
   f.push_back(real("scenario.hotspot_radius_m", "std of a hotspot user's offset from its centre, per axis (m)", 0.1, 1e5,
@@ -226,6 +226,22 @@ std::vector<Field> make_fields() {
   f.push_back(real("marl.epsilon_anneal", "fraction of total_steps to anneal epsilon over", 0, 1, [](Config& c) -> double& { return c.marl.epsilon_anneal; }));
   f.push_back(integer("marl.target_update", "gradient steps between target-network copies", 1, 1e7, [](Config& c) -> int& { return c.marl.target_update; }));
   f.push_back(integer("marl.mixer_embed", "QMIX mixing-network width", 1, 4096, [](Config& c) -> int& { return c.marl.mixer_embed; }));
+  auto boolean = [](std::string key, std::string help, bool& (*ref)(Config&)) {
+    Field b{std::move(key), Type::Boolean, std::move(help), 0, 0, {}, {}, {}};
+    b.get = [ref](const Config& c) { return FieldValue(ref(const_cast<Config&>(c))); };
+    b.set = [ref](Config& c, const FieldValue& v) { ref(c) = std::get<bool>(v); };
+    return b;
+  };
+  f.push_back(boolean("marl.action_mask", "mask moves that leave the area or make the destination unreachable (training and execution)",
+                      [](Config& c) -> bool& { return c.marl.action_mask; }));
+  f.push_back(boolean("marl.shield", "collision shield: mask a move that brings two UAVs within D_min when another move avoids it",
+                      [](Config& c) -> bool& { return c.marl.shield; }));
+  f.push_back(text("marl.encoder",
+                   "agent network input: mlp = the paper's 11-real observation; set = permutation-invariant encoder over "
+                   "user and neighbour displacements (any K and N)",
+                   {"mlp", "set"}, [](Config& c) -> std::string& { return c.marl.encoder; }));
+  f.push_back(integer("marl.val_layouts", "held-out validation layouts scored at every checkpoint; policy.pt = the best (0 = the last policy)",
+                      0, 100000, [](Config& c) -> int& { return c.marl.val_layouts; }));
   f.push_back(integer("marl.checkpoint_every", "updates between checkpoints", 1, 1e7, [](Config& c) -> int& { return c.marl.checkpoint_every; }));
   // [env]
   f.push_back(text("env.oracle", "beamformer spec behind the environment's sum rate R[t] (gnn, wmmse, gnn=DIR, ...)",
@@ -234,6 +250,10 @@ std::vector<Field> make_fields() {
   f.push_back(real("env.w_arr", "reward per newly arrived UAV", 0, 1e6, [](Config& c) -> double& { return c.env.w_arr; }));
   f.push_back(real("env.w_bud", "penalty per boundary event", 0, 1e6, [](Config& c) -> double& { return c.env.w_bud; }));
   f.push_back(real("env.w_col", "penalty per UAV in a collision", 0, 1e6, [](Config& c) -> double& { return c.env.w_col; }));
+  f.push_back(text("env.reward",
+                   "reward: paper = eq:total_reward; objective = R-bar[t+1] - R-bar[t] (sums to the P2.2 objective) "
+                   "minus the boundary and collision penalties",
+                   {"paper", "objective"}, [](Config& c) -> std::string& { return c.env.reward; }));
   f.push_back(real("env.w_fea", "weight of the reachability indicator Phi_n", 0, 1e6, [](Config& c) -> double& { return c.env.w_fea; }));
   {
     Field b{"env.resample_users", Type::Boolean, "draw new users at every reset", 0, 0, {}, {}, {}};
@@ -241,6 +261,10 @@ std::vector<Field> make_fields() {
     b.set = [](Config& c, const FieldValue& v) { c.env.resample_users = std::get<bool>(v); };
     f.push_back(std::move(b));
   }
+  f.push_back(integer("env.users_min", "fewest users of a sampled layout (0 = scenario.users)", 0, 100000,
+                      [](Config& c) -> int& { return c.env.users_min; }));
+  f.push_back(integer("env.users_max", "most users of a sampled layout (0 = scenario.users)", 0, 100000,
+                      [](Config& c) -> int& { return c.env.users_max; }));
   {
     f.push_back(text("env.state",
                      "global state for critics and mixers: paper = every UAV, user and destination (4N + 2K reals); "
@@ -447,6 +471,13 @@ void validate(const Config& c) {
   };
   check_in_area(t.starts, "trajectory.starts");
   check_in_area(t.destinations, "trajectory.destinations");
+  const int kmin = c.env.users_min ? c.env.users_min : c.scenario.users, kmax = c.env.users_max ? c.env.users_max : c.scenario.users;
+  if (kmin > kmax)
+    throw InputError("env.users_min = " + std::to_string(kmin) + " is above env.users_max = " + std::to_string(kmax) +
+                     ": allowed users_min <= users_max (0 = scenario.users)");
+  if (kmin != kmax && c.env.state == "paper")
+    throw InputError("env.users_min = " + std::to_string(kmin) + " and env.users_max = " + std::to_string(kmax) +
+                     " give layouts of different sizes, but env.state = \"paper\" has 4N + 2K reals: allowed env.state = \"compact\"");
   if (c.channel.coverage_radius_m < c.scenario.altitude_m)
     throw InputError("channel.coverage_radius_m = " + format_double(c.channel.coverage_radius_m) +
                      " is below scenario.altitude_m = " + format_double(c.scenario.altitude_m) +

@@ -1,5 +1,6 @@
-#include <algorithm>
 #include "skyloop/env/uav_env.hpp"
+
+#include <algorithm>
 
 #include <cmath>
 #include <stdexcept>
@@ -8,6 +9,7 @@
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/rng.hpp"
+#include "skyloop/env/layouts.hpp"
 
 namespace skyloop {
 
@@ -42,6 +44,7 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       w_col_(cfg.env.w_col),
       w_fea_(cfg.env.w_fea),
       compact_(cfg.env.state == "compact"),
+      objective_reward_(cfg.env.reward == "objective"),
       start_(positions_in_area(cfg.trajectory.starts, cfg, "trajectory.starts")),
       dest_(positions_in_area(cfg.trajectory.destinations, cfg, "trajectory.destinations")),
       oracle_(std::move(oracle)) {
@@ -158,12 +161,16 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
     all = all && arrived_n;
     info.feasibility += feasibility_indicator(n, pos_(n, 0), pos_(n, 1), t_);
   }
+  const double before = rate_sum_ / static_cast<double>(t_ - 1);
   rates_.push_back(rate);
   rate_sum_ += rate;
   info.sum_rate = rate;
   info.avg_rate = rate_sum_ / static_cast<double>(t_);
-  info.reward = w_rate_ * info.avg_rate + w_arr_ * info.arrivals - w_bud_ * info.boundary - w_col_ * info.collisions +
-                w_fea_ * info.feasibility;
+  if (objective_reward_)
+    info.reward = info.avg_rate - before - w_bud_ * info.boundary - w_col_ * info.collisions;
+  else
+    info.reward = w_rate_ * info.avg_rate + w_arr_ * info.arrivals - w_bud_ * info.boundary - w_col_ * info.collisions +
+                  w_fea_ * info.feasibility;
   info.success = all;
   info.done = done_ = all || t_ >= t_max_;
   tot_arr_ += info.arrivals;
@@ -220,9 +227,50 @@ int UavEnv::state_size() const {
   return compact_ ? 3 * kStateGrid * kStateGrid + 2 : 4 * n_ + 2 * static_cast<int>(oracle_->users().rows());
 }
 
-void UavEnv::write_state(float* s) const {
+int UavEnv::users() const { return static_cast<int>(oracle_->users().rows()); }
+
+namespace {
+/// Adds w * exp(-(dx - c_i)^2 / (2 s^2)) * exp(-(dy - c_j)^2 / (2 s^2)) at every point (c_i, c_j)
+/// of a G x G grid of spacing `step` centred on 0 (separable: 2 G exponentials per point).
+void add_kernel(float* map, int G, double step, double width, double dx, double dy, double w) {
+  double fx[16], fy[16];
+  const double half = (G - 1) / 2.0, inv = 1.0 / (2 * width * width);
+  for (int i = 0; i < G; ++i) {
+    const double c = (i - half) * step;
+    fx[i] = std::exp(-(dx - c) * (dx - c) * inv);
+    fy[i] = std::exp(-(dy - c) * (dy - c) * inv);
+  }
+  for (int j = 0; j < G; ++j)
+    for (int i = 0; i < G; ++i) map[j * G + i] += static_cast<float>(w * fx[i] * fy[j]);
+}
+}  // namespace
+
+void UavEnv::write_set_observation(int n, float* o) const {
+  const double x = pos_(n, 0), y = pos_(n, 1);
+  const int left = t_max_ - t_;
+  *o++ = static_cast<float>(x / area_x_);
+  *o++ = static_cast<float>(y / area_y_);
+  *o++ = static_cast<float>((dest_(n, 0) - x) / area_x_);
+  *o++ = static_cast<float>((dest_(n, 1) - y) / area_y_);
+  *o++ = static_cast<float>(left - min_moves(n, x, y)) / static_cast<float>(t_max_);
+  *o++ = static_cast<float>(t_) / static_cast<float>(t_max_);
+  for (int a = 0; a < kActions; ++a) *o++ = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
+  constexpr int W = kWideGrid * kWideGrid, Q = kNearGrid * kNearGrid;
+  std::fill(o, o + 2 * W + Q, 0.0f);
   const auto& users = oracle_->users();
-  if (compact_) {
+  const double per_user = 4.0 / static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
+  for (Eigen::Index k = 0; k < users.rows(); ++k)
+    add_kernel(o, kWideGrid, 2 * d_fly_, 2 * d_fly_, users(k, 0) - x, users(k, 1) - y, per_user);
+  for (int m = 0; m < n_; ++m) {
+    if (m == n) continue;
+    add_kernel(o + W, kWideGrid, 2 * d_fly_, 2 * d_fly_, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
+    add_kernel(o + 2 * W, kNearGrid, d_fly_, d_fly_ / 2, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
+  }
+}
+
+void UavEnv::write_compact_state(float* s) const {
+  const auto& users = oracle_->users();
+  {
     constexpr int G = kStateGrid;
     std::fill(s, s + 3 * G * G + 2, 0.0f);
     auto cell = [&](double x, double y) {
@@ -241,6 +289,13 @@ void UavEnv::write_state(float* s) const {
     }
     s[3 * G * G] = static_cast<float>(t_) / static_cast<float>(t_max_);
     s[3 * G * G + 1] = static_cast<float>(home) * per_uav;
+  }
+}
+
+void UavEnv::write_state(float* s) const {
+  const auto& users = oracle_->users();
+  if (compact_) {
+    write_compact_state(s);
     return;
   }
   for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(pos_(n, 0) / area_x_), *s++ = static_cast<float>(pos_(n, 1) / area_y_);
@@ -286,11 +341,14 @@ std::vector<float> UavEnv::agent_state(int n) const {
 
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed)
     : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(seed), episodes_(static_cast<std::size_t>(count), 0) {
-  for (int i = 0; i < count; ++i) {
-    auto oracle = std::make_shared<RateOracle>(
-        cfg_, beamformer_, make_users(cfg_, cfg_.scenario.users, derive_seed(seed_, static_cast<std::uint64_t>(i))));
-    envs_.push_back(std::make_unique<UavEnv>(cfg_, std::move(oracle)));
-  }
+  for (int i = 0; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(cfg_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i)))));
+}
+
+bool VecEnv::sampling() const { return !shared_ && cfg_.env.resample_users && cfg_.env.users_file.empty(); }
+
+Positions VecEnv::users_of(std::size_t i) const {
+  if (sampling()) return layout_users(cfg_, training_layout_seed(seed_, i, episodes_[i]));
+  return make_users(cfg_, cfg_.scenario.users, derive_seed(seed_, static_cast<std::uint64_t>(i)));
 }
 
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count)
@@ -300,10 +358,8 @@ VecEnv::VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count)
 
 void VecEnv::reset_env(std::size_t i) {
   ++episodes_[i];
-  if (!shared_ && cfg_.env.resample_users && cfg_.env.users_file.empty()) {
-    auto oracle = std::make_shared<RateOracle>(
-        cfg_, beamformer_, make_users(cfg_, cfg_.scenario.users, derive_seed(seed_, i, episodes_[i])));
-    envs_[i]->set_oracle(std::move(oracle));
+  if (sampling()) {
+    envs_[i]->set_oracle(std::make_shared<RateOracle>(cfg_, beamformer_, users_of(i)));
   } else {
     envs_[i]->reset();
   }

@@ -8,6 +8,8 @@
 
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/rng.hpp"
+#include "skyloop/env/layouts.hpp"
 #include "skyloop/nn/learned.hpp"
 
 namespace skyloop::marl {
@@ -63,15 +65,43 @@ void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt) {
   }
 }
 
-std::shared_ptr<RateOracle> make_oracle(const Config& cfg, const BeamformerRegistry& registry) {
-  std::shared_ptr<const Beamformer> bf;
+std::shared_ptr<const Beamformer> make_oracle_beamformer(const Config& cfg, const BeamformerRegistry& registry) {
   try {
-    bf = registry.create(cfg.env.oracle, cfg);
+    return registry.create(cfg.env.oracle, cfg);
   } catch (const InputError& e) {
     throw InputError("env.oracle = \"" + cfg.env.oracle + "\": " + e.what());
   }
-  return std::make_shared<RateOracle>(cfg, bf, make_users(cfg, cfg.scenario.users, cfg.marl.users_seed));
 }
+
+std::shared_ptr<RateOracle> make_oracle(const Config& cfg, const BeamformerRegistry& registry) {
+  return std::make_shared<RateOracle>(cfg, make_oracle_beamformer(cfg, registry), make_users(cfg, cfg.scenario.users, cfg.marl.users_seed));
+}
+
+VecEnv make_training_envs(const Config& cfg, const BeamformerRegistry& registry) {
+  if (cfg.env.resample_users && cfg.env.users_file.empty())
+    return VecEnv(cfg, make_oracle_beamformer(cfg, registry), cfg.marl.envs, derive_seed(cfg.run.seed, 0x4c41594fULL));
+  return VecEnv(cfg, make_oracle(cfg, registry), cfg.marl.envs);
+}
+
+int Encoder::width(const UavEnv& env) const {
+  if (set) return UavEnv::set_observation_size();
+  return UavEnv::observation_size() + (context ? env.agent_context_size() : 0);
+}
+
+void Encoder::write(const UavEnv& env, int n, float* out) const {
+  if (set) return env.write_set_observation(n, out);
+  env.write_observation(n, out);
+  if (context) env.write_agent_context(n, out + UavEnv::observation_size());
+}
+
+Encoder encoder_of(const Config& cfg, bool context) {
+  Encoder e;
+  e.set = cfg.marl.encoder == "set";
+  e.context = context && !e.set;
+  return e;
+}
+
+SafetyOptions safety_of(const Config& cfg) { return SafetyOptions{cfg.marl.action_mask, cfg.marl.shield}; }
 
 void RunningStats::update(const torch::Tensor& x) {
   const double n = static_cast<double>(x.numel());
@@ -111,20 +141,12 @@ EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Pl
   return run_episode(env, planner);
 }
 
-std::vector<float> obs_with_id(const UavEnv& env, int n) {
-  auto o = env.observation(n);
-  o.resize(static_cast<std::size_t>(UavEnv::observation_size() + env.agent_context_size()));
-  env.write_agent_context(n, o.data() + UavEnv::observation_size());
-  return o;
-}
-
 Run::Run(const Config& cfg, const MarlTrainOptions& opt)
     : dir(opt.out_dir),
       last((dir / "last.pt").string()),
       final_path((dir / "policy.pt").string()),
       device(device_of(cfg)),
-      oracle(make_oracle(cfg, *opt.registry)),
-      vec(cfg, oracle, cfg.marl.envs) {
+      vec(make_training_envs(cfg, *opt.registry)) {
   set_torch_threads(cfg.run.threads);
   if (opt.resume && !std::filesystem::exists(last))
     throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");
@@ -148,11 +170,34 @@ void Run::checkpoint(const nlohmann::json& meta, Nets& nets, torch::optim::Optim
   write_file_atomic((dir / "metrics.csv").string(), metrics);
 }
 
+void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets, std::int64_t steps) {
+  if (cfg.marl.val_layouts <= 0) return;
+  auto policy = MarlPolicy::load(last);
+  const auto bf = make_oracle_beamformer(cfg, *opt.registry);
+  double complete = 0, objective = 0;
+  const int V = cfg.marl.val_layouts;
+  for (int i = 0; i < V; ++i) {
+    UavEnv env(cfg, std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, layout_seed(LayoutSplit::Validation, static_cast<std::uint64_t>(i)))));
+    const auto r = run_episode(env, *policy);
+    complete += (r.success && r.collisions == 0 && r.boundary == 0) ? 1.0 / V : 0.0;
+    objective += r.objective / V;
+  }
+  if (validation_csv.empty()) validation_csv = "seed,env_steps,layouts,complete,objective,best\n";
+  const bool best = complete > best_complete + 1e-12 || (std::abs(complete - best_complete) <= 1e-12 && objective > best_objective);
+  if (best) {
+    best_complete = complete, best_objective = objective;
+    save(final_path, meta, nets, nullptr);
+  }
+  validation_csv += fmt::format("{},{},{},{},{},{}\n", cfg.run.seed, steps, V, format_double(complete), format_double(objective), best ? 1 : 0);
+  write_file_atomic((dir / "validation.csv").string(), validation_csv);
+}
+
 MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets,
                             torch::optim::Optimizer& optimizer, const std::string& metrics, std::int64_t steps,
-                            std::int64_t start_steps) const {
-  save(final_path, meta, nets, nullptr);
+                            std::int64_t start_steps) {
   checkpoint(meta, nets, optimizer, metrics);
+  if (cfg.marl.val_layouts > 0) validate(cfg, opt, meta, nets, steps);  // policy.pt = the best
+  else save(final_path, meta, nets, nullptr);
   MarlTrainResult result;
   result.env_steps = steps;
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -7,6 +7,7 @@
 
 #include "nets.hpp"
 #include "skyloop/marl/marl.hpp"
+#include "skyloop/planning/safety.hpp"
 
 namespace skyloop::marl {
 
@@ -19,6 +20,18 @@ struct Nets {
   QMixer mixer{nullptr};
 };
 
+/// What an agent network reads, for every learner: the paper's observation (marl.encoder = mlp;
+/// `context` appends the agent context for the Q-networks) or the set observation (set: already
+/// tells the agents apart, so no context).
+struct Encoder {
+  bool set = false;
+  bool context = false;
+  int width(const UavEnv& env) const;
+  void write(const UavEnv& env, int n, float* out) const;
+};
+Encoder encoder_of(const Config& cfg, bool context);
+SafetyOptions safety_of(const Config& cfg);
+
 /// Writes the archive atomically: meta JSON, the present networks, optionally the optimiser.
 void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt);
 /// Reads meta; builds nothing. Throws InputError for missing / corrupt / foreign files.
@@ -26,8 +39,13 @@ nlohmann::json read_meta(const std::string& path);
 /// Loads the networks present in `nets` (and the optimiser if given) from `path`.
 void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt);
 
+/// The beamformer behind R[t] (env.oracle), errors naming the field.
+std::shared_ptr<const Beamformer> make_oracle_beamformer(const Config& cfg, const BeamformerRegistry& registry);
 /// The shared training scenario: oracle on env.oracle with users from marl.users_seed.
 std::shared_ptr<RateOracle> make_oracle(const Config& cfg, const BeamformerRegistry& registry);
+/// The training environments: M on the shared scenario, or (env.resample_users) each episode a
+/// new training layout (skyloop/env/layouts.hpp) drawn from the run seed.
+VecEnv make_training_envs(const Config& cfg, const BeamformerRegistry& registry);
 
 /// Running mean / variance (Welford over batches), for value normalisation.
 struct RunningStats {
@@ -53,10 +71,6 @@ std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeSta
 /// Evaluates `planner` on the training scenario (deterministic) and returns the record.
 EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner);
 
-/// Local observation with the agent's context appended (the Q-network input): one-hot id
-/// (11 + N reals) under env.state = "paper", nearest UAVs (11 + 8) under "compact".
-std::vector<float> obs_with_id(const UavEnv& env, int n);
-
 torch::Device device_of(const Config& cfg);
 
 /// What every learner needs before its loop: torch threads set, the run's paths (checked for
@@ -66,9 +80,11 @@ struct Run {
   std::filesystem::path dir;
   std::string last, final_path;
   torch::Device device{torch::kCPU};
-  std::shared_ptr<RateOracle> oracle;
   VecEnv vec;
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  // Model selection on validation layouts (marl.val_layouts > 0).
+  double best_complete = -1, best_objective = -1;
+  std::string validation_csv;
   /// For --resume: checks that last.pt holds a run of the same algo, hidden size and
   /// `size_key` = `size`, loads its networks and optimiser and the earlier metrics.csv into
   /// `metrics`, and returns its header.
@@ -78,9 +94,13 @@ struct Run {
   void checkpoint(const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer& opt, const std::string& metrics) const;
   /// After the loop: writes the final policy (final_path) and the last checkpoint, then returns
   /// the timings and the deterministic evaluation of the final policy.
+  /// With marl.val_layouts: scores the policy just checkpointed (last.pt) on the validation
+  /// layouts, appends a row to validation.csv and keeps it as policy.pt if it is the best so far
+  /// (more missions complete, then a higher mean objective).
+  void validate(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets, std::int64_t steps);
   MarlTrainResult finish(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets,
                          torch::optim::Optimizer& optimizer, const std::string& metrics, std::int64_t steps,
-                         std::int64_t start_steps) const;
+                         std::int64_t start_steps);
 };
 
 }  // namespace skyloop::marl

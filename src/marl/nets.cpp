@@ -10,6 +10,10 @@ MlpNetImpl::MlpNetImpl(int64_t in, int64_t hidden, int64_t out) {
 
 torch::Tensor MlpNetImpl::forward(const torch::Tensor& x) { return l3(torch::tanh(l2(torch::tanh(l1(x))))); }
 
+torch::Tensor masked_logits(const torch::Tensor& logits, const torch::Tensor& allowed) {
+  return logits + (allowed - 1.0) * 1e9;
+}
+
 torch::Tensor masked_mean(const torch::Tensor& x, const torch::Tensor& mask) {
   return (x * mask).sum() / torch::clamp_min(mask.sum(), 1.0);
 }

@@ -15,6 +15,9 @@ TORCH_MODULE(MlpNet);
 /// Masked mean: sum(x * m) / max(sum(m), 1).
 torch::Tensor masked_mean(const torch::Tensor& x, const torch::Tensor& mask);
 
+/// Logits with the actions outside `allowed` (0/1 per action, same shape) pushed to -1e9.
+torch::Tensor masked_logits(const torch::Tensor& logits, const torch::Tensor& allowed);
+
 /// PPO clipped surrogate (per sample): min(rho A, clip(rho, 1 - eps, 1 + eps) A).
 torch::Tensor clipped_surrogate(const torch::Tensor& logp_new, const torch::Tensor& logp_old,
                                 const torch::Tensor& advantages, double eps);

@@ -1,6 +1,7 @@
 #include <filesystem>
 
 #include "common.hpp"
+#include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 
 namespace skyloop {
@@ -21,12 +22,17 @@ struct MarlPolicy::Impl {
   std::string algo, config;
   marl::Nets nets;
   bool q_based = false;
+  marl::Encoder enc;
+  SafetyOptions safety;
 };
 
 MarlPolicy::MarlPolicy(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 MarlPolicy::~MarlPolicy() = default;
 std::string MarlPolicy::name() const { return impl_->algo; }
 const std::string& MarlPolicy::config_toml() const { return impl_->config; }
+bool MarlPolicy::action_mask() const { return impl_->safety.mask; }
+bool MarlPolicy::shield() const { return impl_->safety.shield; }
+void MarlPolicy::set_safety(bool action_mask, bool shield) { impl_->safety = SafetyOptions{action_mask, shield}; }
 
 std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   std::string path = where;
@@ -35,31 +41,45 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   auto impl = std::make_unique<Impl>();
   impl->algo = meta.value("algo", "");
   impl->config = meta.value("config", "");
-  const int hidden = meta.value("hidden", 0), obs = meta.value("obs_dim", 0), uavs = meta.value("uavs", 0);
-  if (impl->algo == "mappo" || impl->algo == "ippo") {
-    impl->nets.actor = marl::MlpNet(obs, hidden, kActions);
-  } else if (impl->algo == "vdn" || impl->algo == "qmix") {
-    // The agent context: a one-hot id (uavs reals; policies written before env.state) or nearest UAVs.
-    impl->nets.q = marl::MlpNet(obs + meta.value("context_dim", uavs), hidden, kActions);
-    impl->q_based = true;
-  } else {
-    throw InputError("policy '" + path + "' names algo '" + impl->algo + "': allowed mappo, ippo, vdn, qmix");
+  // Safety as trained (marl.action_mask, marl.shield; both on unless the run turned them off).
+  Config trained;
+  try {
+    apply_toml(trained, impl->config, path + " (training config)");
+  } catch (const InputError&) {
+    // A policy written by another version may name fields this one lacks: defaults.
   }
+  impl->safety = marl::safety_of(trained);
+  const int hidden = meta.value("hidden", 0), obs = meta.value("obs_dim", 0), uavs = meta.value("uavs", 0);
+  const std::string encoder = meta.value("encoder", "mlp");
+  if (encoder != "mlp" && encoder != "set")
+    throw InputError("policy '" + path + "' names encoder '" + encoder + "': allowed mlp, set");
+  impl->enc.set = encoder == "set";
+  const bool q_based = impl->algo == "vdn" || impl->algo == "qmix";
+  if (!q_based && impl->algo != "mappo" && impl->algo != "ippo")
+    throw InputError("policy '" + path + "' names algo '" + impl->algo + "': allowed mappo, ippo, vdn, qmix");
+  impl->q_based = q_based;
+  impl->enc.context = q_based;
+  // The Q-networks' agent context: a one-hot id (uavs reals; policies written before env.state),
+  // nearest UAVs, or none (set observation).
+  auto net = marl::MlpNet(q_based ? obs + meta.value("context_dim", uavs) : obs, hidden, kActions);
+  (q_based ? impl->nets.q : impl->nets.actor) = net;
   marl::load(path, impl->nets, nullptr);
   return std::unique_ptr<MarlPolicy>(new MarlPolicy(std::move(impl)));
 }
 
 std::vector<int> MarlPolicy::act(UavEnv& env) {
   torch::NoGradGuard ng;
-  std::vector<int> a(static_cast<std::size_t>(env.uavs()), kStay);
-  for (int n = 0; n < env.uavs(); ++n) {
-    if (!env.mask(n)) continue;
-    auto o = impl_->q_based ? marl::obs_with_id(env, n) : env.observation(n);
-    const auto x = torch::from_blob(o.data(), {1, static_cast<int64_t>(o.size())});
-    const auto out = impl_->q_based ? impl_->nets.q(x) : impl_->nets.actor(x);
-    a[static_cast<std::size_t>(n)] = static_cast<int>(out.argmax(1).item<int64_t>());
-  }
-  return a;
+  auto& net = impl_->q_based ? impl_->nets.q : impl_->nets.actor;
+  const auto& enc = impl_->enc;
+  const int N = env.uavs(), D = enc.width(env);
+  std::vector<float> in(static_cast<std::size_t>(N * D));
+  for (int n = 0; n < N; ++n) enc.write(env, n, in.data() + static_cast<std::size_t>(n * D));
+  const auto out = net(torch::from_blob(in.data(), {N, D})).contiguous();
+  const auto oa = out.accessor<float, 2>();
+  std::vector<std::array<float, kActions>> scores(static_cast<std::size_t>(N));
+  for (int n = 0; n < N; ++n)
+    for (int a = 0; a < kActions; ++a) scores[static_cast<std::size_t>(n)][static_cast<std::size_t>(a)] = oa[n][a];
+  return shielded_argmax(env, impl_->safety, scores);
 }
 
 }  // namespace skyloop

@@ -35,13 +35,25 @@ namespace marl {
 
 namespace {
 
+/// The critic's input. mlp encoder: the global state (MAPPO, critic_state = global), the
+/// agent-specific global state (agent) or the local observation (IPPO). set encoder: the agent's
+/// set observation, plus the compact state for MAPPO.
 struct CriticInput {
   std::string kind;  // global | agent | local
+  Encoder set;       // set.set: the set observation
+  int extra(const UavEnv&) const { return set.set && kind != "local" ? UavEnv::compact_state_size() : 0; }
   int size(const UavEnv& e) const {
+    if (set.set) return set.width(e) + extra(e);
     return kind == "global" ? e.state_size() : kind == "agent" ? e.agent_state_size() : UavEnv::observation_size();
   }
-  std::vector<float> of(const UavEnv& e, int n) const {
-    return kind == "global" ? e.state() : kind == "agent" ? e.agent_state(n) : e.observation(n);
+  void write(const UavEnv& e, int n, float* out) const {
+    if (set.set) {
+      set.write(e, n, out);
+      if (extra(e)) e.write_compact_state(out + set.width(e));
+      return;
+    }
+    const auto v = kind == "global" ? e.state() : kind == "agent" ? e.agent_state(n) : e.observation(n);
+    std::copy(v.begin(), v.end(), out);
   }
 };
 
@@ -55,8 +67,10 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   const auto& dir = run.dir;
   const auto& device = run.device;
   VecEnv& vec = run.vec;
-  const int N = vec.env(0).uavs(), M = vec.size(), obs_dim = UavEnv::observation_size();
-  const CriticInput critic_in{m.algo == "ippo" ? "local" : m.critic_state};
+  const Encoder enc = encoder_of(cfg, false);
+  const SafetyOptions safety = safety_of(cfg);
+  const int N = vec.env(0).uavs(), M = vec.size(), obs_dim = enc.width(vec.env(0));
+  const CriticInput critic_in{m.algo == "ippo" ? "local" : m.critic_state, enc};
   const int cin = critic_in.size(vec.env(0));
 
   torch::manual_seed(cfg.run.seed);
@@ -74,7 +88,8 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   std::string metrics = metrics_header();
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
-                          {"obs_dim", obs_dim}, {"critic_input", critic_in.kind}, {"critic_dim", cin},
+                          {"obs_dim", obs_dim}, {"encoder", m.encoder},
+                          {"critic_input", critic_in.kind}, {"critic_dim", cin},
                           {"hidden", m.hidden}, {"env_steps", steps}, {"updates", updates},
                           {"value_mean", vnorm.mean}, {"value_var", vnorm.var}, {"value_count", vnorm.count},
                           {"config", to_toml(cfg)}};
@@ -108,49 +123,64 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     obs_buf.reserve(static_cast<std::size_t>(T * M * N * obs_dim));
     crit_buf.reserve(static_cast<std::size_t>(T * M * N * cin));
     std::vector<int64_t> act_buf;
-    std::vector<float> logp_buf, mask_buf, val_buf, rew_buf, done_buf;
+    std::vector<float> logp_buf, mask_buf, allow_buf, val_buf, rew_buf, done_buf;
+    std::vector<float> obs(static_cast<std::size_t>(M * N * obs_dim)), crit(static_cast<std::size_t>(M * N * cin));
     for (int t = 0; t < T; ++t) {
-      std::vector<float> obs, crit;
       std::vector<float> mask;
       for (int e = 0; e < M; ++e)
         for (int n = 0; n < N; ++n) {
-          const auto o = vec.env(e).observation(n);
-          obs.insert(obs.end(), o.begin(), o.end());
-          const auto c = critic_in.of(vec.env(e), n);
-          crit.insert(crit.end(), c.begin(), c.end());
+          const auto i = static_cast<std::size_t>(e * N + n);
+          enc.write(vec.env(e), n, obs.data() + i * static_cast<std::size_t>(obs_dim));
+          critic_in.write(vec.env(e), n, crit.data() + i * static_cast<std::size_t>(cin));
           mask.push_back(static_cast<float>(vec.env(e).mask(n)));
         }
       torch::Tensor logits, values;
       {
         torch::NoGradGuard ng;
-        logits = nets.actor(torch::from_blob(obs.data(), {M * N, obs_dim}).to(device)).to(torch::kCPU);
+        logits = nets.actor(torch::from_blob(obs.data(), {M * N, obs_dim}).to(device)).to(torch::kCPU).contiguous();
         values = vnorm.denormalise(nets.critic(torch::from_blob(crit.data(), {M * N, cin}).to(device)).to(torch::kCPU)).view({M * N});
       }
-      const auto logp_all = torch::log_softmax(logits, 1);
-      const auto probs = logp_all.exp();
-      auto pa = probs.accessor<float, 2>();
-      auto la = logp_all.accessor<float, 2>();
+      auto la = logits.accessor<float, 2>();
       const auto values_c = values.contiguous();
       auto va = values_c.accessor<float, 1>();  // not values[i].item(): one tensor per agent and step
-      std::vector<std::vector<int>> actions(static_cast<std::size_t>(M), std::vector<int>(static_cast<std::size_t>(N)));
-      for (int i = 0; i < M * N; ++i) {
-        int a = kStay;
-        if (mask[static_cast<std::size_t>(i)] > 0) {  // arrival-aware sampling: arrived agents STAY
-          double u = rng.uniform(), acc = 0;
-          a = kActions - 1;
+      std::vector<std::vector<int>> actions(static_cast<std::size_t>(M));
+      std::vector<float> allow(static_cast<std::size_t>(M * N * kActions), 1.0f), logp(static_cast<std::size_t>(M * N), 0.0f);
+      for (int e = 0; e < M; ++e) {
+        // Each UAV samples from its policy restricted to its allowed moves (the reachability
+        // mask and the shield against the UAVs already placed); arrived agents STAY.
+        actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety, [&](int n, unsigned allowed) {
+          const int i = e * N + n;
+          double mx = -1e30;
+          for (int k = 0; k < kActions; ++k)
+            if (allowed >> k & 1u) mx = std::max(mx, static_cast<double>(la[i][k]));
+          double z = 0;
+          for (int k = 0; k < kActions; ++k)
+            if (allowed >> k & 1u) z += std::exp(static_cast<double>(la[i][k]) - mx);
+          double u = rng.uniform() * z, acc = 0;
+          int a = -1;
           for (int k = 0; k < kActions; ++k) {
-            acc += pa[i][k];
-            if (u < acc) { a = k; break; }
+            allow[static_cast<std::size_t>(i * kActions + k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
+            if (!(allowed >> k & 1u)) continue;
+            acc += std::exp(static_cast<double>(la[i][k]) - mx);
+            if (a < 0 && u < acc) a = k;
           }
-        }
-        actions[static_cast<std::size_t>(i / N)][static_cast<std::size_t>(i % N)] = a;
+          if (a < 0)
+            for (int k = kActions; k-- > 0;)
+              if (allowed >> k & 1u) { a = k; break; }
+          logp[static_cast<std::size_t>(i)] = static_cast<float>(static_cast<double>(la[i][a]) - mx - std::log(z));
+          return a;
+        });
+      }
+      for (int i = 0; i < M * N; ++i) {
+        const int a = actions[static_cast<std::size_t>(i / N)][static_cast<std::size_t>(i % N)];
         act_buf.push_back(a);
-        logp_buf.push_back(la[i][a]);
+        logp_buf.push_back(logp[static_cast<std::size_t>(i)]);
         val_buf.push_back(va[i]);
       }
       obs_buf.insert(obs_buf.end(), obs.begin(), obs.end());
       crit_buf.insert(crit_buf.end(), crit.begin(), crit.end());
       mask_buf.insert(mask_buf.end(), mask.begin(), mask.end());
+      allow_buf.insert(allow_buf.end(), allow.begin(), allow.end());
       const auto infos = vec.step(actions);
       for (int e = 0; e < M; ++e) {
         rew_buf.push_back(static_cast<float>(infos[static_cast<std::size_t>(e)].reward));
@@ -160,12 +190,9 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     }
     steps += per_update;
     // Bootstrap values of the states after the rollout.
-    std::vector<float> crit_last;
+    std::vector<float> crit_last(static_cast<std::size_t>(M * N * cin));
     for (int e = 0; e < M; ++e)
-      for (int n = 0; n < N; ++n) {
-        const auto c = critic_in.of(vec.env(e), n);
-        crit_last.insert(crit_last.end(), c.begin(), c.end());
-      }
+      for (int n = 0; n < N; ++n) critic_in.write(vec.env(e), n, crit_last.data() + static_cast<std::size_t>((e * N + n) * cin));
     torch::Tensor v_last;
     {
       torch::NoGradGuard ng;
@@ -198,6 +225,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     const auto act_t = torch::tensor(act_buf, torch::kInt64).to(device);
     const auto logp_t = torch::from_blob(logp_buf.data(), {B}).clone().to(device);
     const auto mask_t = torch::from_blob(mask_buf.data(), {B}).clone().to(device);
+    const auto allow_t = torch::from_blob(allow_buf.data(), {B, kActions}).clone().to(device);
     auto adv_t = torch::from_blob(adv_buf.data(), {B}).clone().to(device);
     auto ret_t = torch::from_blob(ret_buf.data(), {B}).clone().to(device);
     auto vold_t = torch::from_blob(val_buf.data(), {B}).clone().to(device);
@@ -221,7 +249,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
       const auto perm_t = torch::tensor(perm, torch::kInt64).to(device);
       for (int64_t first = 0; first + mb <= B; first += mb) {
         const auto idx = perm_t.narrow(0, first, mb);
-        const auto logp_all = torch::log_softmax(nets.actor(obs_t.index_select(0, idx)), 1);
+        const auto logp_all = torch::log_softmax(masked_logits(nets.actor(obs_t.index_select(0, idx)), allow_t.index_select(0, idx)), 1);
         const auto logp = logp_all.gather(1, act_t.index_select(0, idx).unsqueeze(1)).squeeze(1);
         const auto entropy = -(logp_all.exp() * logp_all).sum(1);
         const auto mk = mask_t.index_select(0, idx);
@@ -249,6 +277,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
       stats.clear();
     }
     if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) run.checkpoint(meta(), nets, adam, metrics);
+    if (updates % m.checkpoint_every == 0 && steps < m.total_steps) run.validate(cfg, opt, meta(), nets, steps);
     if (bar) bar->advance();
   }
   if (bar) bar->finish();

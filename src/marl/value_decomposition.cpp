@@ -21,10 +21,11 @@ namespace {
 
 /// Episodes padded to T_max slots (T_max - 1 transitions).
 struct EpisodeBuffer {
-  torch::Tensor obs, state, mask, act, rew, done, valid;
+  torch::Tensor obs, state, mask, allow, act, rew, done, valid;
   int64_t capacity = 0, size = 0, next = 0;
   EpisodeBuffer(int64_t cap, int64_t tmax, int64_t n, int64_t d, int64_t s) : capacity(cap) {
     obs = torch::zeros({cap, tmax, n, d});
+    allow = torch::ones({cap, tmax, n, kActions});
     state = torch::zeros({cap, tmax, s});
     mask = torch::zeros({cap, tmax, n});
     act = torch::full({cap, tmax - 1, n}, static_cast<int64_t>(kStay), torch::kInt64);
@@ -36,7 +37,7 @@ struct EpisodeBuffer {
 
 /// One environment's episode in progress.
 struct Recording {
-  std::vector<float> obs, state, mask, rew, done;
+  std::vector<float> obs, state, mask, allow, rew, done;
   std::vector<int64_t> act;
   int slots = 0;
   void clear() { *this = Recording{}; }
@@ -54,7 +55,9 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   const auto& device = run.device;
   VecEnv& vec = run.vec;
   const int N = vec.env(0).uavs(), M = vec.size(), Tm = vec.env(0).t_max();
-  const int D = UavEnv::observation_size() + vec.env(0).agent_context_size(), S = vec.env(0).state_size();
+  const Encoder enc = encoder_of(cfg, true);
+  const SafetyOptions safety = safety_of(cfg);
+  const int D = enc.width(vec.env(0)), S = vec.env(0).state_size();
 
   torch::manual_seed(cfg.run.seed);
   Nets nets, target;
@@ -79,6 +82,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
                           {"obs_dim", UavEnv::observation_size()}, {"context_dim", D - UavEnv::observation_size()}, {"state_dim", S}, {"hidden", m.hidden},
+                          {"encoder", m.encoder},
                           {"mixer_embed", m.mixer_embed}, {"env_steps", steps}, {"grad_steps", grad_steps},
                           {"episodes", episodes}, {"config", to_toml(cfg)}};
   };
@@ -98,9 +102,13 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
     auto& r = rec[static_cast<std::size_t>(e)];
     UavEnv& env = vec.env(e);
     for (int n = 0; n < N; ++n) {
-      const auto o = obs_with_id(env, n);
-      r.obs.insert(r.obs.end(), o.begin(), o.end());
+      r.obs.resize(r.obs.size() + static_cast<std::size_t>(D));
+      enc.write(env, n, r.obs.data() + r.obs.size() - static_cast<std::size_t>(D));
       r.mask.push_back(static_cast<float>(env.mask(n)));
+      // The moves the target's argmax may pick at this slot: the reachability mask (the shield
+      // depends on the other UAVs' choices, unknown to the target).
+      const unsigned allowed = allowed_moves(env, n, safety);
+      for (int a = 0; a < kActions; ++a) r.allow.push_back((allowed >> a & 1u) ? 1.0f : 0.0f);
     }
     const auto s = env.state();
     r.state.insert(r.state.end(), s.begin(), s.end());
@@ -112,6 +120,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
     buffer.obs[i].zero_();
     buffer.state[i].zero_();
     buffer.mask[i].zero_();
+    buffer.allow[i].fill_(1.0);
     buffer.act[i].fill_(static_cast<int64_t>(kStay));
     buffer.rew[i].zero_();
     buffer.done[i].zero_();
@@ -119,6 +128,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
     buffer.obs[i].narrow(0, 0, slots).copy_(torch::from_blob(r.obs.data(), {slots, N, D}));
     buffer.state[i].narrow(0, 0, slots).copy_(torch::from_blob(r.state.data(), {slots, S}));
     buffer.mask[i].narrow(0, 0, slots).copy_(torch::from_blob(r.mask.data(), {slots, N}));
+    buffer.allow[i].narrow(0, 0, slots).copy_(torch::from_blob(r.allow.data(), {slots, N, kActions}));
     if (trans > 0) {
       buffer.act[i].narrow(0, 0, trans).copy_(torch::from_blob(r.act.data(), {trans, N}, torch::kInt64));
       buffer.rew[i].narrow(0, 0, trans).copy_(torch::from_blob(r.rew.data(), {trans}));
@@ -143,6 +153,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
     const auto obs = buffer.obs.index_select(0, idx).to(device);      // [B, Tm, N, D]
     const auto state = buffer.state.index_select(0, idx).to(device);  // [B, Tm, S]
     const auto mask = buffer.mask.index_select(0, idx).to(device);    // [B, Tm, N]
+    const auto allow = buffer.allow.index_select(0, idx).to(device);  // [B, Tm, N, 5]
     const auto act = buffer.act.index_select(0, idx).to(device);      // [B, Tm-1, N]
     const auto rew = buffer.rew.index_select(0, idx).to(device);
     const auto done = buffer.done.index_select(0, idx).to(device);
@@ -154,7 +165,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
     {
       torch::NoGradGuard ng;
       const auto next_obs = obs.narrow(1, 1, Tm - 1);
-      const auto a_star = q_all.detach().narrow(1, 1, Tm - 1).argmax(3, true);           // double Q: online argmax
+      const auto a_star = masked_logits(q_all.detach().narrow(1, 1, Tm - 1), allow.narrow(1, 1, Tm - 1)).argmax(3, true);  // double Q: online argmax over allowed moves
       const auto q_next = target.q(next_obs).gather(3, a_star).squeeze(3) * mask.narrow(1, 1, Tm - 1);
       const auto q_tot_next = mix(target, q_next, state.narrow(1, 1, Tm - 1));
       y = rew + m.gamma * (1 - done) * q_tot_next;
@@ -182,23 +193,30 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   while (steps < m.total_steps) {
     const double frac = std::min(1.0, static_cast<double>(steps) / std::max(1.0, m.epsilon_anneal * static_cast<double>(m.total_steps)));
     const double eps = m.epsilon_start + (m.epsilon_end - m.epsilon_start) * frac;
-    std::vector<std::vector<int>> actions(static_cast<std::size_t>(M), std::vector<int>(static_cast<std::size_t>(N), kStay));
+    std::vector<std::vector<int>> actions(static_cast<std::size_t>(M));
     {
-      std::vector<float> in;
+      std::vector<float> in(static_cast<std::size_t>(M * N * D));
       for (int e = 0; e < M; ++e)
-        for (int n = 0; n < N; ++n) {
-          const auto o = obs_with_id(vec.env(e), n);
-          in.insert(in.end(), o.begin(), o.end());
-        }
+        for (int n = 0; n < N; ++n) enc.write(vec.env(e), n, in.data() + static_cast<std::size_t>((e * N + n) * D));
       torch::NoGradGuard ng;
-      const auto greedy = nets.q(torch::from_blob(in.data(), {M * N, D}).to(device)).argmax(1).to(torch::kCPU).contiguous();
-      const auto ga = greedy.accessor<int64_t, 1>();
-      for (int i = 0; i < M * N; ++i) {
-        const int e = i / N, n = i % N;
-        if (!vec.env(e).mask(n)) continue;  // arrived: STAY
-        actions[static_cast<std::size_t>(e)][static_cast<std::size_t>(n)] =
-            rng.uniform() < eps ? static_cast<int>(rng.below(kActions)) : static_cast<int>(ga[i]);
-      }
+      const auto q = nets.q(torch::from_blob(in.data(), {M * N, D}).to(device)).to(torch::kCPU).contiguous();
+      const auto qa = q.accessor<float, 2>();
+      for (int e = 0; e < M; ++e)
+        // Epsilon-greedy over each UAV's allowed moves (mask and shield); arrived UAVs STAY.
+        actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety, [&](int n, unsigned allowed) {
+          const int i = e * N + n;
+          int count = 0, best = -1;
+          for (int a = 0; a < kActions; ++a)
+            if (allowed >> a & 1u) {
+              ++count;
+              if (best < 0 || qa[i][a] > qa[i][best]) best = a;
+            }
+          if (rng.uniform() >= eps) return best;
+          int pick = static_cast<int>(rng.below(static_cast<std::uint64_t>(count)));
+          for (int a = 0; a < kActions; ++a)
+            if ((allowed >> a & 1u) && pick-- == 0) return a;
+          return best;
+        });
     }
     const auto infos = vec.step(actions);
     steps += M;
@@ -213,6 +231,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
         r.obs.resize(r.obs.size() + static_cast<std::size_t>(N * D), 0.0f);
         r.state.resize(r.state.size() + static_cast<std::size_t>(S), 0.0f);
         r.mask.resize(r.mask.size() + static_cast<std::size_t>(N), 0.0f);
+        r.allow.resize(r.allow.size() + static_cast<std::size_t>(N * kActions), 1.0f);
         ++r.slots;
         push_episode(r);
         r.clear();
@@ -238,6 +257,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
       loss_sum = 0;
       loss_count = 0;
       if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) run.checkpoint(meta(), nets, adam, metrics);
+      if (updates % m.checkpoint_every == 0 && steps < m.total_steps) run.validate(cfg, opt, meta(), nets, steps);
       if (bar) bar->advance();
     }
   }

@@ -44,7 +44,7 @@ struct ScenarioConfig {       // [scenario]
   double altitude_m = 100.0;  // UAV flight altitude H
   int uavs = 3;               // N for random snapshots (and for a generated trajectory layout)
   int users = 12;             // K for random snapshots
-  std::string user_layout = "uniform";  // uniform (the paper) | hotspot
+  std::string user_layout = "uniform";  // uniform (the paper) | hotspot | mixed (per layout, even odds)
   int hotspots = 4;                     // hotspot centres, uniform in the area
   double hotspot_radius_m = 40.0;       // std of a hotspot user's offset from its centre (each axis)
   double hotspot_fraction = 0.8;        // share of users in hotspots; the rest uniform
@@ -101,8 +101,14 @@ struct EnvConfig {                  // [env] the trajectory environment (Section
   double w_bud = 5.0;               // per boundary event (a move out of the area, cancelled)
   double w_col = 2.0;               // per UAV closer than D_min to another
   double w_fea = 1.0;               // per UAV reachability indicator Phi_n[t] (+1 / -1)
+  // Reward: paper (eq:total_reward with the weights above) | objective (beyond the paper): the
+  // increment of R-bar, R-bar[t+1] - R-bar[t], whose sum over an episode is the P2.2 objective
+  // less R[1], minus w_bud N_bud and w_col N_col; arrival comes from the action mask.
+  std::string reward = "paper";
   bool resample_users = false;      // draw new users at every reset (else fixed per environment)
   std::string users_file;           // TOML with users = [[x, y], ...]; empty = uniform from the seed
+  int users_min = 0;                // a sampled layout's K is uniform in [users_min, users_max] (0 = scenario.users)
+  int users_max = 0;
   std::string state = "paper";      // global state of the critics / mixers: paper (4N + 2K reals) | compact (independent of N and K)
 };
 
@@ -133,6 +139,11 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   int target_update = 200;          // gradient steps between target-network copies
   int mixer_embed = 32;             // QMIX mixing-network width
   int checkpoint_every = 50;        // updates between checkpoints
+  // Safety and generalisation (beyond the paper; README "Generalisation")
+  bool action_mask = true;          // reachability mask (in the area, destination reachable in the slots left)
+  bool shield = true;               // collision shield over the joint action
+  std::string encoder = "mlp";      // mlp (the paper's 11-real observation) | set (users and neighbours as sets)
+  int val_layouts = 0;              // validation layouts scored at each checkpoint; policy.pt = the best (0 = last)
 };
 
 struct NnConfig {                   // [nn] learned beamformers (Section IV and its baselines)

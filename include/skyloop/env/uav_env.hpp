@@ -18,6 +18,8 @@
 //    + w_fea sum_n Phi_n, with R-bar[t] = (1/t) sum_{tau <= t} R[tau] and Phi_n exactly as the
 //    paper: +1 if T_min[t] <= T_max - t and T_min[t] <= T_min[t-1], else -1, where
 //    T_min = ceil(||l_D - l_A|| / D_fly) (Euclidean, as printed).
+//    Under env.reward = "objective" (beyond the paper): R-bar[t] - R-bar[t-1] - w_bud N_bud
+//    - w_col N_col, so that an episode's rewards sum to its P2.2 objective less R[1];
 //  - evaluations report the P2.2 objective (1/T) sum_{t=1}^T R[t], not the shaped reward.
 #include <cstdint>
 #include <functional>
@@ -113,6 +115,25 @@ class UavEnv {
   std::vector<float> agent_state(int n) const;
   int agent_state_size() const { return state_size() + agent_context_size() + observation_size(); }
 
+  // ---- set observation (marl.encoder = "set"; beyond the paper) ----------------------------
+  /// A permutation-invariant encoding of the users and the other UAVs around agent n, sized
+  /// independently of K and N (a kernel mean embedding: DeepSets with fixed Gaussian features,
+  /// pooled by mean over the users and by sum over the UAVs):
+  ///  - own (11): position / area, displacement to its destination / area, slack (moves left
+  ///    minus moves needed) / T_max, t / T_max, one-hot previous action;
+  ///  - users (kWideGrid^2): at each point c of a kWideGrid x kWideGrid grid centred on the UAV
+  ///    with spacing 2 D_fly, (4 / K) sum_k exp(-|u_k - x - c|^2 / (2 (2 D_fly)^2));
+  ///  - UAVs, wide (kWideGrid^2): the same sum over the other UAVs (not divided by anything);
+  ///  - UAVs, near (kNearGrid^2): spacing D_fly, width D_fly / 2: who is one move away.
+  /// Reordering the users or the other UAVs leaves it unchanged (tests/unit/env_test.cpp).
+  static constexpr int kWideGrid = 7, kNearGrid = 5;
+  static constexpr int set_observation_size() { return 11 + 2 * kWideGrid * kWideGrid + kNearGrid * kNearGrid; }
+  void write_set_observation(int n, float* out) const;
+  int users() const;
+  /// The compact state (3 G^2 + 2 reals, whatever env.state says).
+  static constexpr int compact_state_size() { return 3 * kStateGrid * kStateGrid + 2; }
+  void write_compact_state(float* out) const;
+
   // ---- episode record -----------------------------------------------------------------------
   const std::vector<double>& rates() const { return rates_; }  // R[1..t]
   /// (1/T) sum R[t] over the episode so far (T = current slot).
@@ -134,6 +155,7 @@ class UavEnv {
   double d_fly_, d_min_, area_x_, area_y_;
   double w_rate_, w_arr_, w_bud_, w_col_, w_fea_;
   bool compact_ = false;  // env.state = "compact"
+  bool objective_reward_ = false;  // env.reward = "objective"
   Positions start_, dest_, pos_;
   std::shared_ptr<RateOracle> oracle_;
   std::vector<bool> arrived_;
@@ -147,8 +169,9 @@ class UavEnv {
 };
 
 /// M environments stepped as one batch: every environment's R[t] in one batched oracle call.
-/// Environment i's users come from derive_seed(seed, i) (env.users_file overrides), and with
-/// env.resample_users each reset draws new ones from that environment's own stream.
+/// Environment i's users come from derive_seed(seed, i) (env.users_file overrides); with
+/// env.resample_users every episode of environment i is a new training layout
+/// (skyloop/env/layouts.hpp: training_layout_seed(seed, i, episode), K in env.users_min..max).
 class VecEnv {
  public:
   VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed);
@@ -165,6 +188,8 @@ class VecEnv {
 
  private:
   void reset_env(std::size_t i);
+  bool sampling() const;                 // a new training layout every episode
+  Positions users_of(std::size_t i) const;  // environment i's users in its current episode
   Config cfg_;
   std::shared_ptr<const Beamformer> beamformer_;
   std::uint64_t seed_;

@@ -33,7 +33,8 @@ struct MarlTrainResult {
 MarlTrainResult train_marl(const Config& cfg, const MarlTrainOptions& opt);
 
 /// A trained policy as a planner: each active UAV takes its greedy action (argmax of the actor's
-/// logits for PPO, of the agent Q-values for VDN/QMIX) from its local observation.
+/// logits for PPO, of the agent Q-values for VDN/QMIX) from its local observation, among the
+/// moves its safety settings allow (shielded_argmax).
 class MarlPolicy final : public Planner {
  public:
   /// Loads DIR/policy.pt (or a .pt file). Missing, corrupt or foreign files throw InputError.
@@ -43,6 +44,12 @@ class MarlPolicy final : public Planner {
   std::vector<int> act(UavEnv& env) override;
   /// The configuration the policy was trained with.
   const std::string& config_toml() const;
+  /// Safety at execution (skyloop/planning/safety.hpp): as trained (marl.action_mask,
+  /// marl.shield) unless set here. Without the mask and the shield a UAV takes the argmax of
+  /// every action, as the paper's policy does.
+  bool action_mask() const;
+  bool shield() const;
+  void set_safety(bool action_mask, bool shield);
 
   struct Impl;
 

@@ -1,0 +1,60 @@
+#pragma once
+// Trajectory planners judged on many user layouts (skyloop/env/layouts.hpp): `skyloop eval
+// --layouts N`, skyloop.evaluate_layouts in Python, and the generalisation experiment.
+//
+// Every layout is scored against its own exact optimum (solve_optimal), cached on disk per
+// (resolved scenario, users), so a second evaluation of the same layouts solves nothing.
+#include <cstdint>
+#include <iosfwd>
+#include <string>
+#include <vector>
+
+#include "skyloop/beamforming/registry.hpp"
+#include "skyloop/env/layouts.hpp"
+
+namespace skyloop {
+
+struct LayoutEvalOptions {
+  int layouts = 100;                    // layouts first .. first + layouts - 1 of `split`
+  std::uint64_t first = 0;
+  LayoutSplit split = LayoutSplit::Test;
+  std::vector<std::string> planners;    // random | greedy | seqgreedy (the optimum is always solved)
+  std::vector<std::string> policies;    // directories (or policy.pt files) of `skyloop train`
+  std::vector<std::string> policy_names;  // their labels (default: the algorithm, then "-2", "-3" if repeated)
+  bool unsafe = false;                  // also run every policy without mask and shield ("<label>/raw")
+  std::string cache_dir;                // optimum cache; empty = none
+  int threads = 0;                      // layouts in parallel (0 = run.threads)
+};
+
+struct LayoutRow {
+  std::string planner;
+  std::uint64_t layout = 0, users_seed = 0;
+  int users = 0, uavs = 0;
+  double objective = 0, optimum = 0, fraction = 0;  // fraction = objective / optimum of this layout
+  int T = 0, home = 0, arrivals = 0, collisions = 0, boundary = 0;
+  bool complete = false;                // every UAV home by T_max, no collision, no boundary event
+  double seconds = 0;
+};
+
+struct LayoutSummary {
+  std::string planner;
+  int layouts = 0;
+  double complete = 0;                  // share of missions complete
+  int collisions = 0, boundary = 0;     // totals over the layouts
+  double arrivals = 0;                  // mean UAVs home per layout
+  double objective = 0;                 // mean
+  double fraction_mean = 0, fraction_p5 = 0, fraction_worst = 0;
+};
+
+/// Rows in layout order, each layout's planners in the order given, policies next, the optimum last.
+std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptions& opt, const BeamformerRegistry& registry,
+                                        std::ostream* progress = nullptr);
+/// One summary per planner, in the rows' order. The 5th percentile interpolates linearly.
+std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows);
+
+/// Tidy CSV (run seed and split in every row) and a table for people.
+std::string layout_rows_csv(const std::vector<LayoutRow>& rows, std::uint64_t seed, LayoutSplit split);
+std::string layout_summary_csv(const std::vector<LayoutSummary>& s, std::uint64_t seed, LayoutSplit split);
+std::string format_layout_summary(const std::vector<LayoutSummary>& s);
+
+}  // namespace skyloop

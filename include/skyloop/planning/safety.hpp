@@ -1,0 +1,56 @@
+#pragma once
+// Safety by construction for learned planners (beyond the paper): the reachability mask that the
+// Random and Greedy baselines already fly with, and a collision shield over the joint action.
+//
+//  - reachability mask: UAV n may take action a only if a keeps it in the area and its
+//    destination reachable in the slots left (UavEnv::feasible). An arrived UAV may only STAY.
+//    Flown from the start, the mask brings every UAV home by T_max: a UAV with no slack left can
+//    only move towards its destination.
+//  - collision shield: the UAVs choose one after another, least slack first (ties by index); a
+//    move that brings a UAV within D_min of a UAV already placed (arrived UAVs are placed first)
+//    is masked whenever one of its other allowed moves avoids that.
+//
+// Training samples through sequential_safe_actions (each UAV's allowed set is its action mask in
+// the PPO / Q-learning update); execution uses shielded_argmax, which searches the joint action
+// depth first so that a collision is never chosen when any joint action of allowed moves avoids one.
+#include <array>
+#include <functional>
+#include <vector>
+
+#include "skyloop/env/uav_env.hpp"
+
+namespace skyloop {
+
+struct SafetyOptions {
+  bool mask = true;    // reachability mask
+  bool shield = true;  // collision shield
+};
+
+constexpr unsigned kAllActions = (1u << kActions) - 1;
+
+/// Bit a set if UAV n may take action a under the reachability mask. Never empty: if no move keeps
+/// the destination reachable (a state the mask itself never leads to), the moves that stay in the
+/// area; an arrived UAV: STAY only.
+unsigned reachable_moves(const UavEnv& env, int n);
+/// Moves of UAV n allowed before the shield: reachable_moves with the mask, else every action
+/// (STAY only once arrived).
+unsigned allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety);
+/// The order in which not-yet-arrived UAVs choose: least slack (moves left minus moves needed)
+/// first, ties by index.
+std::vector<int> shield_order(const UavEnv& env);
+
+/// Joint action chosen one UAV at a time in shield order: choose(n, allowed) returns UAV n's
+/// action given its allowed set (the shield applied against the UAVs placed so far).
+/// `allowed_out[n]`, when given, receives each UAV's allowed set (arrived UAVs: STAY only).
+std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
+                                         const std::function<int(int n, unsigned allowed)>& choose,
+                                         std::vector<unsigned>* allowed_out = nullptr);
+
+/// The deployed joint action of a learned planner from per-UAV action scores (higher is better):
+/// each UAV its best allowed move, and with the shield the first joint action, depth first over
+/// the UAVs in shield order and each UAV's allowed moves best first, in which no two UAVs end
+/// within D_min; if none exists (or the search passes its node budget), the sequential choice.
+std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
+                                 const std::vector<std::array<float, kActions>>& scores);
+
+}  // namespace skyloop

@@ -1,0 +1,225 @@
+#include "skyloop/experiments/layout_eval.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fmt/format.h>
+#include <map>
+#include <mutex>
+#include <ostream>
+
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/csv.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+#include "skyloop/core/parallel.hpp"
+#include "skyloop/core/progress.hpp"
+#include "skyloop/core/rng.hpp"
+#include "skyloop/marl/marl.hpp"
+#include "skyloop/nn/learned.hpp"
+
+namespace skyloop {
+
+namespace {
+
+LayoutRow row_of(const EpisodeRecord& r, const std::string& planner, double seconds) {
+  LayoutRow x;
+  x.planner = planner;
+  x.objective = r.objective;
+  x.T = r.T;
+  x.uavs = static_cast<int>(r.positions.front().rows());
+  x.arrivals = r.arrivals;
+  x.home = r.steps.empty() ? (r.success ? x.uavs : 0) : r.steps.back().home;
+  x.collisions = r.collisions;
+  x.boundary = r.boundary;
+  x.complete = r.success && r.collisions == 0 && r.boundary == 0;
+  x.seconds = seconds;
+  return x;
+}
+
+/// The exact optimum of one layout, from the cache when it holds it.
+LayoutRow optimum_of(const Config& cfg, UavEnv& env, const std::string& cache_dir) {
+  std::string path;
+  if (!cache_dir.empty()) {
+    // Everything the optimum depends on: the resolved scenario, channel, oracle and trajectory
+    // settings, and the users (not the learners' settings or the run seed).
+    Config key = cfg;
+    key.marl = MarlConfig{};
+    key.run = RunConfig{};
+    key.env.resample_users = false;
+    key.env.users_min = key.env.users_max = 0;
+    const auto& u = env.oracle().users();
+    std::string text = to_toml(key);
+    text.append(reinterpret_cast<const char*>(u.data()), sizeof(double) * static_cast<std::size_t>(u.size()));
+    path = (std::filesystem::path(cache_dir) / fmt::format("{:016x}.csv", hash_bytes(text.data(), text.size()))).string();
+    if (std::filesystem::exists(path)) {
+      const auto t = CsvTable::parse(read_file(path, "optimum cache"), path);
+      LayoutRow r;
+      r.planner = "optimal";
+      r.objective = t.number(0, "objective");
+      r.T = static_cast<int>(t.number(0, "T"));
+      r.uavs = env.uavs();
+      r.arrivals = r.home = static_cast<int>(t.number(0, "arrivals"));
+      r.collisions = static_cast<int>(t.number(0, "collisions"));
+      r.boundary = static_cast<int>(t.number(0, "boundary"));
+      r.complete = t.number(0, "complete") > 0;
+      r.seconds = t.number(0, "seconds");
+      return r;
+    }
+  }
+  OptimalPlanner planner(nullptr);
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto rec = run_episode(env, planner);
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  auto r = row_of(rec, "optimal", s);
+  if (!path.empty())
+    write_file_atomic(path, fmt::format("objective,T,arrivals,collisions,boundary,complete,seconds\n{},{},{},{},{},{},{}\n",
+                                        format_double(r.objective), r.T, r.arrivals, r.collisions, r.boundary,
+                                        r.complete ? 1 : 0, format_double(s)));
+  return r;
+}
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const double pos = q * static_cast<double>(v.size() - 1);
+  const auto i = static_cast<std::size_t>(std::floor(pos));
+  const double f = pos - static_cast<double>(i);
+  return i + 1 < v.size() ? v[i] * (1 - f) + v[i + 1] * f : v[i];
+}
+
+}  // namespace
+
+std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptions& opt, const BeamformerRegistry& registry,
+                                        std::ostream* progress) {
+  if (opt.layouts < 1) throw InputError("--layouts = " + std::to_string(opt.layouts) + " is out of range: allowed at least 1");
+  for (const auto& p : opt.planners) {
+    if (p == "optimal") continue;
+    if (!make_planner(p, 0)) throw InputError("--planner '" + p + "' is unknown: allowed " + kPlannerNames);
+  }
+  // Policy labels, checked (and loaded once) before the work.
+  std::vector<std::string> labels;
+  std::map<std::string, int> seen;
+  for (std::size_t i = 0; i < opt.policies.size(); ++i) {
+    const auto policy = MarlPolicy::load(opt.policies[i]);
+    std::string label = i < opt.policy_names.size() ? opt.policy_names[i] : policy->name();
+    if (++seen[label] > 1) label += "-" + std::to_string(seen[label]);
+    labels.push_back(label);
+  }
+  layout_seed(opt.split, opt.first + static_cast<std::uint64_t>(opt.layouts) - 1);  // in range
+  if (!opt.cache_dir.empty()) std::filesystem::create_directories(opt.cache_dir);
+  std::shared_ptr<const Beamformer> bf;
+  try {
+    bf = registry.create(cfg.env.oracle, cfg);
+  } catch (const InputError& e) {
+    throw InputError("env.oracle = \"" + cfg.env.oracle + "\": " + e.what());
+  }
+  const int threads = resolve_threads(opt.threads ? opt.threads : cfg.run.threads);
+  if (threads > 1) set_torch_threads(1);  // layouts in parallel; each policy on one thread
+  std::vector<std::string> names;
+  for (const auto& p : opt.planners)
+    if (p != "optimal") names.push_back(p);
+  const std::size_t per_layout = names.size() + labels.size() * (opt.unsafe ? 2 : 1) + 1;
+  std::vector<LayoutRow> rows(static_cast<std::size_t>(opt.layouts) * per_layout);
+  std::unique_ptr<Progress> bar;
+  std::mutex mu;
+  if (progress) bar = std::make_unique<Progress>(fmt::format("layouts ({})", to_string(opt.split)), static_cast<std::size_t>(opt.layouts), *progress);
+  parallel_for(static_cast<std::size_t>(opt.layouts), threads, [&](std::size_t i) {
+    const std::uint64_t index = opt.first + i, seed = layout_seed(opt.split, index);
+    UavEnv env(cfg, std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, seed)));
+    std::vector<LayoutRow> out;
+    auto timed = [&](Planner& p, const std::string& label) {
+      const auto t0 = std::chrono::steady_clock::now();
+      const auto rec = run_episode(env, p);
+      out.push_back(row_of(rec, label, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()));
+    };
+    for (const auto& name : names) {
+      auto p = make_planner(name, derive_seed(seed, 0x52414e44ULL));
+      timed(*p, name);
+    }
+    for (std::size_t k = 0; k < labels.size(); ++k) {
+      auto policy = MarlPolicy::load(opt.policies[k]);
+      timed(*policy, labels[k]);
+      if (opt.unsafe) {
+        policy->set_safety(false, false);
+        timed(*policy, labels[k] + "/raw");
+      }
+    }
+    out.push_back(optimum_of(cfg, env, opt.cache_dir));
+    const double best = out.back().objective;
+    for (std::size_t k = 0; k < out.size(); ++k) {
+      auto& r = out[k];
+      r.layout = index, r.users_seed = seed, r.users = env.users(), r.uavs = env.uavs();
+      r.optimum = best;
+      r.fraction = best > 0 ? r.objective / best : 0.0;
+      rows[i * per_layout + k] = r;
+    }
+    if (bar) {
+      std::lock_guard<std::mutex> lock(mu);
+      bar->advance();
+    }
+  });
+  if (bar) bar->finish();
+  return rows;
+}
+
+std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows) {
+  std::vector<LayoutSummary> out;
+  std::map<std::string, std::vector<const LayoutRow*>> by;
+  for (const auto& r : rows) {
+    if (!by.count(r.planner)) out.push_back(LayoutSummary{r.planner});
+    by[r.planner].push_back(&r);
+  }
+  for (auto& s : out) {
+    const auto& v = by[s.planner];
+    std::vector<double> f;
+    s.layouts = static_cast<int>(v.size());
+    for (const auto* r : v) {
+      s.complete += r->complete ? 1.0 : 0.0;
+      s.collisions += r->collisions;
+      s.boundary += r->boundary;
+      s.arrivals += r->home;
+      s.objective += r->objective;
+      f.push_back(r->fraction);
+    }
+    const double n = std::max(1, s.layouts);
+    s.complete /= n, s.arrivals /= n, s.objective /= n;
+    for (const double x : f) s.fraction_mean += x / n;
+    s.fraction_p5 = percentile(f, 0.05);
+    s.fraction_worst = f.empty() ? 0.0 : *std::min_element(f.begin(), f.end());
+  }
+  return out;
+}
+
+std::string layout_rows_csv(const std::vector<LayoutRow>& rows, std::uint64_t seed, LayoutSplit split) {
+  std::string s = "seed,split,layout,users_seed,users,uavs,planner,objective,optimum,fraction,T,home,complete,collisions,"
+                  "boundary_events,seconds\n";
+  for (const auto& r : rows)
+    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), r.layout, r.users_seed, r.users,
+                     r.uavs, r.planner, format_double(r.objective), format_double(r.optimum), format_double(r.fraction), r.T,
+                     r.home, r.complete ? 1 : 0, r.collisions, r.boundary, format_double(r.seconds));
+  return s;
+}
+
+std::string layout_summary_csv(const std::vector<LayoutSummary>& sum, std::uint64_t seed, LayoutSplit split) {
+  std::string s = "seed,split,planner,layouts,complete_rate,collisions,boundary_events,mean_home,mean_objective,"
+                  "fraction_mean,fraction_p5,fraction_worst\n";
+  for (const auto& x : sum)
+    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), x.planner, x.layouts,
+                     format_double(x.complete), x.collisions, x.boundary, format_double(x.arrivals), format_double(x.objective),
+                     format_double(x.fraction_mean), format_double(x.fraction_p5), format_double(x.fraction_worst));
+  return s;
+}
+
+std::string format_layout_summary(const std::vector<LayoutSummary>& sum) {
+  std::string s = fmt::format("{:<14} {:>8} {:>9} {:>10} {:>9} {:>10} {:>11} {:>9} {:>9}\n", "planner", "layouts", "complete",
+                              "collisions", "boundary", "objective", "% optimum", "p5 %", "worst %");
+  for (const auto& x : sum)
+    s += fmt::format("{:<14} {:>8} {:>8.1f}% {:>10} {:>9} {:>10.3f} {:>11.2f} {:>9.2f} {:>9.2f}\n", x.planner, x.layouts,
+                     100 * x.complete, x.collisions, x.boundary, x.objective, 100 * x.fraction_mean, 100 * x.fraction_p5,
+                     100 * x.fraction_worst);
+  return s;
+}
+
+}  // namespace skyloop

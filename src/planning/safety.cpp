@@ -1,0 +1,160 @@
+#include "skyloop/planning/safety.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace skyloop {
+
+namespace {
+
+bool too_close(double ax, double ay, double bx, double by, double d_min) {
+  return std::hypot(ax - bx, ay - by) < d_min - 1e-9;
+}
+
+/// Where UAV n ends after action a (a move out of the area is cancelled, as in step()).
+void landing(const UavEnv& env, int n, int a, double& x, double& y) {
+  const auto& p = env.positions();
+  if (!env.move(p(n, 0), p(n, 1), a, x, y)) x = p(n, 0), y = p(n, 1);
+}
+
+/// Placed UAVs' end positions for the shield.
+struct Placed {
+  std::vector<double> x, y;
+  bool clear(double px, double py, double d_min) const {
+    for (std::size_t i = 0; i < x.size(); ++i)
+      if (too_close(px, py, x[i], y[i], d_min)) return false;
+    return true;
+  }
+};
+
+/// Arrived UAVs stay where they are: placed before anyone chooses.
+Placed arrived_uavs(const UavEnv& env) {
+  Placed p;
+  for (int n = 0; n < env.uavs(); ++n)
+    if (env.arrived(n)) p.x.push_back(env.positions()(n, 0)), p.y.push_back(env.positions()(n, 1));
+  return p;
+}
+
+/// allowed minus the moves landing within D_min of a placed UAV, unless that leaves nothing.
+unsigned shielded(const UavEnv& env, int n, unsigned allowed, const Placed& placed) {
+  unsigned safe = 0;
+  for (int a = 0; a < kActions; ++a) {
+    if (!(allowed >> a & 1u)) continue;
+    double x, y;
+    landing(env, n, a, x, y);
+    if (placed.clear(x, y, env.d_min())) safe |= 1u << a;
+  }
+  return safe ? safe : allowed;
+}
+
+}  // namespace
+
+unsigned reachable_moves(const UavEnv& env, int n) {
+  if (env.arrived(n)) return 1u << kStay;
+  unsigned m = 0, inside = 0;
+  const auto& p = env.positions();
+  for (int a = 0; a < kActions; ++a) {
+    double x, y;
+    if (!env.move(p(n, 0), p(n, 1), a, x, y)) continue;
+    inside |= 1u << a;
+    if (env.feasible(n, a)) m |= 1u << a;
+  }
+  return m ? m : inside;
+}
+
+unsigned allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety) {
+  if (env.arrived(n)) return 1u << kStay;
+  return safety.mask ? reachable_moves(env, n) : kAllActions;
+}
+
+std::vector<int> shield_order(const UavEnv& env) {
+  std::vector<std::pair<int, int>> key;
+  const int left = env.t_max() - env.t();
+  for (int n = 0; n < env.uavs(); ++n)
+    if (!env.arrived(n)) key.emplace_back(left - env.min_moves(n, env.positions()(n, 0), env.positions()(n, 1)), n);
+  std::sort(key.begin(), key.end());
+  std::vector<int> order;
+  for (const auto& k : key) order.push_back(k.second);
+  return order;
+}
+
+std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
+                                         const std::function<int(int, unsigned)>& choose,
+                                         std::vector<unsigned>* allowed_out) {
+  const int N = env.uavs();
+  std::vector<int> actions(static_cast<std::size_t>(N), kStay);
+  if (allowed_out) allowed_out->assign(static_cast<std::size_t>(N), 1u << kStay);
+  Placed placed = arrived_uavs(env);
+  for (const int n : shield_order(env)) {
+    unsigned allowed = allowed_moves(env, n, safety);
+    if (safety.shield) allowed = shielded(env, n, allowed, placed);
+    const int a = choose(n, allowed);
+    actions[static_cast<std::size_t>(n)] = a;
+    if (allowed_out) (*allowed_out)[static_cast<std::size_t>(n)] = allowed;
+    double x, y;
+    landing(env, n, a, x, y);
+    placed.x.push_back(x), placed.y.push_back(y);
+  }
+  return actions;
+}
+
+namespace {
+
+int best_of(const std::array<float, kActions>& s, unsigned allowed) {
+  int best = -1;
+  for (int a = 0; a < kActions; ++a)
+    if ((allowed >> a & 1u) && (best < 0 || s[static_cast<std::size_t>(a)] > s[static_cast<std::size_t>(best)])) best = a;
+  return best < 0 ? kStay : best;
+}
+
+struct Search {
+  const UavEnv& env;
+  const std::vector<int>& order;
+  std::vector<std::vector<int>> candidates;  // per position in `order`: allowed moves, best first
+  std::vector<int>& actions;
+  Placed placed;
+  long nodes = 0;
+  static constexpr long kBudget = 200000;
+
+  bool dfs(std::size_t i) {
+    if (i == order.size()) return true;
+    const int n = order[i];
+    for (const int a : candidates[i]) {
+      if (++nodes > kBudget) return false;
+      double x, y;
+      landing(env, n, a, x, y);
+      if (!placed.clear(x, y, env.d_min())) continue;
+      placed.x.push_back(x), placed.y.push_back(y);
+      actions[static_cast<std::size_t>(n)] = a;
+      if (dfs(i + 1)) return true;
+      placed.x.pop_back(), placed.y.pop_back();
+    }
+    return false;
+  }
+};
+
+}  // namespace
+
+std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
+                                 const std::vector<std::array<float, kActions>>& scores) {
+  auto sequential = [&] {
+    return sequential_safe_actions(env, safety, [&](int n, unsigned allowed) { return best_of(scores[static_cast<std::size_t>(n)], allowed); });
+  };
+  if (!safety.shield) return sequential();
+  const auto order = shield_order(env);
+  std::vector<int> actions(static_cast<std::size_t>(env.uavs()), kStay);
+  Search s{env, order, {}, actions, arrived_uavs(env)};
+  for (const int n : order) {
+    std::vector<int> c;
+    const unsigned allowed = allowed_moves(env, n, safety);
+    for (int a = 0; a < kActions; ++a)
+      if (allowed >> a & 1u) c.push_back(a);
+    const auto& sc = scores[static_cast<std::size_t>(n)];
+    std::stable_sort(c.begin(), c.end(), [&](int a, int b) { return sc[static_cast<std::size_t>(a)] > sc[static_cast<std::size_t>(b)]; });
+    s.candidates.push_back(std::move(c));
+  }
+  if (s.dfs(0)) return actions;
+  return sequential();
+}
+
+}  // namespace skyloop

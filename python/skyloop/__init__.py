@@ -19,7 +19,7 @@ from ._skyloop import ACTIONS, Beamformer, Cluster, InputError, Network, Snapsho
 
 __all__ = [
     "ACTIONS", "Beamformer", "Cluster", "Config", "InputError", "Network", "Snapshot", "SystemModel", "VecEnv",
-    "beamformer", "beamformers", "config", "derive_seed", "network_sum_rate", "plan", "rates", "sinr", "sum_rate",
+    "beamformer", "beamformers", "config", "derive_seed", "evaluate_layouts", "network_sum_rate", "plan", "rates", "sinr", "sum_rate",
     "user_powers",
 ]
 
@@ -140,6 +140,22 @@ def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, pl
     u = None if users is None else np.asarray(users, dtype=np.float64)
     return _skyloop.plan(_as_config(cfg), str(planner), int(users_seed), u,
                          None if planner_seed is None else int(planner_seed))
+
+
+def evaluate_layouts(cfg=None, policies=(), planners=("greedy", "random"), layouts: int = 100, split: str = "test",
+                     first: int = 0, unsafe: bool = False, cache: str = "", threads: int = 0) -> dict:
+    """Policies (run directories of ``skyloop train``) and planners on ``layouts`` user layouts of
+    ``split`` ("test", "validation" or "train"; disjoint seed ranges, see ``skyloop eval --layouts``),
+    each scored against that layout's exact optimum (cached in ``cache`` when given). ``cfg``
+    defaults to the first policy's training configuration. Returns {"rows": [...], "summary": [...]}:
+    one dict per (layout, planner) and per planner, with the columns of layouts.csv and summary.csv
+    (complete_rate, collisions, boundary_events, fraction_mean, fraction_p5, fraction_worst, ...)."""
+    policies = [str(p) for p in policies]
+    if cfg is None and policies:  # the training run's resolved config.toml
+        p = policies[0]
+        cfg = config(_os.path.join(p if _os.path.isdir(p) else _os.path.dirname(p), "config.toml"))
+    return _skyloop.evaluate_layouts(_as_config(cfg), policies, [str(p) for p in planners], int(layouts), str(split),
+                                     int(first), bool(unsafe), str(cache), int(threads))
 
 
 from .env import VecEnv  # noqa: E402  (needs the names above)

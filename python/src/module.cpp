@@ -20,7 +20,9 @@
 #include "skyloop/env/uav_env.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/planning/planners.hpp"
+#include "skyloop/planning/safety.hpp"
 #ifdef SKYLOOP_HAS_TORCH
+#include "skyloop/experiments/layout_eval.hpp"
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/nn/learned.hpp"
 #endif
@@ -267,7 +269,8 @@ class PyVecEnv {
   void write_state(const UavEnv& e, float* dst) const { e.write_state(dst); }
 
   /// Current observations of every environment: obs [M, N, 11], state [M, S], agent_state
-  /// [M, N, S + N + 11], action_mask [M, N, 5] (int8; an arrived UAV: [0, 0, 0, 0, 1]).
+  /// [M, N, S + N + 11], action_mask [M, N, 5] (int8: the reachability mask of marl.action_mask,
+  /// skyloop/planning/safety.hpp, else every action; an arrived UAV: [0, 0, 0, 0, 1]).
   py::dict observe() const {
     const int M = num_envs_, N = agents(), O = obs_size(), S = state_size(), A = agent_state_size();
     auto obs = Array<float>({M, N, O});
@@ -290,8 +293,8 @@ class PyVecEnv {
           for (int m = 0; m < N; ++m) row[S + m] = m == n ? 1.0f : 0.0f;
           std::copy(po + (static_cast<std::size_t>(i) * N + n) * O, po + (static_cast<std::size_t>(i) * N + n + 1) * O, row + S + N);
           std::int8_t* mk = pm + (static_cast<std::size_t>(i) * N + n) * kActions;
-          const bool active = e.mask(n) == 1;
-          for (int a = 0; a < kActions; ++a) mk[a] = active || a == kStay ? 1 : 0;
+          const unsigned allowed = allowed_moves(e, n, SafetyOptions{cfg_.marl.action_mask, false});
+          for (int a = 0; a < kActions; ++a) mk[a] = (allowed >> a & 1u) ? 1 : 0;
         }
       }
     }
@@ -359,6 +362,49 @@ py::dict plan(const Config& cfg, const std::string& planner, std::uint64_t users
   }
   return episode_dict(rec);
 }
+
+#ifdef SKYLOOP_HAS_TORCH
+/// skyloop.evaluate_layouts: rows and summary as lists of dicts (the CSV columns).
+py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policies, std::vector<std::string> planners,
+                             int layouts, const std::string& split, std::uint64_t first, bool unsafe, const std::string& cache,
+                             int threads) {
+  LayoutEvalOptions opt;
+  opt.layouts = layouts;
+  opt.split = parse_layout_split(split, "split");
+  opt.first = first;
+  opt.policies = std::move(policies);
+  opt.planners = std::move(planners);
+  opt.unsafe = unsafe;
+  opt.cache_dir = cache;
+  opt.threads = threads;
+  std::vector<LayoutRow> rows;
+  {
+    py::gil_scoped_release nogil;
+    rows = evaluate_layouts(cfg, opt, builtin_beamformers(), nullptr);
+  }
+  py::list rl, sl;
+  for (const auto& r : rows) {
+    py::dict d;
+    d["seed"] = cfg.run.seed, d["split"] = split, d["layout"] = r.layout, d["users_seed"] = r.users_seed;
+    d["users"] = r.users, d["uavs"] = r.uavs, d["planner"] = r.planner, d["objective"] = r.objective;
+    d["optimum"] = r.optimum, d["fraction"] = r.fraction, d["T"] = r.T, d["home"] = r.home, d["complete"] = r.complete;
+    d["collisions"] = r.collisions, d["boundary_events"] = r.boundary, d["seconds"] = r.seconds;
+    rl.append(d);
+  }
+  for (const auto& x : summarise_layouts(rows)) {
+    py::dict d;
+    d["seed"] = cfg.run.seed, d["split"] = split, d["planner"] = x.planner, d["layouts"] = x.layouts;
+    d["complete_rate"] = x.complete, d["collisions"] = x.collisions, d["boundary_events"] = x.boundary;
+    d["mean_home"] = x.arrivals, d["mean_objective"] = x.objective, d["fraction_mean"] = x.fraction_mean;
+    d["fraction_p5"] = x.fraction_p5, d["fraction_worst"] = x.fraction_worst;
+    sl.append(d);
+  }
+  py::dict out;
+  out["rows"] = rl;
+  out["summary"] = sl;
+  return out;
+}
+#endif
 
 }  // namespace
 
@@ -531,6 +577,10 @@ PYBIND11_MODULE(_skyloop, m) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / repeats;
   });
 
+#ifdef SKYLOOP_HAS_TORCH
+  m.def("evaluate_layouts", &evaluate_layouts_py, py::arg("config"), py::arg("policies"), py::arg("planners"),
+        py::arg("layouts"), py::arg("split"), py::arg("first"), py::arg("unsafe"), py::arg("cache"), py::arg("threads"));
+#endif
   m.def("plan", &plan, py::arg("config"), py::arg("planner"), py::arg("users_seed") = 3, py::arg("users") = py::none(),
         py::arg("planner_seed") = py::none());
   m.attr("ACTIONS") = py::make_tuple("UP", "DOWN", "LEFT", "RIGHT", "STAY");

@@ -1,0 +1,250 @@
+// Layouts that a policy never saw, the safety masks, and the set observation.
+#include <gtest/gtest.h>
+
+#include <set>
+
+#include "skyloop/beamforming/linear.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/env/layouts.hpp"
+#include "skyloop/planning/planners.hpp"
+#include "skyloop/planning/safety.hpp"
+
+using namespace skyloop;
+
+namespace {
+
+std::shared_ptr<const Beamformer> zf_bf() { return std::make_shared<ZfBeamformer>(); }
+
+UavEnv make_env(const Config& cfg, const Positions& users) {
+  return UavEnv(cfg, std::make_shared<RateOracle>(cfg, zf_bf(), users));
+}
+
+/// N UAVs crowded on a 100 x 100 m area: many states where some moves collide.
+Config crowded(int uavs) {
+  Config cfg;
+  cfg.scenario.area_x_m = cfg.scenario.area_y_m = 100;
+  cfg.scenario.uavs = uavs;
+  cfg.scenario.users = 6;
+  cfg.trajectory.layout = "generated";
+  cfg.trajectory.t_max = 12;
+  cfg.trajectory.layout_seed = 7;
+  finalise(cfg);
+  return cfg;
+}
+
+}  // namespace
+
+TEST(Layouts, SplitsAreDisjointRangesOfSeeds) {
+  constexpr std::uint64_t span = std::uint64_t{1} << 62;
+  EXPECT_EQ(layout_seed(LayoutSplit::Train, 5), 5u);
+  EXPECT_EQ(layout_seed(LayoutSplit::Validation, 0), span);
+  EXPECT_EQ(layout_seed(LayoutSplit::Test, 3), 2 * span + 3);
+  for (auto s : {LayoutSplit::Train, LayoutSplit::Validation, LayoutSplit::Test})
+    for (std::uint64_t i : {std::uint64_t{0}, std::uint64_t{1}, span - 1}) EXPECT_EQ(layout_split(layout_seed(s, i)), s);
+  EXPECT_THROW(layout_seed(LayoutSplit::Train, span), InputError);
+  EXPECT_THROW(layout_split(3 * span), InputError);
+  // Whatever the run seed, environment and episode, training draws from the training range.
+  for (std::uint64_t seed = 0; seed < 50; ++seed)
+    for (std::uint64_t env = 0; env < 8; ++env)
+      for (std::uint64_t ep = 0; ep < 50; ++ep) ASSERT_EQ(layout_split(training_layout_seed(seed, env, ep)), LayoutSplit::Train);
+  EXPECT_EQ(parse_layout_split("validation", "--split"), LayoutSplit::Validation);
+  EXPECT_THROW(parse_layout_split("holdout", "--split"), InputError);
+}
+
+TEST(Layouts, TrainingEnvironmentsNeverMeetATestLayout) {
+  Config cfg;
+  cfg.scenario.users = 4;
+  cfg.env.resample_users = true;
+  std::set<std::vector<double>> test;
+  for (std::uint64_t i = 0; i < 200; ++i) {
+    const auto u = layout_users(cfg, layout_seed(LayoutSplit::Test, i));
+    test.insert(std::vector<double>(u.data(), u.data() + u.size()));
+  }
+  VecEnv vec(cfg, zf_bf(), 4, 11);
+  std::set<std::vector<double>> seen;
+  for (int step = 0; step < 23 * 60; ++step) {
+    for (int e = 0; e < vec.size(); ++e) {
+      const auto& u = vec.env(e).oracle().users();
+      const std::vector<double> key(u.data(), u.data() + u.size());
+      ASSERT_EQ(test.count(key), 0u) << "environment " << e << " drew a test layout";
+      seen.insert(key);
+    }
+    vec.step(std::vector<std::vector<int>>(4, std::vector<int>(3, kStay)));
+  }
+  EXPECT_GE(seen.size(), 4u * 50) << "the environments did not resample their users";
+}
+
+TEST(Layouts, UserCountIsSeededAndInItsRange) {
+  Config cfg;
+  cfg.scenario.users = 12;
+  // Fixed K: the users of `skyloop plan --seed`.
+  EXPECT_EQ(layout_user_count(cfg, 9), 12);
+  EXPECT_TRUE(layout_users(cfg, 9).isApprox(make_users(cfg, 12, 9)));
+  cfg.env.users_min = 8;
+  cfg.env.users_max = 16;
+  std::set<int> ks;
+  for (std::uint64_t i = 0; i < 300; ++i) {
+    const auto s = layout_seed(LayoutSplit::Test, i);
+    const int k = layout_user_count(cfg, s);
+    ASSERT_GE(k, 8);
+    ASSERT_LE(k, 16);
+    ASSERT_EQ(layout_users(cfg, s).rows(), k);
+    ASSERT_EQ(layout_user_count(cfg, s), k);
+    ks.insert(k);
+  }
+  EXPECT_EQ(ks.size(), 9u);
+  EXPECT_EQ(max_layout_users(cfg), 16);
+  // A K range with the paper's state (4N + 2K reals) is refused.
+  EXPECT_THROW(validate(cfg), InputError);
+  cfg.env.state = "compact";
+  EXPECT_NO_THROW(validate(cfg));
+  cfg.env.users_min = 20;
+  EXPECT_THROW(validate(cfg), InputError);
+}
+
+TEST(Safety, TheMaskNeverChoosesAnUnreachableMoveAndBringsEveryUavHome) {
+  Config cfg;
+  Rng rng(3);
+  for (std::uint64_t layout = 0; layout < 10; ++layout) {
+    UavEnv env = make_env(cfg, layout_users(cfg, layout_seed(LayoutSplit::Test, layout)));
+    env.reset();
+    while (!env.done()) {
+      // Scores that want to fly anywhere, the boundary and away from the destination included.
+      std::vector<std::array<float, kActions>> scores(3);
+      for (auto& s : scores)
+        for (auto& x : s) x = static_cast<float>(rng.normal());
+      const auto a = shielded_argmax(env, SafetyOptions{true, false}, scores);
+      for (int n = 0; n < env.uavs(); ++n) {
+        ASSERT_TRUE(env.feasible(n, a[static_cast<std::size_t>(n)])) << "UAV " << n << " at t = " << env.t();
+        ASSERT_TRUE(reachable_moves(env, n) >> a[static_cast<std::size_t>(n)] & 1u);
+      }
+      env.step(a);
+    }
+    EXPECT_TRUE(env.positions().isApprox(env.destinations())) << "layout " << layout;
+    EXPECT_EQ(env.total_boundary(), 0);
+  }
+}
+
+TEST(Safety, TheShieldNeverCollidesWhenAJointMoveAvoidsIt) {
+  for (int uavs : {3, 4, 5}) {
+    const Config cfg = crowded(uavs);
+    UavEnv env = make_env(cfg, layout_users(cfg, 1));
+    Rng rng(static_cast<std::uint64_t>(uavs));
+    int avoidable = 0, unavoidable = 0, saved = 0;
+    for (int episode = 0; episode < 30; ++episode) {
+      env.reset();
+      while (!env.done()) {
+        std::vector<std::array<float, kActions>> scores(static_cast<std::size_t>(uavs));
+        for (auto& s : scores)
+          for (auto& x : s) x = static_cast<float>(rng.normal());
+        const auto a = shielded_argmax(env, SafetyOptions{true, true}, scores);
+        // Brute force over the joint actions of the masked moves.
+        bool exists = false;
+        int total = 1;
+        for (int n = 0; n < uavs; ++n) total *= kActions;
+        for (int j = 0; j < total && !exists; ++j) {
+          std::vector<int> b(static_cast<std::size_t>(uavs));
+          bool ok = true;
+          for (int n = 0, r = j; n < uavs; ++n, r /= kActions) {
+            b[static_cast<std::size_t>(n)] = r % kActions;
+            ok = ok && (allowed_moves(env, n, SafetyOptions{}) >> (r % kActions) & 1u);
+          }
+          exists = ok && env.collisions(env.next_positions(b)) == 0;
+        }
+        const int chosen = env.collisions(env.next_positions(a));
+        saved += chosen == 0 && env.collisions(env.next_positions(shielded_argmax(env, SafetyOptions{true, false}, scores))) > 0;
+        if (exists) {
+          ++avoidable;
+          ASSERT_EQ(chosen, 0) << uavs << " UAVs, t = " << env.t();
+        } else {
+          ++unavoidable;
+        }
+        for (int n = 0; n < uavs; ++n) ASSERT_TRUE(allowed_moves(env, n, SafetyOptions{}) >> a[static_cast<std::size_t>(n)] & 1u);
+        env.step(a);
+      }
+    }
+    EXPECT_GT(avoidable, 100) << uavs << " UAVs";
+    EXPECT_GT(saved, 10) << uavs << " UAVs: the shield never had to act; the test proves nothing";
+  }
+}
+
+TEST(Safety, SequentialChoiceStaysInsideTheAllowedMoves) {
+  const Config cfg = crowded(4);
+  UavEnv env = make_env(cfg, layout_users(cfg, 2));
+  Rng rng(9);
+  int shielded = 0;
+  while (!env.done()) {
+    std::vector<unsigned> allowed;
+    const auto a = sequential_safe_actions(env, SafetyOptions{}, [&](int n, unsigned ok) {
+      std::vector<int> c;
+      for (int k = 0; k < kActions; ++k)
+        if (ok >> k & 1u) c.push_back(k);
+      EXPECT_FALSE(c.empty());
+      shielded += ok != allowed_moves(env, n, SafetyOptions{});
+      return c[rng.below(c.size())];
+    }, &allowed);
+    for (int n = 0; n < env.uavs(); ++n) {
+      ASSERT_TRUE(allowed[static_cast<std::size_t>(n)] >> a[static_cast<std::size_t>(n)] & 1u);
+      ASSERT_EQ(allowed[static_cast<std::size_t>(n)] & ~allowed_moves(env, n, SafetyOptions{}), 0u);
+    }
+    env.step(a);
+  }
+  // Without the mask and the shield every action is allowed.
+  env.reset();
+  for (int n = 0; n < env.uavs(); ++n) EXPECT_EQ(allowed_moves(env, n, SafetyOptions{false, false}), kAllActions);
+}
+
+TEST(Env, SetObservationIgnoresTheOrderOfUsersAndUavs) {
+  Config cfg;
+  cfg.scenario.users = 9;
+  const Positions users = make_users(cfg, 9, 4);
+  Positions reversed = users.colwise().reverse();
+  UavEnv a = make_env(cfg, users), b = make_env(cfg, reversed);
+  // The same UAVs in another order: UAV n of `c` is UAV perm[n] of `a`.
+  const std::vector<int> perm{2, 0, 1};
+  Config swapped = cfg;
+  for (int n = 0; n < 3; ++n) {
+    swapped.trajectory.starts[static_cast<std::size_t>(n)] = cfg.trajectory.starts[static_cast<std::size_t>(perm[static_cast<std::size_t>(n)])];
+    swapped.trajectory.destinations[static_cast<std::size_t>(n)] = cfg.trajectory.destinations[static_cast<std::size_t>(perm[static_cast<std::size_t>(n)])];
+  }
+  UavEnv c = make_env(swapped, users);
+  const int D = UavEnv::set_observation_size();
+  Rng rng(1);
+  for (int t = 0; t < 6; ++t) {
+    for (int n = 0; n < 3; ++n) {
+      std::vector<float> oa(static_cast<std::size_t>(D)), ob(oa.size()), oc(oa.size());
+      a.write_set_observation(n, oa.data());
+      b.write_set_observation(n, ob.data());
+      int m = 0;
+      while (perm[static_cast<std::size_t>(m)] != n) ++m;
+      c.write_set_observation(m, oc.data());
+      for (int i = 0; i < D; ++i) {
+        ASSERT_NEAR(oa[static_cast<std::size_t>(i)], ob[static_cast<std::size_t>(i)], 1e-6) << "users reordered, feature " << i;
+        ASSERT_NEAR(oa[static_cast<std::size_t>(i)], oc[static_cast<std::size_t>(i)], 1e-6) << "UAVs reordered, feature " << i;
+      }
+    }
+    std::vector<int> act(3);
+    for (auto& x : act) x = static_cast<int>(rng.below(kActions));
+    std::vector<int> act_c(3);
+    for (int n = 0; n < 3; ++n) act_c[static_cast<std::size_t>(n)] = act[static_cast<std::size_t>(perm[static_cast<std::size_t>(n)])];
+    a.step(act), b.step(act), c.step(act_c);
+  }
+  // The size is independent of K and N.
+  Config other = crowded(5);
+  UavEnv d = make_env(other, layout_users(other, 3));
+  std::vector<float> od(static_cast<std::size_t>(D) + 1, -7.0f);
+  d.write_set_observation(0, od.data());
+  EXPECT_EQ(od.back(), -7.0f) << "wrote past set_observation_size()";
+}
+
+TEST(Env, ObjectiveRewardSumsToTheObjective) {
+  Config cfg;
+  cfg.env.reward = "objective";
+  cfg.env.w_bud = cfg.env.w_col = 0;
+  UavEnv env = make_env(cfg, make_users(cfg, 12, 5));
+  for (std::uint64_t s = 0; s < 3; ++s) {
+    RandomPlanner p(s);
+    const auto r = run_episode(env, p);
+    EXPECT_NEAR(r.reward, r.objective - r.rates.front(), 1e-9 * r.objective);
+  }
+}

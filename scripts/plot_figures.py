@@ -326,7 +326,56 @@ def models(run, exp):
     return [], [("learned beamformers used by every experiment (trained at N = 3, K = 12)", head, body)]
 
 
-KINDS = {"beamform_sweep": beamform_sweep, "marl_training": marl_training, "planning_users": planning_users,
+def generalisation(run, exp):
+    rows = read_csv(os.path.join(run, exp["files"][0]))
+    # One group per evaluation (training layouts; test layouts at each K), one bar per planner:
+    # the mean over training seeds of the mean % of each layout's optimum, with the seeds' 5th
+    # percentile as a marker.
+    groups = []
+    for r in rows:
+        g = (r["eval"], r["eval_users"])
+        if g not in groups:
+            groups.append(g)
+    planners = []
+    for r in rows:
+        if r["planner"] != "optimal" and r["planner"] not in planners:
+            planners.append(r["planner"])
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(groups) * len(planners) / 2), 4.2))
+    width = 0.8 / max(1, len(planners))
+    for j, pl in enumerate(planners):
+        xs, ms, p5 = [], [], []
+        for i, g in enumerate(groups):
+            rs = [r for r in rows if (r["eval"], r["eval_users"]) == g and r["planner"] == pl]
+            if not rs:
+                continue
+            xs.append(i + (j - (len(planners) - 1) / 2) * width)
+            ms.append(100 * mean([float(r["fraction_mean"]) for r in rs]))
+            p5.append(100 * min(float(r["fraction_p5"]) for r in rs))
+        base = pl.split("/")[0]
+        label, colour, _, _ = style(base)
+        raw = pl.endswith("/raw")
+        ax.bar(xs, ms, width, color=colour, alpha=0.35 if raw else 0.9, hatch="//" if raw else None,
+               label=label + (" without mask and shield" if raw else ""))
+        ax.scatter(xs, p5, marker="_", color="#000000", s=60, zorder=3)
+    ax.set_xticks(range(len(groups)))
+    ax.set_xticklabels([("training layouts" if e == "train" else "held-out layouts") + f"\nK = {k}" for e, k in groups], fontsize=8)
+    ax.set_ylabel("% of each layout's optimum (bar: mean; tick: 5th percentile)")
+    lo = min([100 * float(r["fraction_p5"]) for r in rows] + [90.0])
+    ax.set_ylim(max(0.0, lo - 5), 101)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=6, ncol=2, loc="lower left")
+    ax.set_title(exp["title"], fontsize=9)
+    figs = save(fig, run, exp["name"])
+    head = ["layouts", "K", "planner", "train seed", "complete", "collisions", "boundary events", "% optimum (mean)",
+            "5th percentile", "worst"]
+    body = [["training" if r["eval"] == "train" else "held-out", r["eval_users"], r["planner"], r["train_seed"] or "-",
+             f"{100 * float(r['complete_rate']):.0f}%", r["collisions"], r["boundary_events"],
+             fnum(100 * float(r["fraction_mean"])), fnum(100 * float(r["fraction_p5"])), fnum(100 * float(r["fraction_worst"]))]
+            for r in rows if r["planner"] != "optimal"]
+    return figs, [(f"each row over {rows[0]['layouts']} layouts", head, body)]
+
+
+KINDS = {"generalisation": generalisation, "beamform_sweep": beamform_sweep, "marl_training": marl_training, "planning_users": planning_users,
          "trajectories": trajectories, "models": models}
 
 

@@ -33,6 +33,8 @@ LayoutSplit layout_split(std::uint64_t users_seed) {
   return static_cast<LayoutSplit>(s);
 }
 
+std::uint64_t training_envs_seed(std::uint64_t run_seed) { return derive_seed(run_seed, 0x4c41594fULL); }
+
 std::uint64_t training_layout_seed(std::uint64_t seed, std::uint64_t env, std::uint64_t episode) {
   return derive_seed(seed, env, episode) >> (64 - kLayoutSplitBits);  // into [0, 2^62): the training range
 }

@@ -15,7 +15,8 @@ namespace skyloop {
 std::string source_dir() { return data_dir(); }
 
 const std::vector<std::string>& experiment_kinds() {
-  static const std::vector<std::string> kinds = {"models", "beamform_sweep", "marl_training", "planning_users", "trajectories"};
+  static const std::vector<std::string> kinds = {"models", "beamform_sweep", "marl_training", "planning_users", "trajectories",
+                                                 "generalisation"};
   return kinds;
 }
 
@@ -23,7 +24,7 @@ namespace {
 
 const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "set",   "models", "reuse_shipped",
                                         "sweep", "values", "methods", "samples", "seed", "algos", "seeds",
-                                        "steps", "users",  "planners"};
+                                        "steps", "users",  "planners", "one_policy"};
 
 std::string join(const std::vector<std::string>& v) {
   std::string s;
@@ -98,6 +99,10 @@ void apply_table(ExperimentSpec& s, const toml::table& t, const Reader& r, const
       const auto b = node.value_exact<bool>();
       if (!b) r.bad(full, node, "true or false");
       s.reuse_shipped = *b;
+    } else if (key == "one_policy") {
+      const auto b = node.value_exact<bool>();
+      if (!b) r.bad(full, node, "true or false");
+      s.one_policy = *b;
     } else if (key == "sweep") s.sweep = r.text(full, node);
     else if (key == "values") {
       s.values.clear();

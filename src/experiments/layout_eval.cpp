@@ -107,7 +107,10 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
     if (++seen[label] > 1) label += "-" + std::to_string(seen[label]);
     labels.push_back(label);
   }
-  layout_seed(opt.split, opt.first + static_cast<std::uint64_t>(opt.layouts) - 1);  // in range
+  const bool given = !opt.users_seeds.empty();
+  if (given && static_cast<int>(opt.users_seeds.size()) < opt.layouts)
+    throw std::invalid_argument("evaluate_layouts: fewer users seeds than layouts");
+  if (!given) layout_seed(opt.split, opt.first + static_cast<std::uint64_t>(opt.layouts) - 1);  // in range
   if (!opt.cache_dir.empty()) std::filesystem::create_directories(opt.cache_dir);
   std::shared_ptr<const Beamformer> bf;
   try {
@@ -126,7 +129,7 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   std::mutex mu;
   if (progress) bar = std::make_unique<Progress>(fmt::format("layouts ({})", to_string(opt.split)), static_cast<std::size_t>(opt.layouts), *progress);
   parallel_for(static_cast<std::size_t>(opt.layouts), threads, [&](std::size_t i) {
-    const std::uint64_t index = opt.first + i, seed = layout_seed(opt.split, index);
+    const std::uint64_t index = given ? i : opt.first + i, seed = given ? opt.users_seeds[i] : layout_seed(opt.split, index);
     UavEnv env(cfg, std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, seed)));
     std::vector<LayoutRow> out;
     auto timed = [&](Planner& p, const std::string& label) {
@@ -162,6 +165,16 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   });
   if (bar) bar->finish();
   return rows;
+}
+
+std::vector<std::uint64_t> training_layouts_of(const Config& run, int count) {
+  // As make_training_envs and VecEnv: environment i's episode e has training_layout_seed(vec seed, i, e).
+  const std::uint64_t vec_seed = training_envs_seed(run.run.seed);
+  const int M = std::max(1, run.marl.envs);
+  std::vector<std::uint64_t> out;
+  for (int j = 0; j < count; ++j)
+    out.push_back(training_layout_seed(vec_seed, static_cast<std::uint64_t>(j % M), static_cast<std::uint64_t>(j / M)));
+  return out;
 }
 
 std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows) {

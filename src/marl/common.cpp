@@ -79,7 +79,7 @@ std::shared_ptr<RateOracle> make_oracle(const Config& cfg, const BeamformerRegis
 
 VecEnv make_training_envs(const Config& cfg, const BeamformerRegistry& registry) {
   if (cfg.env.resample_users && cfg.env.users_file.empty())
-    return VecEnv(cfg, make_oracle_beamformer(cfg, registry), cfg.marl.envs, derive_seed(cfg.run.seed, 0x4c41594fULL));
+    return VecEnv(cfg, make_oracle_beamformer(cfg, registry), cfg.marl.envs, training_envs_seed(cfg.run.seed));
   return VecEnv(cfg, make_oracle(cfg, registry), cfg.marl.envs);
 }
 

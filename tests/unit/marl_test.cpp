@@ -7,6 +7,8 @@
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/experiments/builtin.hpp"
+#include "skyloop/experiments/layout_eval.hpp"
 #include "skyloop/marl/marl.hpp"
 
 using namespace skyloop;
@@ -105,6 +107,7 @@ BeamformerRegistry& zf_registry() {
 // the README's MARL status). w_col is the shipped 2, set here so the test keeps its meaning.
 TEST(Marl, MappoLearnsToArriveNearTheOptimum) {
   Config cfg = small_scenario("mappo", 200000);
+  cfg.marl.action_mask = cfg.marl.shield = false;  // arriving must be learned, as in the paper
   cfg.env.w_col = 2;
   cfg.marl.entropy_coef = 0.03;
   auto oracle = std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, cfg.marl.users_seed));
@@ -142,6 +145,60 @@ TEST(Marl, MappoLearnsToArriveNearTheOptimum) {
       auto policy = MarlPolicy::load(opt.out_dir);
       EXPECT_EQ(run_episode(env, *policy).objective, r.evaluation.objective);
     }
+  }
+}
+
+// The recipe of configs/generalise.toml in small (2 UAVs, 7 x 7 grid, T_max 12, the shipped GNN
+// behind R[t]), judged on 20 held-out test layouts against each layout's exact optimum. A new
+// layout every episode, the reachability mask and the collision shield, the objective reward and
+// the set observation; 2e5 steps on three seeds. Measured (default kernels, seeds 1-3): every
+// mission complete; mean 99.45, 99.60, 99.52% of the optimum, 5th percentile 97.9, 99.4, 98.2%.
+// The untrained policy (same masks) scores 93.4% / 80.6%, Random 97.8% / 90.7%, Greedy 99.5% /
+// 99.4%. The bounds (mean >= 98%, 5th percentile >= 95%) fail the untrained policy and Random's
+// tail, and leave 1.4 and 2.9 points below the worst measured seed for another CPU's path.
+TEST(Marl, GeneralisesToHeldOutLayoutsWithTheSafetyMasks) {
+  Config cfg = small_scenario("mappo", 200000);
+  cfg.env.oracle = "gnn";
+  cfg.env.reward = "objective";
+  cfg.env.resample_users = true;
+  cfg.marl.encoder = "set";
+  cfg.marl.action_mask = cfg.marl.shield = true;
+  LayoutEvalOptions eval;
+  eval.layouts = 20;
+  eval.cache_dir = fresh("optima");
+  eval.threads = 1;
+  auto judge = [&](const std::string& dir) {
+    LayoutEvalOptions e = eval;
+    e.policies = {dir};
+    const auto sum = summarise_layouts(evaluate_layouts(cfg, e, builtin_beamformers()));
+    EXPECT_EQ(sum.back().planner, "optimal");
+    return sum.front();
+  };
+  {
+    Config untrained = cfg;
+    untrained.marl.total_steps = 1;
+    MarlTrainOptions opt;
+    opt.out_dir = fresh("gen_untrained");
+    opt.registry = &builtin_beamformers();
+    train_marl(untrained, opt);
+    const auto u = judge(opt.out_dir);
+    EXPECT_LT(u.fraction_mean, 0.97) << "the untrained policy already scores " << u.fraction_mean << ": the test proves nothing";
+    EXPECT_LT(u.fraction_p5, 0.95);
+  }
+  for (std::uint64_t seed : {1, 2, 3}) {
+    cfg.run.seed = seed;
+    MarlTrainOptions opt;
+    opt.out_dir = fresh("gen_s" + std::to_string(seed));
+    opt.registry = &builtin_beamformers();
+    train_marl(cfg, opt);
+    const auto s = judge(opt.out_dir);
+    EXPECT_EQ(s.layouts, 20);
+    EXPECT_EQ(s.complete, 1.0) << "seed " << seed;
+    EXPECT_EQ(s.collisions, 0) << "seed " << seed;
+    EXPECT_EQ(s.boundary, 0) << "seed " << seed;
+    EXPECT_GE(s.fraction_mean, 0.98) << "seed " << seed;
+    EXPECT_GE(s.fraction_p5, 0.95) << "seed " << seed;
+    EXPECT_LE(s.fraction_worst, 1 + 1e-12) << "seed " << seed << ": above the exact optimum";
   }
 }
 

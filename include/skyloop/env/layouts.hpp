@@ -28,6 +28,8 @@ LayoutSplit parse_layout_split(const std::string& s, const std::string& field);
 std::uint64_t layout_seed(LayoutSplit split, std::uint64_t index);
 /// The split a users seed belongs to (seeds from 3 * 2^62 up belong to none: InputError).
 LayoutSplit layout_split(std::uint64_t users_seed);
+/// The seed of a training run's environments (VecEnv) under env.resample_users.
+std::uint64_t training_envs_seed(std::uint64_t run_seed);
 /// Training layout of environment `env` in its `episode`-th episode of a run seeded `seed`.
 std::uint64_t training_layout_seed(std::uint64_t seed, std::uint64_t env, std::uint64_t episode);
 

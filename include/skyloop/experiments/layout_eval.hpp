@@ -18,6 +18,7 @@ struct LayoutEvalOptions {
   int layouts = 100;                    // layouts first .. first + layouts - 1 of `split`
   std::uint64_t first = 0;
   LayoutSplit split = LayoutSplit::Test;
+  std::vector<std::uint64_t> users_seeds;  // when not empty: these layouts instead (e.g. those a run trained on)
   std::vector<std::string> planners;    // random | greedy | seqgreedy (the optimum is always solved)
   std::vector<std::string> policies;    // directories (or policy.pt files) of `skyloop train`
   std::vector<std::string> policy_names;  // their labels (default: the algorithm, then "-2", "-3" if repeated)
@@ -45,6 +46,10 @@ struct LayoutSummary {
   double objective = 0;                 // mean
   double fraction_mean = 0, fraction_p5 = 0, fraction_worst = 0;
 };
+
+/// The users seeds of the first `count` layouts a training run met (env.resample_users): episode e
+/// of environment i, in the order the environments started them (i fastest).
+std::vector<std::uint64_t> training_layouts_of(const Config& run, int count);
 
 /// Rows in layout order, each layout's planners in the order given, policies next, the optimum last.
 std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptions& opt, const BeamformerRegistry& registry,

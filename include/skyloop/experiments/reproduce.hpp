@@ -17,7 +17,7 @@ struct ExperimentSpec {
   std::string path;     // the file it came from
   std::string text;     // its contents (copied into the run directory)
   std::string name;     // output directory under the run directory
-  std::string kind;     // models | beamform_sweep | marl_training | planning_users | trajectories
+  std::string kind;     // models | beamform_sweep | marl_training | planning_users | trajectories | generalisation
   std::string figure;   // the paper's \label, e.g. fig:power_sweep
   std::string title;
   std::vector<std::string> set;  // config overrides ("section.key=value"), base then profile
@@ -39,6 +39,10 @@ struct ExperimentSpec {
   std::int64_t steps = 2'000'000;
   std::vector<int> users;            // K values (planning_users, trajectories)
   std::vector<std::string> planners; // random, greedy, optimal
+  // trajectories: one policy trained on the experiment's layouts (its `set`), drawn at every K
+  // (else one policy per K, the paper's figure)
+  bool one_policy = false;
+  // generalisation: `samples` = layouts per evaluation, `users` = the K of the test layouts
 };
 
 /// Parses one experiment file for `profile`. The [experiment] table holds the defaults;

@@ -144,7 +144,8 @@ Piece StageContext::marl_piece(const Config& cfg) const {
 }
 
 Piece StageContext::eval_piece(const Config& cfg, const fs::path& dir, const std::vector<std::string>& planners,
-                               const fs::path& policy_run) const {
+                               const fs::path& policy_run, const Config* train) const {
+  const Config train_cfg = train ? *train : cfg;
   Piece p;
   p.id = id_of(dir, out);
   p.kind = "eval";
@@ -154,9 +155,38 @@ Piece StageContext::eval_piece(const Config& cfg, const fs::path& dir, const std
   for (const auto& n : planners) p.cost += planner_cost(cfg, n);
   if (!policy_run.empty()) p.deps.push_back(id_of(policy_run, out));
   p.done = [dir] { return fs::exists(dir / "summary.csv"); };
-  p.run = [this, cfg, dir, planners, policy_run] {
-    if (!policy_run.empty()) ensure(marl_piece(cfg));
+  p.run = [this, cfg, dir, planners, policy_run, train_cfg] {
+    if (!policy_run.empty()) ensure(marl_piece(train_cfg));
     evaluate(cfg, dir, planners, policy_run);
+  };
+  return p;
+}
+
+std::string StageContext::id(const fs::path& dir) const { return id_of(dir, out); }
+
+Piece StageContext::layouts_piece(const Config& cfg, const fs::path& dir, const LayoutEvalOptions& o, const Config* train,
+                                  std::vector<std::string> deps) const {
+  const fs::path policy_run = train ? run_dir(*train) : fs::path();
+  const Config train_cfg = train ? *train : cfg;
+  Piece p;
+  p.id = id_of(dir, out);
+  p.kind = "eval";
+  p.label = fmt::format("{} layouts K={}{}", o.layouts, cfg.scenario.users, policy_run.empty() ? "" : " policy");
+  // The optima are the cost unless a dependency solved them.
+  p.cost = 0.05 * o.layouts + (deps.empty() ? planner_cost(cfg, "optimal") * o.layouts : 0.0);
+  if (!policy_run.empty()) deps.push_back(id_of(policy_run, out));
+  p.deps = std::move(deps);
+  p.done = [dir] { return fs::exists(dir / "summary.csv"); };
+  p.run = [this, cfg, dir, o, policy_run, train_cfg] {
+    if (!policy_run.empty()) ensure(marl_piece(train_cfg));
+    LayoutEvalOptions e = o;
+    if (!policy_run.empty()) e.policies = {(policy_run / "policy.pt").string()};
+    e.cache_dir = (out / "optima").string();
+    e.threads = 1;
+    const auto rows = evaluate_layouts(cfg, e, builtin_beamformers(), nullptr);
+    fs::create_directories(dir);
+    write_file_atomic((dir / "layouts.csv").string(), layout_rows_csv(rows, cfg.run.seed, e.split));
+    write_file_atomic((dir / "summary.csv").string(), layout_summary_csv(summarise_layouts(rows), cfg.run.seed, e.split));
   };
   return p;
 }

@@ -18,6 +18,7 @@
 #include "piece_cache.hpp"
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/csv.hpp"
+#include "skyloop/experiments/layout_eval.hpp"
 #include "skyloop/experiments/reproduce.hpp"
 
 namespace skyloop::repro {
@@ -83,8 +84,18 @@ class StageContext {
   /// The piece that trains one MARL run and evaluates its policy on its users (<run>/eval).
   Piece marl_piece(const Config& cfg) const;
   /// The piece that runs `planners` (and the policy of `policy_run`, if not empty) into `dir`.
+  /// `train`: the policy's run configuration when it is not cfg (a policy drawn at another K).
   Piece eval_piece(const Config& cfg, const fs::path& dir, const std::vector<std::string>& planners,
-                   const fs::path& policy_run) const;
+                   const fs::path& policy_run, const Config* train = nullptr) const;
+
+  /// The piece that evaluates the policy of `policy_run` (if not empty) and `opt.planners` on
+  /// many layouts into `dir` (layouts.csv, summary.csv; skyloop/experiments/layout_eval.hpp),
+  /// with the exact optima cached under optima/ for every experiment of the run. `deps`: pieces
+  /// that must finish first (e.g. the one that solves the same layouts' optima).
+  /// `train` is the configuration of the policy's run (it is trained first if it is missing).
+  Piece layouts_piece(const Config& cfg, const fs::path& dir, const LayoutEvalOptions& opt, const Config* train = nullptr,
+                      std::vector<std::string> deps = {}) const;
+  std::string id(const fs::path& dir) const;
 
   struct RunInfo {
     fs::path dir;
@@ -141,5 +152,6 @@ StageKind sweep_stage();
 StageKind marl_training_stage();
 StageKind planning_users_stage();
 StageKind trajectories_stage();
+StageKind generalisation_stage();
 
 }  // namespace skyloop::repro

@@ -18,6 +18,17 @@ struct Paths {
 Paths paths_at(const StageContext& ctx, const ExperimentSpec& s, int k) {
   Paths p;
   const auto seed = s.seeds.front();
+  if (s.one_policy) {
+    // One policy, trained on the experiment's layouts (its own K or K range), drawn at K users.
+    p.cfg = ctx.run_config(s, s.algos.front(), seed, ctx.base(s).scenario.users);
+    Config at = p.cfg;
+    at.scenario.users = k;
+    at.env.users_min = at.env.users_max = 0;
+    p.run = ctx.marl_piece(p.cfg);
+    p.eval = ctx.eval_piece(at, ctx.eval_dir(at, s.algos.front() + "_s" + std::to_string(seed) + "_one", s.planners), s.planners,
+                            ctx.run_dir(p.cfg), &p.cfg);
+    return p;
+  }
   p.cfg = ctx.run_config(s, s.algos.front(), seed, k);
   p.run = ctx.marl_piece(p.cfg);
   p.eval = ctx.eval_piece(p.cfg, ctx.eval_dir(p.cfg, s.algos.front() + "_s" + std::to_string(seed), s.planners), s.planners,
@@ -29,7 +40,7 @@ std::vector<Piece> pieces(StageContext& ctx, const ExperimentSpec& s) {
   std::vector<Piece> out;
   for (int k : s.users) {
     Paths p = paths_at(ctx, s, k);
-    out.push_back(std::move(p.run));
+    if (!s.one_policy || k == s.users.front()) out.push_back(std::move(p.run));  // one run for every K
     out.push_back(std::move(p.eval));
   }
   return out;

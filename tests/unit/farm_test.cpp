@@ -103,7 +103,9 @@ TEST(Farm, EveryPieceRunsOnceAfterItsDependencies) {
                                for (auto d : tasks[i].deps)
                                  if (!finished[d]) ++order_violations;
                                ++runs[i];
-                               std::this_thread::sleep_for(std::chrono::microseconds(200 * (i % 3)));
+                               // Milliseconds of work: long beside a thread's wake-up even on a loaded machine,
+                               // so that every rank asks for work before the job ends.
+                               std::this_thread::sleep_for(std::chrono::microseconds(1000 * (1 + i % 3)));
                                finished[i] = true;
                                std::lock_guard<std::mutex> lock(mu);
                                ranks_used.insert(rank);

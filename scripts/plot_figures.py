@@ -336,6 +336,7 @@ def generalisation(run, exp):
         g = (r["eval"], r["eval_users"])
         if g not in groups:
             groups.append(g)
+    groups.sort(key=lambda g: (g[0] != "train", int(g[1]) if g[1].isdigit() else 0))
     planners = []
     for r in rows:
         if r["planner"] != "optimal" and r["planner"] not in planners:
@@ -359,12 +360,13 @@ def generalisation(run, exp):
         ax.scatter(xs, p5, marker="_", color="#000000", s=60, zorder=3)
     ax.set_xticks(range(len(groups)))
     ax.set_xticklabels([("training layouts" if e == "train" else "held-out layouts") + f"\nK = {k}" for e, k in groups], fontsize=8)
-    ax.set_ylabel("% of each layout's optimum (bar: mean; tick: 5th percentile)")
+    ax.set_ylabel("% of each layout's optimum")
     lo = min([100 * float(r["fraction_p5"]) for r in rows] + [90.0])
     ax.set_ylim(max(0.0, lo - 5), 101)
     ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=6, ncol=2, loc="lower left")
-    ax.set_title(exp["title"], fontsize=9)
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax.set_title(exp["title"] + " (bar: mean; tick: 5th percentile)", fontsize=9)
+    fig.tight_layout()
     figs = save(fig, run, exp["name"])
     head = ["layouts", "K", "planner", "train seed", "complete", "collisions", "boundary events", "% optimum (mean)",
             "5th percentile", "worst"]

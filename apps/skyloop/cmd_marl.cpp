@@ -23,9 +23,7 @@ struct EvalOpts {
   ConfigOptions config;
   std::vector<std::string> policies;
   std::string users, out, planners;
-  std::string seed;
-  int layouts = 0;
-  std::uint64_t first = 0;
+  std::string seed, layouts, first;
   std::string split = "test", cache;
   bool unsafe = false;
 };
@@ -81,10 +79,15 @@ void add_marl_commands(CLI::App& app, Action& action) {
   add_config_options(eval, v->config);
   eval->final_callback([&action, v] {
     action = [v] {
-      if (v->policies.empty() && v->layouts == 0) throw InputError("--policy is missing: allowed a run directory of `skyloop train`");
-      if (v->layouts == 0 && v->policies.size() > 1)
+      const bool many = !v->layouts.empty();
+      const int layouts = many ? static_cast<int>(parse_count("--layouts", v->layouts, 1, 1000000)) : 0;
+      const std::uint64_t first = v->first.empty() ? 0 : parse_count("--first", v->first, 0, (1ULL << 62) - 1);
+      if (!many && !v->first.empty()) throw InputError("--first without --layouts: allowed with --layouts N");
+      if (v->policies.empty() && !many) throw InputError("--policy is missing: allowed a run directory of `skyloop train`");
+      if (!many && v->policies.size() > 1)
         throw InputError("--policy is given " + std::to_string(v->policies.size()) + " times: allowed once without --layouts");
-      if (v->layouts > 0 && !v->seed.empty()) throw InputError("--seed with --layouts: allowed --first to choose the layouts");
+      if (many && !v->seed.empty()) throw InputError("--seed with --layouts: allowed --first to choose the layouts");
+      if (!v->out.empty()) check_output_dir(v->out);
       // The first policy's own configuration, then the command line.
       Config cfg;
       std::unique_ptr<MarlPolicy> policy;
@@ -103,16 +106,15 @@ void add_marl_commands(CLI::App& app, Action& action) {
       for (const auto& s : over.sets) apply_override(cfg, s);
       for (const auto& s : extra) apply_override(cfg, s);
       finalise(cfg);
-      if (v->layouts > 0) {
+      if (many) {
         LayoutEvalOptions opt;
-        opt.layouts = v->layouts;
-        opt.first = v->first;
+        opt.layouts = layouts;
+        opt.first = first;
         opt.split = parse_layout_split(v->split, "--split");
         if (!v->planners.empty()) opt.planners = split_methods(v->planners, "--planner");
         opt.policies = v->policies;
         opt.unsafe = v->unsafe;
         opt.cache_dir = !v->cache.empty() ? v->cache : !v->out.empty() ? v->out + "/optimum" : "";
-        if (!v->out.empty()) check_output_dir(v->out);
         const auto rows = evaluate_layouts(cfg, opt, builtin_beamformers(), &std::cerr);
         const auto sum = summarise_layouts(rows);
         if (!v->out.empty()) {

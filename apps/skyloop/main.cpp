@@ -58,6 +58,18 @@ std::string unknown_command(CLI::App& app, int argc, char** argv) {
   return {};
 }
 
+/// Every option that takes a value refuses an empty one ("--seed ''" is a mistake, not "use the
+/// default"), on every subcommand.
+void refuse_empty_values(CLI::App* app) {
+  for (CLI::Option* o : app->get_options([](const CLI::Option*) { return true; })) {
+    if (o->get_type_size_max() == 0) continue;  // a flag
+    o->check(CLI::Validator(
+        [](std::string& v) { return v.find_first_not_of(" \t") == std::string::npos ? std::string("an empty value is not allowed") : std::string(); },
+        ""));
+  }
+  for (CLI::App* s : app->get_subcommands([](CLI::App*) { return true; })) refuse_empty_values(s);
+}
+
 }  // namespace skyloop::cli
 
 int main(int argc, char** argv) {
@@ -75,6 +87,7 @@ int main(int argc, char** argv) {
   cli::add_marl_commands(app, action);
   cli::add_reproduce_command(app, action);
 #endif
+  cli::refuse_empty_values(&app);
   if (const std::string bad = cli::unknown_command(app, argc, argv); !bad.empty()) {
     std::cerr << "skyloop: error: " << bad << "\n";
     return 2;

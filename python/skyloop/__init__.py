@@ -32,12 +32,101 @@ if _os.path.isdir(_os.path.join(_here, "data", "models")) and not _os.environ.ge
 Config = _skyloop.Config
 
 
+# ---- input checks: every bad argument raises InputError with one line --------------------------
+
+def _as_int(v, name: str, lo: int | None = None, hi: int | None = None) -> int:
+    """An integer argument: ints and integral numpy scalars; not bools, not 2.7, not "3"."""
+    import numbers
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        if isinstance(v, numbers.Real) and not isinstance(v, bool) and float(v).is_integer():
+            v = int(v)
+        else:
+            raise InputError(f"{name} = {v!r} has the wrong type: allowed an integer"
+                             + (f" in [{lo}, {hi}]" if lo is not None and hi is not None else ""))
+    v = int(v)
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise InputError(f"{name} = {v} is out of range: allowed an integer in [{lo}, {hi}]")
+    return v
+
+
+def _as_str(v, name: str) -> str:
+    if isinstance(v, _os.PathLike):
+        v = _os.fspath(v)
+    if not isinstance(v, str):
+        raise InputError(f"{name} = {v!r} has the wrong type: allowed a string")
+    return v
+
+
+def _as_names(v, name: str) -> list:
+    """A list of names: one string, or a list / tuple of strings (no repeats)."""
+    if isinstance(v, (str, _os.PathLike)):
+        v = [v]
+    if not isinstance(v, (list, tuple)):
+        raise InputError(f"{name} = {v!r} has the wrong type: allowed a string or a list of strings")
+    out = [_as_str(x, name) for x in v]
+    seen = set()
+    for x in out:
+        if x in seen:
+            raise InputError(f"{name} = {out!r} names {x!r} twice: allowed each at most once")
+        seen.add(x)
+    return out
+
+
+def _one_line(name: str, err: TypeError) -> InputError:
+    """pybind11's argument-conversion TypeError (a multi-line dump) as one InputError line."""
+    text = str(err)
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    if "incompatible" not in text:
+        return InputError(f"{name}: {lines[0] if lines else text}")
+    allowed = next((ln[3:] for ln in lines if ln[:2].rstrip(".").isdigit()), "")
+    given = next((ln for ln in lines if ln.startswith("Invoked with")), "")
+    return InputError(f"{name}: wrong argument types ({given.replace('Invoked with: ', 'given ')}): allowed {allowed}")
+
+
+def _guard(fn, name: str):
+    import functools
+
+    @functools.wraps(fn)
+    def guarded(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except TypeError as e:
+            if "incompatible" in str(e):
+                raise _one_line(name, e) from None
+            raise
+    return guarded
+
+
+def _guard_class(cls):
+    """Wraps the constructor and methods of a module class so that wrong argument types raise
+    InputError (one line) rather than pybind11's TypeError listing."""
+    for attr in list(vars(cls)):
+        if attr.startswith("__") and attr != "__init__":
+            continue
+        member = getattr(cls, attr)
+        if callable(member) and not isinstance(member, type) and not isinstance(vars(cls)[attr], (property, staticmethod)):
+            setattr(cls, attr, _guard(member, f"{cls.__name__}.{attr.replace('__init__', '')}".rstrip(".")))
+
+
+for _cls in (_skyloop.Config, _skyloop.Cluster, _skyloop.SystemModel, _skyloop.Beamformer, _skyloop.Network,
+             _skyloop.VecEnv):
+    _guard_class(_cls)
+for _name in ("sum_rate", "sinr", "rates", "network_sum_rate", "user_powers", "plan", "evaluate_layouts", "beamformer",
+              "derive_seed", "env_spec"):
+    if hasattr(_skyloop, _name):
+        setattr(_skyloop, _name, _guard(getattr(_skyloop, _name), _name))
+derive_seed = _skyloop.derive_seed
+
+
 def _as_w(W):
     """A beamformer from numpy, a torch tensor (any device, detached) or a nested list: complex128."""
     if hasattr(W, "detach"):  # torch
         W = W.detach().cpu().resolve_conj().numpy() if hasattr(W, "resolve_conj") else W.detach().cpu().numpy()
     import numpy as np
-    return np.asarray(W, dtype=np.complex128)
+    try:
+        return np.asarray(W, dtype=np.complex128)
+    except (TypeError, ValueError):
+        raise InputError(f"W = {W!r} is not a numeric array: allowed a complex [L, K_n] array") from None
 
 
 def sum_rate(cluster: Cluster, W) -> float:
@@ -102,13 +191,19 @@ def config(path: str | None = None, overrides: dict | None = None, **sections) -
     """A validated configuration: the paper's defaults, then the TOML file ``path``, then
     ``overrides`` ({"channel.p_max_dbm": 40} or {"channel": {"p_max_dbm": 40}}), then keyword
     sections (``channel={"p_max_dbm": 40}``). Bad keys or values raise InputError with the CLI's line."""
+    if overrides is not None and not isinstance(overrides, dict):
+        raise InputError(f"overrides = {overrides!r} has the wrong type: allowed a dict such as {{'channel.p_max_dbm': 40}}")
     items = list(_flatten(overrides or {}))
     for section, values in sections.items():
         if not isinstance(values, dict):
             raise InputError(f"{section} = {values!r} has the wrong type: allowed a dict of that section's keys, "
                              f"e.g. channel={{'p_max_dbm': 40}}")
         items += list(_flatten(values, section))
-    return _skyloop.Config(path, [f"{k}={_toml_value(v)}" for k, v in items])
+    import re
+    for k, _ in items:
+        if not re.fullmatch(r"[A-Za-z0-9_]+(\.[A-Za-z0-9_]+)*", k):  # a key that smuggles a value in ("p=50 #")
+            raise InputError(f"configuration key {k!r} is malformed: allowed section.name, e.g. 'channel.p_max_dbm'")
+    return _skyloop.Config(None if path is None else _as_str(path, "path"), [f"{k}={_toml_value(v)}" for k, v in items])
 
 
 def _as_config(cfg) -> Config:
@@ -126,7 +221,7 @@ def _as_config(cfg) -> Config:
 def beamformer(spec: str, cfg=None) -> Beamformer:
     """A registered beamformer by its spec string: "mrt", "zf", "zfsel", "rzf", "wmmse", "ga",
     "ga=pso", "gnn", "gnn=PATH" (a model.pt or its directory), "deepsets", "mspointnet"."""
-    return _skyloop.beamformer(spec, _as_config(cfg))
+    return _skyloop.beamformer(_as_str(spec, "spec"), _as_config(cfg))
 
 
 def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, planner_seed: int | None = None) -> dict:
@@ -137,9 +232,14 @@ def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, pl
     Returns positions [T, N, 2], actions [T-1, N], rates [T], objective, T, success, arrivals,
     collisions, boundary, reward."""
     import numpy as np
-    u = None if users is None else np.asarray(users, dtype=np.float64)
-    return _skyloop.plan(_as_config(cfg), str(planner), int(users_seed), u,
-                         None if planner_seed is None else int(planner_seed))
+    try:
+        u = None if users is None else np.asarray(users, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"users = {users!r} is not numeric: allowed a [K, 2] array of (x, y) in metres") from None
+    if u is not None and (u.ndim != 2 or u.shape[1:] != (2,) or not np.all(np.isfinite(u))):
+        raise InputError(f"users has shape {list(u.shape)}: allowed a finite [K, 2] array of (x, y) in metres")
+    return _skyloop.plan(_as_config(cfg), _as_str(planner, "planner"), _as_int(users_seed, "users_seed", 0, 2**64 - 1), u,
+                         None if planner_seed is None else _as_int(planner_seed, "planner_seed", 0, 2**64 - 1))
 
 
 def evaluate_layouts(cfg=None, policies=(), planners=("greedy", "random"), layouts: int = 100, split: str = "test",
@@ -150,12 +250,16 @@ def evaluate_layouts(cfg=None, policies=(), planners=("greedy", "random"), layou
     defaults to the first policy's training configuration. Returns {"rows": [...], "summary": [...]}:
     one dict per (layout, planner) and per planner, with the columns of layouts.csv and summary.csv
     (complete_rate, collisions, boundary_events, fraction_mean, fraction_p5, fraction_worst, ...)."""
-    policies = [str(p) for p in policies]
+    policies = _as_names(policies, "policies")
+    planners = _as_names(planners, "planners")
     if cfg is None and policies:  # the training run's resolved config.toml
         p = policies[0]
         cfg = config(_os.path.join(p if _os.path.isdir(p) else _os.path.dirname(p), "config.toml"))
-    return _skyloop.evaluate_layouts(_as_config(cfg), policies, [str(p) for p in planners], int(layouts), str(split),
-                                     int(first), bool(unsafe), str(cache), int(threads))
+    if not isinstance(unsafe, bool):
+        raise InputError(f"unsafe = {unsafe!r} has the wrong type: allowed True or False")
+    return _skyloop.evaluate_layouts(_as_config(cfg), policies, planners, _as_int(layouts, "layouts", 1, 1_000_000),
+                                     _as_str(split, "split"), _as_int(first, "first", 0, 2**62 - 1), unsafe,
+                                     _as_str(cache, "cache"), _as_int(threads, "threads", 0, 1024))
 
 
 from .env import VecEnv  # noqa: E402  (needs the names above)

@@ -1,15 +1,23 @@
 """Thin adapters over ``skyloop.VecEnv`` for the APIs learners already use.
 
+Every size, bound and action count is read from the environment's spec (``VecEnv.spec``).
+
 - ``ParallelEnv``: PettingZoo's Parallel API (a subclass of ``pettingzoo.ParallelEnv`` when
   pettingzoo is importable, the same methods otherwise); agents "uav_0" .. "uav_{N-1}"; each
-  observation is ``{"observation": float32[11], "action_mask": int8[5]}`` (PettingZoo's documented
-  action-mask convention); ``state()`` is s[t].
-- ``MappoEnv``: the MAPPO reference repository's vectorised interface
-  (``obs, share_obs, rewards, dones, infos, available_actions``, arrays [M, N, ...]).
-- ``SmacEnv``: EPyMARL/SMAC's single-environment interface (``get_obs``, ``get_state``,
-  ``get_avail_actions``, ``get_env_info``, ``step(actions) -> (reward, terminated, info)``).
-- ``GymVectorEnv``: a Gymnasium-style vector environment for single-policy learners: every
-  environment's N agents flattened into one observation (N * 11) and a MultiDiscrete([5] * N) action.
+  observation is ``{"observation": float32[obs], "action_mask": int8[A]}`` (PettingZoo's
+  documented action-mask convention); ``state()`` is s[t].
+- ``MappoEnv``: what the MAPPO reference implementation's shared SMAC-style runner reads:
+  ``reset() -> (obs, share_obs, available_actions)``, ``step(actions) -> (obs, share_obs, rewards,
+  dones, infos, available_actions)``, arrays [M, N, ...], ``infos[env][agent]`` dicts with
+  ``bad_transition`` and ``won``.
+- ``SmacEnv``: EPyMARL's current ``MultiAgentEnv`` (its episode and parallel runners):
+  ``reset(seed, options) -> (obs, info)``, ``step(actions) -> (obs, reward, terminated, truncated,
+  info)``, ``get_obs``, ``get_state``, ``get_avail_actions``, ``get_env_info``, ``get_stats``; built
+  with EPyMARL's ``common_reward`` and ``reward_scalarisation`` arguments.
+- ``GymVectorEnv``: a Gymnasium vector environment for single-policy learners: every
+  environment's N agents flattened into one observation (N * obs) and a MultiDiscrete([A] * N)
+  action; same-step auto-reset with ``final_obs`` / ``final_info`` and episode statistics in
+  ``infos["episode"]`` (what CleanRL's PPO and Gymnasium's RecordEpisodeStatistics give).
 
 Spaces are Gymnasium's when gymnasium is importable, else the minimal ``Box`` / ``Discrete`` /
 ``MultiDiscrete`` below (same attributes: shape, dtype, low, high, n, nvec, sample, contains, seed).
@@ -20,6 +28,7 @@ from typing import Optional
 
 import numpy as np
 
+from . import InputError
 from .env import VecEnv
 
 # ---- spaces -----------------------------------------------------------------------------------
@@ -110,10 +119,24 @@ except ImportError:
             return [seed]
 
 
-def _obs_box(size):
-    # Positions / area are in [0, 1]; displacements in [-1, 1] (the mean displacement to the users
-    # too); the one-hot previous action in {0, 1}.
-    return Box(-1.0, 1.0, shape=(size,), dtype=np.float32)
+def _bounds(array_spec, repeat: int = 1):
+    """Per-element low and high of one row of a spec array (repeated `repeat` times)."""
+    low = np.empty(array_spec["size"], np.float32)
+    high = np.empty(array_spec["size"], np.float32)
+    for f in array_spec["fields"]:
+        low[f["offset"]:f["offset"] + f["size"]] = f["low"]
+        high[f["offset"]:f["offset"] + f["size"]] = f["high"]
+    return np.tile(low, repeat), np.tile(high, repeat)
+
+
+def _row_box(array_spec, repeat: int = 1):
+    """The Box of one row of a spec array: shape (repeat * size,), the fields' bounds."""
+    low, high = _bounds(array_spec, repeat)
+    return Box(low, high, shape=low.shape, dtype=np.float32)
+
+
+def _mask_box(num_actions):
+    return Box(0, 1, shape=(num_actions,), dtype=np.int8)
 
 
 try:  # pragma: no cover - pettingzoo is not packaged in Debian
@@ -137,10 +160,11 @@ class ParallelEnv(_ParallelBase):
         n = self._vec.num_agents
         self.possible_agents = [f"uav_{i}" for i in range(n)]
         self.agents: list[str] = []
-        self._obs_space = Dict({"observation": _obs_box(self._vec.obs_size),
-                                "action_mask": Box(0, 1, shape=(5,), dtype=np.int8)})
-        self._act_space = Discrete(5)
-        self.state_space = Box(0.0, 1.0, shape=(self._vec.state_size,), dtype=np.float32)
+        spec = self._vec.spec
+        self._obs_space = Dict({"observation": _row_box(spec["obs"]), "action_mask": _mask_box(spec["num_actions"])})
+        self._act_space = Discrete(spec["num_actions"])
+        self.state_space = _row_box(spec["state"])
+        self._stay = spec["actions"].index("STAY")
         self.render_mode = None
         self._last: Optional[tuple] = None
 
@@ -173,7 +197,8 @@ class ParallelEnv(_ParallelBase):
             raise RuntimeError("step() after the episode ended: call reset() first")
         missing = [a for a in self.agents if a not in actions]
         if missing:
-            raise ValueError(f"actions are missing for {missing}: allowed one action in 0..4 per live agent")
+            raise InputError(f"actions are missing for {missing}: allowed one action in "
+                             f"0..{self._act_space.n - 1} per live agent")
         joint = np.array([[int(actions[a]) for a in self.possible_agents]], dtype=np.int64)
         r = self._vec.step(joint)
         done = bool(r.terminated[0] or r.truncated[0])
@@ -181,7 +206,7 @@ class ParallelEnv(_ParallelBase):
         mask = r.action_mask
         if done:  # the finished episode's last view: every agent may only STAY
             mask = np.zeros_like(mask)
-            mask[..., 4] = 1
+            mask[..., self._stay] = 1
         observations = self._per_agent(obs, mask)
         rewards = {a: float(r.reward[0]) for a in self.agents}
         terminations = {a: bool(r.terminated[0]) for a in self.agents}
@@ -205,20 +230,28 @@ class ParallelEnv(_ParallelBase):
         pass
 
 
-# ---- MAPPO reference repository ------------------------------------------------------------------
+# ---- MAPPO reference implementation ---------------------------------------------------------------
 
 class MappoEnv:
-    """The interface of the MAPPO reference implementation's vectorised envs: ``reset() -> (obs,
-    share_obs, available_actions)``, ``step(actions) -> (obs, share_obs, rewards, dones, infos,
-    available_actions)``, with obs [M, N, 11], share_obs [M, N, S + N + 11] (agent-specific global
-    state), rewards [M, N, 1], dones bool [M, N], available_actions [M, N, 5]. Auto-reset as VecEnv."""
+    """What the MAPPO reference implementation's shared SMAC-style runner reads from its
+    vectorised envs: ``reset() -> (obs, share_obs, available_actions)``; ``step(actions) -> (obs,
+    share_obs, rewards, dones, infos, available_actions)`` with obs [M, N, obs], share_obs
+    [M, N, agent_state] (the agent-specific global state), rewards [M, N, 1] (the team reward),
+    dones bool [M, N] (the episode's end, for every agent), available_actions [M, N, A], and infos a
+    list of M lists of N dicts: the environment's step statistics plus ``bad_transition`` (the
+    episode hit T_max: a time limit, not a terminal state) and ``won`` (every UAV home).
+    ``actions`` may be [M, N] or [M, N, 1]. Auto-reset as VecEnv."""
 
     def __init__(self, config=None, num_envs: int = 8, seed: int = 0, oracle: str = ""):
         self.env = VecEnv(config, num_envs, seed, oracle)
         self.num_envs, self.num_agents = self.env.num_envs, self.env.num_agents
-        self.observation_space = [_obs_box(self.env.obs_size) for _ in range(self.num_agents)]
-        self.share_observation_space = [Box(-1.0, 1.0, shape=(self.env.agent_state_size,)) for _ in range(self.num_agents)]
-        self.action_space = [Discrete(5) for _ in range(self.num_agents)]
+        spec = self.env.spec
+        self.observation_space = [_row_box(spec["obs"]) for _ in range(self.num_agents)]
+        self.share_observation_space = [_row_box(spec["agent_state"]) for _ in range(self.num_agents)]
+        self.action_space = [Discrete(spec["num_actions"]) for _ in range(self.num_agents)]
+
+    def seed(self, seed: int):
+        self.env.reset(seed)
 
     def reset(self, seed: Optional[int] = None):
         o = self.env.reset(seed)
@@ -226,63 +259,106 @@ class MappoEnv:
 
     def step(self, actions):
         a = np.asarray(actions)
-        if a.ndim == 3 and a.shape[-1] == 1:  # MAPPO passes [M, N, 1]
+        if a.ndim == 3 and a.shape[-1] == 1:  # the runner passes [M, N, 1]
             a = a[..., 0]
         r = self.env.step(a)
         M, N = self.num_envs, self.num_agents
         done = r.terminated | r.truncated
         dones = np.repeat(done[:, None], N, axis=1)
         rewards = np.repeat(r.reward[:, None, None], N, axis=1).astype(np.float32)
-        infos = [{k: v[i].item() for k, v in r.info.items() if v.ndim == 1} for i in range(M)]
+        infos = []
+        for i in range(M):
+            stats = {k: v[i].item() for k, v in r.info.items() if v.ndim == 1}
+            stats["bad_transition"] = bool(r.truncated[i])
+            stats["won"] = bool(r.terminated[i])
+            infos.append([dict(stats) for _ in range(N)])
         return r.obs, r.agent_state, rewards, dones, infos, r.action_mask
 
     def close(self):
         pass
 
 
-# ---- EPyMARL / SMAC ------------------------------------------------------------------------------
+# ---- EPyMARL -------------------------------------------------------------------------------------
 
 class SmacEnv:
-    """EPyMARL's MultiAgentEnv / SMAC interface over one environment."""
+    """EPyMARL's ``MultiAgentEnv`` over one environment, as its current episode and parallel
+    runners use it. ``reset(seed=None, options=None) -> (obs, info)``; ``step(actions) -> (obs,
+    reward, terminated, truncated, info)`` with ``info["episode_limit"]`` = truncated (T_max hit),
+    numeric values only (the runners sum them); after the last step ``get_obs``, ``get_state`` and
+    ``get_avail_actions`` describe the finished episode's last slot (every agent may only STAY)
+    until ``reset``. ``common_reward`` (EPyMARL's argument): True gives the team reward as a float,
+    False the same reward once per agent; ``reward_scalarisation`` is accepted and has no effect
+    (the reward is already a team reward). Register it as ``REGISTRY["skyloop"] = SmacEnv``."""
 
-    def __init__(self, config=None, seed: int = 0, oracle: str = ""):
+    def __init__(self, config=None, seed: int = 0, oracle: str = "", common_reward: bool = True,
+                 reward_scalarisation: str = "sum", **unused):
+        if unused:
+            raise InputError(f"SmacEnv got unknown arguments {sorted(unused)}: allowed config, seed, oracle, "
+                             f"common_reward, reward_scalarisation")
+        if not isinstance(common_reward, bool):
+            raise InputError(f"common_reward = {common_reward!r}: allowed True or False")
         self.env = VecEnv(config, 1, seed, oracle)
+        spec = self.env.spec
         self.n_agents = self.env.num_agents
-        self.n_actions = 5
+        self.n_actions = spec["num_actions"]
+        self.common_reward = common_reward
+        self.reward_scalarisation = reward_scalarisation
         self.episode_limit = int(self.env.config["trajectory.t_max"]) - 1
-        self._o = self.env.reset()
+        self._stay = spec["actions"].index("STAY")
+        self._next = self.env.reset()  # the environment's current episode, first slot
+        self._view = (self._next.obs[0], self._next.state[0], self._next.action_mask[0])
+        self._pending = False  # a finished episode is shown; the next one's first slot waits in _next
+        self._stats = {"episodes": 0, "won": 0, "collisions": 0, "boundary": 0, "objective": 0.0}
 
-    def reset(self, seed: Optional[int] = None):
-        self._o = self.env.reset(seed)
-        return self.get_obs(), self.get_state()
+    def reset(self, seed: Optional[int] = None, options: Optional[dict] = None):
+        # After the last step the environment has already started its next episode (auto-reset):
+        # show it. Otherwise (mid-episode, a repeated reset, or a new seed) reset for real.
+        o = self._next if (self._pending and seed is None) else self.env.reset(seed)
+        self._view = (o.obs[0], o.state[0], o.action_mask[0])
+        self._pending = False
+        return self.get_obs(), {}
 
     def step(self, actions):
-        r = self.env.step(np.asarray(actions, dtype=np.int64).reshape(1, -1))
-        self._o = r
+        a = np.asarray(actions.cpu() if hasattr(actions, "cpu") else actions).astype(np.int64).reshape(1, -1)
+        r = self.env.step(a)
+        terminated, truncated = bool(r.terminated[0]), bool(r.truncated[0])
         info = {k: v[0].item() for k, v in r.info.items() if v.ndim == 1}
-        info["episode_limit"] = bool(r.truncated[0])
-        return float(r.reward[0]), bool(r.terminated[0] or r.truncated[0]), info
+        info["episode_limit"] = truncated
+        if terminated or truncated:  # the finished episode's last slot; the new one waits for reset()
+            mask = np.zeros_like(r.action_mask[0])
+            mask[:, self._stay] = 1
+            self._view = (r.info["final_obs"][0], r.info["final_state"][0], mask)
+            self._next, self._pending = r, True
+            self._stats["episodes"] += 1
+            self._stats["won"] += int(terminated)
+            self._stats["objective"] += info["objective"]
+        else:
+            self._view = (r.obs[0], r.state[0], r.action_mask[0])
+        self._stats["collisions"] += info["collisions"]
+        self._stats["boundary"] += info["boundary"]
+        reward = float(r.reward[0])
+        return self.get_obs(), (reward if self.common_reward else [reward] * self.n_agents), terminated, truncated, info
 
     def get_obs(self):
-        return [self._o.obs[0, i].copy() for i in range(self.n_agents)]
+        return [self._view[0][i].copy() for i in range(self.n_agents)]
 
     def get_obs_agent(self, agent_id):
-        return self._o.obs[0, agent_id].copy()
+        return self._view[0][agent_id].copy()
 
     def get_obs_size(self):
         return self.env.obs_size
 
     def get_state(self):
-        return self._o.state[0].copy()
+        return self._view[1].copy()
 
     def get_state_size(self):
         return self.env.state_size
 
     def get_avail_actions(self):
-        return [self._o.action_mask[0, i].astype(np.int64).tolist() for i in range(self.n_agents)]
+        return [self._view[2][i].astype(np.int64).tolist() for i in range(self.n_agents)]
 
     def get_avail_agent_actions(self, agent_id):
-        return self._o.action_mask[0, agent_id].astype(np.int64).tolist()
+        return self._view[2][agent_id].astype(np.int64).tolist()
 
     def get_total_actions(self):
         return self.n_actions
@@ -291,38 +367,107 @@ class SmacEnv:
         return {"state_shape": self.get_state_size(), "obs_shape": self.get_obs_size(), "n_actions": self.n_actions,
                 "n_agents": self.n_agents, "episode_limit": self.episode_limit}
 
+    def get_stats(self):
+        """Totals since construction: episodes, missions won, collisions, boundary events, and the
+        mean P2.2 objective of the finished episodes."""
+        s = dict(self._stats)
+        s["objective"] = s["objective"] / s["episodes"] if s["episodes"] else 0.0
+        return s
+
+    def seed(self, seed=None):
+        if seed is not None:
+            self.reset(seed)
+
+    def render(self):
+        return None
+
+    def save_replay(self):
+        pass
+
     def close(self):
         pass
 
 
-# ---- Gymnasium-style vector env ------------------------------------------------------------------
+# ---- Gymnasium vector env ------------------------------------------------------------------------
+
+try:  # pragma: no cover - gymnasium is not packaged in Debian
+    from gymnasium.vector import AutoresetMode as _AutoresetMode  # type: ignore
+    _SAME_STEP = _AutoresetMode.SAME_STEP
+except ImportError:
+    _SAME_STEP = "same-step"
+
 
 class GymVectorEnv:
-    """A Gymnasium-style vector environment for single-policy learners: observation [M, N * 11]
-    (the N agents' observations concatenated), action MultiDiscrete([5] * N) per environment,
-    ``reset(seed) -> (obs, infos)``, ``step(actions [M, N]) -> (obs, rewards, terminations,
-    truncations, infos)``; infos holds the VecEnv info arrays and ``action_mask`` [M, N, 5].
-    Auto-reset as VecEnv (final observation in ``infos["final_obs"]``)."""
+    """A Gymnasium vector environment for single-policy learners: observation [M, N * obs] (the N
+    agents' observations concatenated), action MultiDiscrete([A] * N) per environment,
+    ``reset(seed, options) -> (obs, infos)``, ``step(actions [M, N]) -> (obs, rewards,
+    terminations, truncations, infos)``. Auto-reset in the same step (``metadata
+    ["autoreset_mode"]``): a finished environment's returned observation is its new episode's
+    first; ``infos["final_obs"]`` (object array, [N * obs] where ``infos["_final_obs"]``) and
+    ``infos["final_info"]`` (a dict per finished environment, with ``episode``: r, l) hold the
+    finished episode; ``infos["episode"]`` {r, l, t} with the mask ``infos["_episode"]`` as
+    Gymnasium's RecordEpisodeStatistics writes it. ``infos`` also holds the VecEnv info arrays,
+    ``action_mask`` [M, N, A] and ``state``."""
+
+    metadata = {"autoreset_mode": _SAME_STEP, "render_modes": []}
+    render_mode = None
 
     def __init__(self, config=None, num_envs: int = 8, seed: int = 0, oracle: str = ""):
+        import time
         self.env = VecEnv(config, num_envs, seed, oracle)
         self.num_envs = self.env.num_envs
-        n = self.env.num_agents
-        self.single_observation_space = _obs_box(n * self.env.obs_size)
-        self.single_action_space = MultiDiscrete([5] * n)
-        self.observation_space = Box(-1.0, 1.0, shape=(self.num_envs, n * self.env.obs_size), dtype=np.float32)
-        self.action_space = MultiDiscrete(np.full((self.num_envs, n), 5))
+        spec, n = self.env.spec, self.env.num_agents
+        self.single_observation_space = _row_box(spec["obs"], n)
+        self.single_action_space = MultiDiscrete([spec["num_actions"]] * n)
+        low, high = _bounds(spec["obs"], n)
+        self.observation_space = Box(np.tile(low, (self.num_envs, 1)), np.tile(high, (self.num_envs, 1)),
+                                     shape=(self.num_envs, n * spec["obs"]["size"]), dtype=np.float32)
+        self.action_space = MultiDiscrete(np.full((self.num_envs, n), spec["num_actions"]))
+        self.closed = False
+        self._return = np.zeros(self.num_envs)
+        self._length = np.zeros(self.num_envs, dtype=np.int64)
+        self._start = np.full(self.num_envs, time.perf_counter())
+
+    @property
+    def unwrapped(self):
+        return self
 
     def reset(self, seed: Optional[int] = None, options: Optional[dict] = None):
+        import time
         o = self.env.reset(seed)
+        self._return[:] = 0
+        self._length[:] = 0
+        self._start[:] = time.perf_counter()
         return o.obs.reshape(self.num_envs, -1), {"action_mask": o.action_mask, "state": o.state}
 
     def step(self, actions):
+        import time
         r = self.env.step(actions)
-        infos = dict(r.info)
+        M = self.num_envs
+        done = r.terminated | r.truncated
+        self._return += r.reward
+        self._length += 1
+        infos = {k: v for k, v in r.info.items() if k not in ("final_obs", "final_state")}
         infos["action_mask"] = r.action_mask
         infos["state"] = r.state
-        return r.obs.reshape(self.num_envs, -1), r.reward, r.terminated, r.truncated, infos
+        now = time.perf_counter()
+        episode = {"r": np.where(done, self._return, 0.0).astype(np.float32),
+                   "l": np.where(done, self._length, 0).astype(np.int32),
+                   "t": np.where(done, now - self._start, 0.0).astype(np.float32)}
+        final_obs = np.empty(M, dtype=object)
+        final_info = np.empty(M, dtype=object)
+        for i in np.flatnonzero(done):
+            final_obs[i] = r.info["final_obs"][i].reshape(-1)
+            final_info[i] = {"episode": {"r": float(episode["r"][i]), "l": int(episode["l"][i]), "t": float(episode["t"][i])},
+                             **{k: v[i].item() for k, v in r.info.items() if v.ndim == 1}}
+        if done.any():
+            infos["episode"], infos["_episode"] = episode, done.copy()
+            infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+            infos["final_info"], infos["_final_info"] = final_info, done.copy()
+        self._return[done] = 0
+        self._length[done] = 0
+        self._start[done] = now
+        return r.obs.reshape(M, -1), r.reward, r.terminated, r.truncated, infos
 
     def close(self):
-        pass
+        self.closed = True

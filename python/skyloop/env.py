@@ -27,10 +27,10 @@ from . import _skyloop
 
 
 class Observation(NamedTuple):
-    obs: np.ndarray          # float32 [M, N, 11]: own position, mean displacement to the users, to the destination (/ area side), previous action one-hot
-    state: np.ndarray        # float32 [M, 4N + 2K]: all UAV positions, all user positions, all destinations (/ area side)
-    agent_state: np.ndarray  # float32 [M, N, S + N + 11]: state, one-hot agent id, obs
-    action_mask: np.ndarray  # int8 [M, N, 5]: 1 = allowed; an arrived UAV may only STAY
+    obs: np.ndarray          # float32 [M, N, spec["obs"]["size"]]: the agents' observation (marl.encoder: the paper's 11 reals, or the set observation)
+    state: np.ndarray        # float32 [M, spec["state"]["size"]]: the global state (env.state: paper 4N + 2K, or compact)
+    agent_state: np.ndarray  # float32 [M, N, spec["agent_state"]["size"]]: state, agent context, the paper observation
+    action_mask: np.ndarray  # int8 [M, N, spec["num_actions"]]: 1 = allowed; an arrived UAV may only STAY
 
 
 class StepResult(NamedTuple):
@@ -44,34 +44,59 @@ class StepResult(NamedTuple):
     info: dict               # arrays [M]: sum_rate, objective, collisions, boundary, arrivals, home, T, success, episode_reward; final_obs, final_state
 
 
-OBS_FIELDS = ("own_x", "own_y", "users_dx", "users_dy", "dest_dx", "dest_dy",
-              "prev_up", "prev_down", "prev_left", "prev_right", "prev_stay")
-
-
 class VecEnv:
     """M trajectory environments stepped as one batch. ``config``: a skyloop.Config, a dict of
-    overrides or a TOML path; ``oracle``: the beamformer spec behind R[t] (default env.oracle)."""
+    overrides or a TOML path; ``oracle``: the beamformer spec behind R[t] (default env.oracle).
+
+    ``spec`` describes every array (the environment's own spec, skyloop/env/spec.hpp): for each of
+    ``obs``, ``state``, ``agent_context``, ``agent_state``, ``action_mask`` (and both observation
+    layouts, ``paper_obs`` and ``set_obs``) its kind, dtype, shape per environment, bounds and
+    fields (name, offset, size, low, high); ``num_actions`` and ``actions`` (names). Sizes below
+    are read from it. ``field(array, name)`` slices one named field out of an array.
+
+    Threads: the calls of one VecEnv from several Python threads are serialised (a lock taken with
+    the GIL released), so sharing one is safe but not parallel; use one VecEnv per thread for that."""
 
     def __init__(self, config=None, num_envs: int = 1, seed: int = 0, oracle: str = ""):
-        from . import _as_config
-        self._env = _skyloop.VecEnv(_as_config(config), int(num_envs), int(seed), str(oracle))
+        from . import _as_config, _as_int, _as_str
+        self._env = _skyloop.VecEnv(_as_config(config), _as_int(num_envs, "num_envs", 1, 65536),
+                                    _as_int(seed, "seed", 0, 2**64 - 1), _as_str(oracle, "oracle"))
+        self.spec = self._env.spec
         self.num_envs = self._env.num_envs
         self.num_agents = self._env.agents
-        self.obs_size = self._env.obs_size
-        self.state_size = self._env.state_size
-        self.agent_state_size = self._env.agent_state_size
-        self.num_actions = 5
+        self.obs_size = self.spec["obs"]["size"]
+        self.state_size = self.spec["state"]["size"]
+        self.agent_state_size = self.spec["agent_state"]["size"]
+        self.num_actions = self.spec["num_actions"]
         self.config = self._env.config
+
+    def field(self, array: np.ndarray, array_name: str, field: str) -> np.ndarray:
+        """The named field of ``array`` (an array of kind ``array_name``: "obs", "state", ...), the
+        last axis sliced by the spec: ``env.field(o.obs, "obs", "own_position")`` -> [M, N, 2]."""
+        from . import InputError
+        if array_name not in self.spec or not isinstance(self.spec[array_name], dict):
+            raise InputError(f"array {array_name!r} is unknown: allowed obs, state, agent_context, agent_state, action_mask")
+        for f in self.spec[array_name]["fields"]:
+            if f["name"] == field:
+                return np.asarray(array)[..., f["offset"]:f["offset"] + f["size"]]
+        names = ", ".join(f["name"] for f in self.spec[array_name]["fields"])
+        raise InputError(f"{array_name} has no field {field!r}: allowed {names}")
 
     def reset(self, seed: Optional[int] = None) -> Observation:
         """Starts a new episode in every environment; ``seed`` redraws every environment's users
         from it (None: the same users, or new ones with env.resample_users)."""
-        d = self._env.reset(None if seed is None else int(seed))
+        from . import _as_int
+        d = self._env.reset(None if seed is None else _as_int(seed, "seed", 0, 2**64 - 1))
         return Observation(d["obs"], d["state"], d["agent_state"], d["action_mask"])
 
     def step(self, actions) -> StepResult:
-        """``actions``: integer array [M, N] with values 0..4 (UP, DOWN, LEFT, RIGHT, STAY)."""
-        a = np.asarray(actions)
+        """``actions``: integer array [M, N] with values 0..num_actions-1 (``spec["actions"]``)."""
+        from . import InputError
+        try:
+            a = np.asarray(actions)
+        except (ValueError, TypeError) as e:
+            raise InputError(f"actions {actions!r} are not an array: allowed an integer array of shape "
+                             f"[{self.num_envs}, {self.num_agents}]") from None
         d = self._env.step(a)
         return StepResult(d["obs"], d["state"], d["agent_state"], d["action_mask"], d["reward"], d["terminated"],
                           d["truncated"], d["info"])
@@ -82,4 +107,5 @@ class VecEnv:
 
     def users(self, env: int = 0) -> np.ndarray:
         """The users [K, 2] (metres) of environment ``env``."""
-        return self._env.users(int(env))
+        from . import _as_int
+        return self._env.users(_as_int(env, "env", 0, self.num_envs - 1))

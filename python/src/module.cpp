@@ -10,7 +10,9 @@
 #include <pybind11/stl.h>
 
 #include <chrono>
+#include <cmath>
 #include <filesystem>
+#include <mutex>
 
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/config_io.hpp"
@@ -43,10 +45,7 @@ Config make_config(const std::optional<std::string>& path, const std::vector<std
 
 py::object field_value(const Config& cfg, const std::string& key) {
   const Field* f = find_field(key);
-  if (!f) {
-    Config probe = cfg;
-    apply_override(probe, key + "=0");  // throws the one-line "unknown key" error with the allowed keys
-  }
+  if (!f) throw InputError("unknown configuration key '" + key + "': allowed one of Config.keys() (see `skyloop config show`)");
   const FieldValue v = f->get(cfg);
   if (auto b = std::get_if<bool>(&v)) return py::bool_(*b);
   if (auto i = std::get_if<std::int64_t>(&v)) return py::int_(*i);
@@ -69,87 +68,117 @@ Positions positions_from(const Array<double>& a, const Config& cfg, const std::s
 
 // ---- environment ----------------------------------------------------------------------------
 
+py::dict array_spec_dict(const ArraySpec& a, int agents) {
+  py::list fields;
+  for (const auto& f : a.fields) {
+    py::dict d;
+    d["name"] = f.name, d["offset"] = f.offset, d["size"] = f.size, d["low"] = f.low, d["high"] = f.high;
+    fields.append(d);
+  }
+  py::dict d;
+  d["name"] = a.name, d["kind"] = a.kind, d["dtype"] = a.dtype, d["size"] = a.size;
+  d["shape"] = a.per_agent ? py::make_tuple(agents, a.size) : py::make_tuple(a.size);
+  d["low"] = a.low(), d["high"] = a.high();
+  d["fields"] = fields;
+  return d;
+}
+
+/// The environment's spec (skyloop/env/spec.hpp) as plain Python values.
+py::dict env_spec_dict(const EnvSpec& e) {
+  py::dict d;
+  d["agents"] = e.agents, d["users"] = e.users;
+  d["num_actions"] = e.action.count();
+  d["actions"] = py::tuple(py::cast(e.action.names));
+  d["observation_kind"] = to_string(e.observation_kind), d["state_kind"] = to_string(e.state_kind);
+  d["obs"] = array_spec_dict(e.obs, e.agents);
+  d["state"] = array_spec_dict(e.state, e.agents);
+  d["agent_context"] = array_spec_dict(e.agent_context, e.agents);
+  d["agent_state"] = array_spec_dict(e.agent_state, e.agents);
+  d["action_mask"] = array_spec_dict(e.action_mask, e.agents);
+  d["paper_obs"] = array_spec_dict(e.paper_obs, e.agents);
+  d["set_obs"] = array_spec_dict(e.set_obs, e.agents);
+  return d;
+}
+
 /// The batch-first environment: M copies of the trajectory environment stepped as one batch.
+/// Every array's layout is the environment's spec (UavEnv::spec()); the rows are written by the
+/// environment's own writers. Calls from several Python threads are serialised by a mutex (taken
+/// with the GIL released): a VecEnv is safe to share, not parallel.
 class PyVecEnv {
  public:
   PyVecEnv(const Config& cfg, int num_envs, std::uint64_t seed, const std::string& oracle)
       : cfg_(cfg), num_envs_(num_envs) {
-    if (num_envs < 1 || num_envs > 1 << 20)
-      throw InputError("num_envs = " + std::to_string(num_envs) + " is out of range: allowed an integer in [1, 1048576]");
+    if (num_envs < 1 || num_envs > kMaxEnvs)
+      throw InputError("num_envs = " + std::to_string(num_envs) + " is out of range: allowed an integer in [1, " +
+                       std::to_string(kMaxEnvs) + "]");
     if (!oracle.empty()) apply_override(cfg_, "env.oracle=" + toml_string(oracle));
     bf_ = builtin_beamformers().create(cfg_.env.oracle, cfg_);
     build(seed);
   }
+  static constexpr int kMaxEnvs = 65536;
 
   int num_envs() const { return num_envs_; }
-  int agents() const { return vec_->env(0).uavs(); }
-  int obs_size() const { return UavEnv::observation_size(); }
-  int state_size() const { return vec_->env(0).state_size(); }
-  int agent_state_size() const { return vec_->env(0).agent_state_size(); }
+  int agents() const { return spec_->agents; }
+  const EnvSpec& spec() const { return *spec_; }
+  py::dict spec_dict() const { return env_spec_dict(*spec_); }
 
   py::dict reset(std::optional<std::uint64_t> seed) {
-    if (seed) {
-      build(*seed);
-    } else {
+    auto out = allocate();
+    {
       py::gil_scoped_release nogil;
-      vec_->reset();
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (seed) vec_ = std::make_unique<VecEnv>(cfg_, bf_, num_envs_, *seed);
+      else vec_->reset();
+      fill(out);
     }
-    py::dict out = observe();
-    return out;
+    return out.dict();
   }
 
   py::dict step(const py::array& actions_in) {
-    const int M = num_envs_, N = agents();
+    const int M = num_envs_, N = agents(), A = spec_->action.count();
     const char kind = actions_in.dtype().kind();
-    if (kind != 'i' && kind != 'u')
-      throw InputError("actions have dtype " + py::str(actions_in.dtype()).cast<std::string>() +
-                       ": allowed an integer array of shape [num_envs, agents] with values 0..4 (UP, DOWN, LEFT, RIGHT, STAY)");
+    const std::string allowed = "allowed an integer array of shape [" + std::to_string(M) + ", " + std::to_string(N) +
+                                "] (num_envs, agents) with values 0.." + std::to_string(A - 1) + " (" + action_list() + ")";
+    if (kind != 'i' && kind != 'u') throw InputError("actions have dtype " + py::str(actions_in.dtype()).cast<std::string>() + ": " + allowed);
     const auto a = Array<std::int64_t>::ensure(actions_in);
-    if (a.ndim() != 2 || a.shape(0) != M || a.shape(1) != N)
-      throw InputError("actions have shape " + shape_of(actions_in) + ": allowed [" + std::to_string(M) + ", " +
-                       std::to_string(N) + "] (num_envs, agents)");
-    auto& joint = joint_;
-    joint.resize(static_cast<std::size_t>(M));
-    for (auto& j : joint) j.resize(static_cast<std::size_t>(N));
+    if (a.ndim() != 2 || a.shape(0) != M || a.shape(1) != N) throw InputError("actions have shape " + shape_of(actions_in) + ": " + allowed);
+    std::vector<std::vector<int>> joint(static_cast<std::size_t>(M), std::vector<int>(static_cast<std::size_t>(N)));
     const auto r = a.unchecked<2>();
     for (int i = 0; i < M; ++i)
       for (int n = 0; n < N; ++n) {
         const auto v = r(i, n);
-        if (v < 0 || v >= kActions)
+        if (v < 0 || v >= A)
           throw InputError("actions[" + std::to_string(i) + ", " + std::to_string(n) + "] = " + std::to_string(v) +
-                           " is invalid: allowed 0..4 (UP, DOWN, LEFT, RIGHT, STAY)");
-        // An arrived UAV is locked to STAY (its mask is [0,0,0,0,1]); any other action is taken as STAY.
+                           " is invalid: allowed 0.." + std::to_string(A - 1) + " (" + action_list() + ")");
+        // An arrived UAV is locked to STAY (its mask allows only STAY); any other action is taken as STAY.
         joint[static_cast<std::size_t>(i)][static_cast<std::size_t>(n)] = static_cast<int>(v);
       }
-    // Final observations of the environments that finish in this step (zeros elsewhere). Most
-    // steps finish none: they share one read-only zero array instead of allocating.
+    auto out = allocate();
+    const std::size_t O = static_cast<std::size_t>(N) * static_cast<std::size_t>(spec_->obs.size);
+    const std::size_t S = static_cast<std::size_t>(spec_->state.size);
+    // Final observations of the environments that finish in this step (zeros elsewhere).
     std::vector<float> fo, fs;
     std::vector<StepInfo> info;
     {
       py::gil_scoped_release nogil;
+      std::lock_guard<std::mutex> lock(mutex_);
       info = vec_->step(joint, [&](std::size_t i) {
-        if (fo.empty()) fo.assign(static_cast<std::size_t>(M * N * obs_size()), 0.0f), fs.assign(static_cast<std::size_t>(M * state_size()), 0.0f);
-        write_obs(vec_->env(static_cast<int>(i)), fo.data() + i * static_cast<std::size_t>(N * obs_size()));
-        write_state(vec_->env(static_cast<int>(i)), fs.data() + i * static_cast<std::size_t>(state_size()));
+        if (fo.empty()) fo.assign(static_cast<std::size_t>(M) * O, 0.0f), fs.assign(static_cast<std::size_t>(M) * S, 0.0f);
+        const UavEnv& e = vec_->env(static_cast<int>(i));
+        for (int n = 0; n < N; ++n) e.write_obs(n, fo.data() + i * O + static_cast<std::size_t>(n) * static_cast<std::size_t>(spec_->obs.size));
+        e.write_state(fs.data() + i * S);
       });
+      fill(out);
     }
     py::array final_obs, final_state;
     if (fo.empty()) {
-      if (zero_obs_.size() == 0) {
-        zero_obs_ = Array<float>({M, N, obs_size()});
-        zero_state_ = Array<float>({M, state_size()});
-        std::fill_n(zero_obs_.mutable_data(), zero_obs_.size(), 0.0f);
-        std::fill_n(zero_state_.mutable_data(), zero_state_.size(), 0.0f);
-        py::detail::array_proxy(zero_obs_.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
-        py::detail::array_proxy(zero_state_.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
-      }
-      final_obs = zero_obs_;
-      final_state = zero_state_;
+      final_obs = zeros(true);
+      final_state = zeros(false);
     } else {
-      final_obs = Array<float>({M, N, obs_size()}, fo.data());
-      final_state = Array<float>({M, state_size()}, fs.data());
+      final_obs = Array<float>({M, N, spec_->obs.size}, fo.data());
+      final_state = Array<float>({static_cast<py::ssize_t>(M), static_cast<py::ssize_t>(S)}, fs.data());
     }
-    py::dict out = observe();
+    py::dict d = out.dict();
     auto reward = Array<float>({M});
     auto sum_rate = Array<double>({M}), objective = Array<double>({M});
     auto terminated = py::array_t<bool>({M}), truncated = py::array_t<bool>({M});
@@ -173,9 +202,9 @@ class PyVecEnv {
       success.mutable_at(i) = s.success;
       episode_reward.mutable_at(i) = s.episode_reward;
     }
-    out["reward"] = reward;
-    out["terminated"] = terminated;
-    out["truncated"] = truncated;
+    d["reward"] = reward;
+    d["terminated"] = terminated;
+    d["truncated"] = truncated;
     py::dict inf;
     inf["sum_rate"] = sum_rate;
     inf["objective"] = objective;
@@ -188,34 +217,46 @@ class PyVecEnv {
     inf["episode_reward"] = episode_reward;
     inf["final_obs"] = final_obs;
     inf["final_state"] = final_state;
-    out["info"] = inf;
-    return out;
+    d["info"] = inf;
+    return d;
   }
 
-  py::dict positions() const {
+  py::dict positions() {
     const int M = num_envs_, N = agents();
     auto p = Array<double>({M, N, 2});
     auto d = Array<double>({M, N, 2});
-    for (int i = 0; i < M; ++i)
-      for (int n = 0; n < N; ++n)
-        for (int c = 0; c < 2; ++c) {
-          p.mutable_at(i, n, c) = vec_->env(i).positions()(n, c);
-          d.mutable_at(i, n, c) = vec_->env(i).destinations()(n, c);
-        }
+    auto t = Array<std::int32_t>({M});
+    {
+      double* pp = p.mutable_data();
+      double* pd = d.mutable_data();
+      std::int32_t* pt = t.mutable_data();
+      py::gil_scoped_release nogil;
+      std::lock_guard<std::mutex> lock(mutex_);
+      for (int i = 0; i < M; ++i) {
+        const UavEnv& e = vec_->env(i);
+        pt[i] = e.t();
+        for (int n = 0; n < N; ++n)
+          for (int c = 0; c < 2; ++c) {
+            pp[(static_cast<std::size_t>(i) * N + n) * 2 + c] = e.positions()(n, c);
+            pd[(static_cast<std::size_t>(i) * N + n) * 2 + c] = e.destinations()(n, c);
+          }
+      }
+    }
     py::dict out;
     out["uavs"] = p;
     out["destinations"] = d;
-    out["t"] = [&] {
-      auto t = Array<std::int32_t>({M});
-      for (int i = 0; i < M; ++i) t.mutable_at(i) = vec_->env(i).t();
-      return t;
-    }();
+    out["t"] = t;
     return out;
   }
 
-  py::array users(int i) const {
+  py::array users(int i) {
     if (i < 0 || i >= num_envs_) throw InputError("env index " + std::to_string(i) + " is out of range: allowed 0.." + std::to_string(num_envs_ - 1));
-    const Positions& u = const_cast<VecEnv&>(*vec_).env(i).oracle().users();
+    Positions u;
+    {
+      py::gil_scoped_release nogil;
+      std::lock_guard<std::mutex> lock(mutex_);
+      u = vec_->env(i).oracle().users();
+    }
     auto out = Array<double>({static_cast<py::ssize_t>(u.rows()), static_cast<py::ssize_t>(2)});
     for (Eigen::Index k = 0; k < u.rows(); ++k) out.mutable_at(k, 0) = u(k, 0), out.mutable_at(k, 1) = u(k, 1);
     return out;
@@ -227,10 +268,16 @@ class PyVecEnv {
   /// arrays), on this very environment (same oracles, same warm caches); returns seconds.
   double bench_cpp_steps(const Array<std::int64_t>& actions) {
     if (actions.ndim() != 3 || actions.shape(1) != num_envs_ || actions.shape(2) != agents())
-      throw InputError("actions: allowed [steps, num_envs, agents]");
-    std::vector<std::vector<int>> joint(static_cast<std::size_t>(num_envs_), std::vector<int>(static_cast<std::size_t>(agents())));
+      throw InputError("actions have shape " + shape_of(actions) + ": allowed [steps, num_envs, agents]");
     const auto a = actions.unchecked<3>();
+    for (py::ssize_t t = 0; t < actions.shape(0); ++t)
+      for (int i = 0; i < num_envs_; ++i)
+        for (int n = 0; n < agents(); ++n)
+          if (a(t, i, n) < 0 || a(t, i, n) >= spec_->action.count())
+            throw InputError("actions: allowed values 0.." + std::to_string(spec_->action.count() - 1));
+    std::vector<std::vector<int>> joint(static_cast<std::size_t>(num_envs_), std::vector<int>(static_cast<std::size_t>(agents())));
     py::gil_scoped_release nogil;
+    std::lock_guard<std::mutex> lock(mutex_);
     const auto t0 = std::chrono::steady_clock::now();
     for (py::ssize_t t = 0; t < actions.shape(0); ++t) {
       for (int i = 0; i < num_envs_; ++i)
@@ -240,11 +287,41 @@ class PyVecEnv {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
 
+  /// Environment i's arrays from UavEnv's own per-agent accessors (state(), agent_state(n),
+  /// observation(n) / the set observation), for tests that hold the batch arrays to them.
+  py::dict reference(int i) {
+    if (i < 0 || i >= num_envs_) throw InputError("env index " + std::to_string(i) + " is out of range: allowed 0.." + std::to_string(num_envs_ - 1));
+    std::vector<float> state;
+    std::vector<std::vector<float>> obs, agent_state;
+    {
+      py::gil_scoped_release nogil;
+      std::lock_guard<std::mutex> lock(mutex_);
+      const UavEnv& e = vec_->env(i);
+      state = e.state();
+      for (int n = 0; n < e.uavs(); ++n) {
+        agent_state.push_back(e.agent_state(n));
+        if (e.spec().observation_kind == ObservationKind::Set) {
+          obs.emplace_back(static_cast<std::size_t>(e.set_observation_size()));
+          e.write_set_observation(n, obs.back().data());
+        } else {
+          obs.push_back(e.observation(n));
+        }
+      }
+    }
+    py::dict d;
+    d["state"] = py::array_t<float>(static_cast<py::ssize_t>(state.size()), state.data());
+    d["obs"] = py::cast(obs);
+    d["agent_state"] = py::cast(agent_state);
+    return d;
+  }
+
   /// Cache hit rate of the environments' rate oracles so far.
-  double hit_rate() const {
+  double hit_rate() {
+    py::gil_scoped_release nogil;
+    std::lock_guard<std::mutex> lock(mutex_);
     double hits = 0, total = 0;
     for (int i = 0; i < num_envs_; ++i) {
-      auto& o = const_cast<VecEnv&>(*vec_).env(i).oracle();
+      auto& o = vec_->env(i).oracle();
       hits += static_cast<double>(o.stats().hits);
       total += static_cast<double>(o.stats().hits + o.stats().misses);
     }
@@ -257,61 +334,87 @@ class PyVecEnv {
     for (py::ssize_t d = 0; d < a.ndim(); ++d) s += (d ? ", " : "") + std::to_string(a.shape(d));
     return s + "]";
   }
+  std::string action_list() const {
+    std::string s;
+    for (const auto& n : spec_->action.names) s += (s.empty() ? "" : ", ") + n;
+    return s;
+  }
 
   void build(std::uint64_t seed) {
     py::gil_scoped_release nogil;
+    std::lock_guard<std::mutex> lock(mutex_);
     vec_ = std::make_unique<VecEnv>(cfg_, bf_, num_envs_, seed);
+    spec_ = std::make_shared<const EnvSpec>(vec_->env(0).spec());
   }
 
-  void write_obs(const UavEnv& e, float* dst) const {
-    for (int n = 0; n < e.uavs(); ++n) e.write_observation(n, dst + n * obs_size());
+  /// The arrays of one observation, allocated with the GIL held, filled without it.
+  struct Arrays {
+    Array<float> obs, state, agent_state;
+    Array<std::int8_t> mask;
+    py::dict dict() const {
+      py::dict out;
+      out["obs"] = obs;
+      out["state"] = state;
+      out["agent_state"] = agent_state;
+      out["action_mask"] = mask;
+      return out;
+    }
+  };
+  Arrays allocate() const {
+    const int M = num_envs_, N = agents();
+    return Arrays{Array<float>({M, N, spec_->obs.size}), Array<float>({M, spec_->state.size}),
+                  Array<float>({M, N, spec_->agent_state.size}), Array<std::int8_t>({M, N, spec_->action.count()})};
   }
-  void write_state(const UavEnv& e, float* dst) const { e.write_state(dst); }
 
-  /// Current observations of every environment: obs [M, N, 11], state [M, S], agent_state
-  /// [M, N, S + N + 11], action_mask [M, N, 5] (int8: the reachability mask of marl.action_mask,
-  /// skyloop/planning/safety.hpp, else every action; an arrived UAV: [0, 0, 0, 0, 1]).
-  py::dict observe() const {
-    const int M = num_envs_, N = agents(), O = obs_size(), S = state_size(), A = agent_state_size();
-    auto obs = Array<float>({M, N, O});
-    auto state = Array<float>({M, S});
-    auto agent_state = Array<float>({M, N, A});
-    auto mask = Array<std::int8_t>({M, N, kActions});
-    {
-      float* po = obs.mutable_data();
-      float* ps = state.mutable_data();
-      float* pa = agent_state.mutable_data();
-      std::int8_t* pm = mask.mutable_data();
-      py::gil_scoped_release nogil;
-      for (int i = 0; i < M; ++i) {
-        const UavEnv& e = vec_->env(i);
-        write_obs(e, po + static_cast<std::size_t>(i) * N * O);
-        write_state(e, ps + static_cast<std::size_t>(i) * S);
-        for (int n = 0; n < N; ++n) {
-          float* row = pa + (static_cast<std::size_t>(i) * N + n) * A;
-          std::copy(ps + static_cast<std::size_t>(i) * S, ps + static_cast<std::size_t>(i + 1) * S, row);
-          for (int m = 0; m < N; ++m) row[S + m] = m == n ? 1.0f : 0.0f;
-          std::copy(po + (static_cast<std::size_t>(i) * N + n) * O, po + (static_cast<std::size_t>(i) * N + n + 1) * O, row + S + N);
-          std::int8_t* mk = pm + (static_cast<std::size_t>(i) * N + n) * kActions;
-          const unsigned allowed = allowed_moves(e, n, SafetyOptions{cfg_.marl.action_mask, false});
-          for (int a = 0; a < kActions; ++a) mk[a] = (allowed >> a & 1u) ? 1 : 0;
-        }
+  /// Current arrays of every environment, each row written by the environment itself; the action
+  /// mask is the reachability mask of marl.action_mask (skyloop/planning/safety.hpp), else every
+  /// action; an arrived UAV may only STAY. Called with the lock held.
+  void fill(Arrays& out) const {
+    const int M = num_envs_, N = agents();
+    const std::size_t O = static_cast<std::size_t>(spec_->obs.size), S = static_cast<std::size_t>(spec_->state.size);
+    const std::size_t A = static_cast<std::size_t>(spec_->agent_state.size), K = static_cast<std::size_t>(spec_->action.count());
+    float* po = out.obs.mutable_data();
+    float* ps = out.state.mutable_data();
+    float* pa = out.agent_state.mutable_data();
+    std::int8_t* pm = out.mask.mutable_data();
+    for (int i = 0; i < M; ++i) {
+      const UavEnv& e = vec_->env(i);
+      check_layout(e);
+      e.write_state(ps + static_cast<std::size_t>(i) * S);
+      for (int n = 0; n < N; ++n) {
+        const std::size_t row = static_cast<std::size_t>(i) * static_cast<std::size_t>(N) + static_cast<std::size_t>(n);
+        e.write_obs(n, po + row * O);
+        e.write_agent_state(n, pa + row * A);
+        const unsigned allowed = allowed_moves(e, n, SafetyOptions{cfg_.marl.action_mask, false});
+        for (std::size_t a = 0; a < K; ++a) pm[row * K + a] = (allowed >> a & 1u) ? 1 : 0;
       }
     }
-    py::dict out;
-    out["obs"] = obs;
-    out["state"] = state;
-    out["agent_state"] = agent_state;
-    out["action_mask"] = mask;
-    return out;
+  }
+  /// Every environment of the batch has the layout the arrays were sized for.
+  void check_layout(const UavEnv& e) const {
+    const EnvSpec& s = e.spec();
+    if (s.obs.size != spec_->obs.size || s.state.size != spec_->state.size || s.agent_state.size != spec_->agent_state.size)
+      throw std::logic_error("VecEnv: an environment's layout changed within the batch");
+  }
+
+  /// Read-only zeros: final_obs / final_state when no episode ends in a step.
+  py::array zeros(bool obs) {
+    Array<float>& z = obs ? zero_obs_ : zero_state_;
+    if (z.size() == 0) {
+      z = obs ? Array<float>({num_envs_, agents(), spec_->obs.size}) : Array<float>({num_envs_, spec_->state.size});
+      std::fill_n(z.mutable_data(), z.size(), 0.0f);
+      py::detail::array_proxy(z.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+    }
+    return z;
   }
 
   Config cfg_;
   int num_envs_;
   std::shared_ptr<const Beamformer> bf_;
   std::unique_ptr<VecEnv> vec_;
-  std::vector<std::vector<int>> joint_;  // the joint actions, reused across steps
-  Array<float> zero_obs_, zero_state_;    // read-only zeros: final_obs / final_state when no episode ends
+  std::shared_ptr<const EnvSpec> spec_;
+  std::mutex mutex_;                      // serialises every use of vec_ across Python threads
+  Array<float> zero_obs_, zero_state_;
 };
 
 // ---- planners -------------------------------------------------------------------------------
@@ -438,7 +541,13 @@ PYBIND11_MODULE(_skyloop, m) {
 
   py::class_<Cluster>(m, "Cluster", "One UAV's cluster: G [K_n, L] complex (row k = h_k^H), its users, budget and noise.")
       .def(py::init([](Eigen::MatrixXcd G, double p_max, double noise, int uav, std::vector<int> users) {
-             if (!(p_max > 0) || !(noise > 0)) throw InputError("p_max and noise must be positive (W)");
+             if (!(p_max > 0) || !std::isfinite(p_max))
+               throw InputError("p_max = " + std::to_string(p_max) + " is out of range: allowed a finite power > 0 (W)");
+             if (!(noise > 0) || !std::isfinite(noise))
+               throw InputError("noise = " + std::to_string(noise) + " is out of range: allowed a finite power > 0 (W)");
+             if (G.rows() < 1 || G.cols() < 1)
+               throw InputError("G has shape [" + std::to_string(G.rows()) + ", " + std::to_string(G.cols()) +
+                                "]: allowed a complex [K_n, L] array with K_n >= 1 users and L >= 1 antennas");
              if (!G.allFinite()) throw InputError("G has non-finite entries: allowed a finite complex [K_n, L] array");
              Cluster c;
              c.G = std::move(G);
@@ -447,7 +556,9 @@ PYBIND11_MODULE(_skyloop, m) {
              c.uav = uav;
              if (users.empty())
                for (int k = 0; k < c.G.rows(); ++k) users.push_back(k);
-             if (static_cast<Eigen::Index>(users.size()) != c.G.rows()) throw InputError("users must name one user per row of G");
+             if (static_cast<Eigen::Index>(users.size()) != c.G.rows())
+               throw InputError("users has " + std::to_string(users.size()) + " entries: allowed one user index per row of G (" +
+                                std::to_string(c.G.rows()) + ")");
              c.users = std::move(users);
              return c;
            }),
@@ -558,15 +669,14 @@ PYBIND11_MODULE(_skyloop, m) {
            py::arg("seed"), py::arg("oracle") = "")
       .def_property_readonly("num_envs", &PyVecEnv::num_envs)
       .def_property_readonly("agents", &PyVecEnv::agents)
-      .def_property_readonly("obs_size", &PyVecEnv::obs_size)
-      .def_property_readonly("state_size", &PyVecEnv::state_size)
-      .def_property_readonly("agent_state_size", &PyVecEnv::agent_state_size)
+      .def_property_readonly("spec", &PyVecEnv::spec_dict, "every array's layout: fields, offsets, sizes, bounds")
       .def_property_readonly("config", &PyVecEnv::config)
       .def("reset", &PyVecEnv::reset, py::arg("seed") = py::none())
       .def("step", &PyVecEnv::step, py::arg("actions"))
       .def("positions", &PyVecEnv::positions)
       .def("users", &PyVecEnv::users, py::arg("env") = 0)
       .def("hit_rate", &PyVecEnv::hit_rate, "the rate oracles' cache hit rate so far")
+      .def("_reference", &PyVecEnv::reference, py::arg("env"))
       .def("_bench_cpp_steps", &PyVecEnv::bench_cpp_steps, py::arg("actions"));
 
   // Benchmark helpers: the same work in C++ alone, timed in the same process (python/bench).
@@ -583,7 +693,11 @@ PYBIND11_MODULE(_skyloop, m) {
 #endif
   m.def("plan", &plan, py::arg("config"), py::arg("planner"), py::arg("users_seed") = 3, py::arg("users") = py::none(),
         py::arg("planner_seed") = py::none());
-  m.attr("ACTIONS") = py::make_tuple("UP", "DOWN", "LEFT", "RIGHT", "STAY");
+  m.attr("ACTIONS") = py::tuple(py::cast(grid_actions().names));
+  m.def("env_spec", [](const Config& cfg, int users) {
+          if (users < 1) throw InputError("users = " + std::to_string(users) + " is out of range: allowed at least 1");
+          return env_spec_dict(make_env_spec(cfg, static_cast<int>(cfg.trajectory.starts.size()), users));
+        }, py::arg("config"), py::arg("users"), "the environment's spec for a configuration and a user count");
   m.def("derive_seed", [](std::uint64_t base, std::uint64_t i) { return derive_seed(base, i); }, py::arg("base"), py::arg("index"),
         "the seed of item `index` of a stream (snapshot i of `beamform eval --seed base` is random_snapshot(.., derive_seed(base, i)))");
 }

@@ -44,9 +44,12 @@ MatrixXcd budgeted_solve(const MatrixXcd& A, const MatrixXcd& B, double p_max, d
   double mu = 0.0;
   if (!(power(0.0) <= p_max)) {
     double lo = 0.0, hi = std::sqrt(cpow.sum() / p_max);
-    while (power(hi) > p_max) hi *= 2.0;  // guards rounding; normally already feasible
+    for (int k = 0; k < 2100 && power(hi) > p_max; ++k) hi *= 2.0;  // guards rounding; normally already feasible
+    // Bisection to the relative tolerance, or until lo and hi are adjacent doubles (a tolerance
+    // below the double precision, e.g. 1e-16, then stops there instead of looping for ever).
     while (hi - lo > bisection_tolerance * hi) {
       const double mid = 0.5 * (lo + hi);
+      if (!(mid > lo && mid < hi)) break;
       (power(mid) > p_max ? lo : hi) = mid;
     }
     mu = hi;  // feasible side

@@ -83,10 +83,13 @@ void SystemModel::associate(const Positions& uavs, const Positions& users, Assoc
   // Spatial index: UAVs bucketed on a grid of cells at least the horizontal reach wide. A user's
   // nearest UAV, if it is within R_c at all, lies in the 3 x 3 cells around the user's cell; if
   // none there is within R_c, no UAV is (the global nearest is then unserved on both paths).
-  const double cell = std::sqrt(reach2) * (1 + 1e-9);
+  // Cells wider than the reach keep that guarantee, so a tiny reach (R_c just above H) is widened
+  // until the grid has about 4 N cells: memory stays linear in N.
   double x0 = uavs(0, 0), y0 = uavs(0, 1), x1 = x0, y1 = y0;
   for (int n = 1; n < n_uav; ++n)
     x0 = std::min(x0, uavs(n, 0)), x1 = std::max(x1, uavs(n, 0)), y0 = std::min(y0, uavs(n, 1)), y1 = std::max(y1, uavs(n, 1));
+  const double per_axis = 2.0 * std::ceil(std::sqrt(static_cast<double>(n_uav)));
+  const double cell = std::max(std::sqrt(reach2) * (1 + 1e-9), std::max(x1 - x0, y1 - y0) / per_axis);
   const int cx = static_cast<int>((x1 - x0) / cell) + 1, cy = static_cast<int>((y1 - y0) / cell) + 1;
   std::vector<int> head(static_cast<std::size_t>(cx) * static_cast<std::size_t>(cy) + 1, 0), order(static_cast<std::size_t>(n_uav));
   auto cell_of = [&](double x, double y, int& ix, int& iy) {

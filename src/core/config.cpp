@@ -261,9 +261,9 @@ std::vector<Field> make_fields() {
     b.set = [](Config& c, const FieldValue& v) { c.env.resample_users = std::get<bool>(v); };
     f.push_back(std::move(b));
   }
-  f.push_back(integer("env.users_min", "fewest users of a sampled layout (0 = scenario.users)", 0, 100000,
+  f.push_back(integer("env.users_min", "fewest users of a sampled layout (0 = scenario.users)", 0, 4096,
                       [](Config& c) -> int& { return c.env.users_min; }));
-  f.push_back(integer("env.users_max", "most users of a sampled layout (0 = scenario.users)", 0, 100000,
+  f.push_back(integer("env.users_max", "most users of a sampled layout (0 = scenario.users)", 0, 4096,
                       [](Config& c) -> int& { return c.env.users_max; }));
   {
     f.push_back(text("env.state",
@@ -471,6 +471,22 @@ void validate(const Config& c) {
   };
   check_in_area(t.starts, "trajectory.starts");
   check_in_area(t.destinations, "trajectory.destinations");
+  // A UAV moves D_fly along x or y per slot: its destination must differ from its start and lie on
+  // the D_fly lattice through it, or no sequence of moves ever arrives.
+  for (std::size_t i = 0; i < t.starts.size(); ++i) {
+    const auto& s = t.starts[i];
+    const auto& d = t.destinations[i];
+    const std::string where = "trajectory.destinations[" + std::to_string(i) + "] = [" + format_double(d.x) + ", " +
+                              format_double(d.y) + "]";
+    if (std::abs(d.x - s.x) < 1e-6 && std::abs(d.y - s.y) < 1e-6)
+      throw InputError(where + " equals trajectory.starts[" + std::to_string(i) + "]: allowed a destination at least one move "
+                       "(trajectory.d_fly_m) from its start");
+    const double fx = (d.x - s.x) / t.d_fly_m, fy = (d.y - s.y) / t.d_fly_m;
+    if (std::abs(fx - std::round(fx)) > 1e-6 || std::abs(fy - std::round(fy)) > 1e-6)
+      throw InputError(where + " is not on the D_fly grid of trajectory.starts[" + std::to_string(i) + "] = [" +
+                       format_double(s.x) + ", " + format_double(s.y) + "]: allowed a destination whose x and y differ from "
+                       "the start's by whole multiples of trajectory.d_fly_m = " + format_double(t.d_fly_m));
+  }
   const int kmin = c.env.users_min ? c.env.users_min : c.scenario.users, kmax = c.env.users_max ? c.env.users_max : c.scenario.users;
   if (kmin > kmax)
     throw InputError("env.users_min = " + std::to_string(kmin) + " is above env.users_max = " + std::to_string(kmax) +

@@ -128,6 +128,8 @@ void apply_override(Config& cfg, const std::string& assignment) {
   const std::string value = assignment.substr(eq + 1);
   const Field* field = find_field(key);
   if (!field) throw_unknown_key(key);
+  if (value.find_first_not_of(" \t") == std::string::npos)
+    throw InputError(key + " has no value in --set '" + assignment + "': allowed " + field->allowed());
   toml::table parsed;
   try {
     parsed = toml::parse("v = " + value);
@@ -135,6 +137,9 @@ void apply_override(Config& cfg, const std::string& assignment) {
     // Not a TOML value: a bare word is a string (e.g. power_scaling=cap).
     parsed = toml::table{{"v", value}};
   }
+  // "50 # x" parses as 50 and a comment: a value is the whole text after '=', nothing dropped.
+  if (value.find('#') != std::string::npos && !parsed.get("v")->is_string())
+    throw InputError(key + " = '" + value + "' is malformed: a '#' starts a comment here; allowed " + field->allowed());
   set_field(cfg, *field, to_value(*field, *parsed.get("v")));
 }
 
@@ -143,6 +148,15 @@ Config resolve_config(const std::optional<std::string>& path, const std::vector<
   if (path) apply_toml(cfg, read_file(*path, "config file"), *path);
   for (const auto& o : overrides) apply_override(cfg, o);
   finalise(cfg);
+  if (!cfg.env.users_file.empty()) {
+    // The users come from the file: K is its count, in the config and every report.
+    const auto lists = read_point_lists(read_file(cfg.env.users_file, "env.users_file"), cfg.env.users_file, {"users"});
+    const Field* users = find_field("scenario.users");
+    const auto k = static_cast<std::int64_t>(lists[0].size());
+    if (k < users->lo || k > users->hi)
+      throw InputError("env.users_file = " + cfg.env.users_file + " has " + std::to_string(k) + " users: allowed " + users->allowed());
+    cfg.scenario.users = static_cast<int>(k);
+  }
   return cfg;
 }
 
@@ -158,6 +172,17 @@ Positions positions_in_area(const std::vector<Point2>& pts, const Config& cfg, c
     p(static_cast<Eigen::Index>(i), 1) = y;
   }
   return p;
+}
+
+std::uint64_t parse_count(const std::string& flag, const std::string& text, std::uint64_t lo, std::uint64_t hi) {
+  const auto fail = [&] {
+    throw InputError(flag + " = '" + text + "' is invalid: allowed an integer in [" + std::to_string(lo) + ", " +
+                     std::to_string(hi) + "]");
+  };
+  if (text.empty() || text.size() > 19 || text.find_first_not_of("0123456789") != std::string::npos) fail();
+  const std::uint64_t v = std::stoull(text);  // at most 19 digits: no overflow
+  if (v < lo || v > hi) fail();
+  return v;
 }
 
 std::uint64_t parse_seed(const std::string& flag, const std::string& text) {

@@ -50,13 +50,17 @@ fs::path write_target(const std::string& path) {
 
 void check_output_path(const std::string& path) { (void)write_target(path); }
 
-void check_output_dir(const std::string& dir) {
+void check_output_dir(const std::string& dir, const std::string& flag) {
+  if (dir.empty()) throw InputError(flag + " is empty: allowed a directory path");
+  // "a/b/" names the directory a/b: without the trailing separators a file a/b is seen as one.
+  std::string path = dir;
+  while (path.size() > 1 && path.back() == '/') path.pop_back();
   std::error_code ec;
-  if (fs::exists(dir, ec) && !fs::is_directory(dir, ec))
-    throw InputError("--out '" + dir + "' exists and is not a directory: allowed a directory (new or existing)");
-  for (fs::path p = fs::path(dir).parent_path(); !p.empty() && p != p.parent_path(); p = p.parent_path())
+  if (fs::exists(path, ec) && !fs::is_directory(path, ec))
+    throw InputError(flag + " '" + dir + "' exists and is not a directory: allowed a directory (new or existing)");
+  for (fs::path p = fs::path(path).parent_path(); !p.empty() && p != p.parent_path(); p = p.parent_path())
     if (fs::exists(p, ec) && !fs::is_directory(p, ec))
-      throw InputError("--out '" + dir + "' lies under '" + p.string() + "', which is not a directory: allowed a directory path");
+      throw InputError(flag + " '" + dir + "' lies under '" + p.string() + "', which is not a directory: allowed a directory path");
 }
 
 void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force) {

@@ -13,11 +13,6 @@
 
 namespace skyloop {
 
-const char* action_name(int a) {
-  static const char* names[] = {"UP", "DOWN", "LEFT", "RIGHT", "STAY"};
-  return a >= 0 && a < kActions ? names[a] : "?";
-}
-
 Positions make_users(const Config& cfg, int users, std::uint64_t seed) {
   if (!cfg.env.users_file.empty()) {
     const auto lists = read_point_lists(read_file(cfg.env.users_file, "env.users_file"), cfg.env.users_file, {"users"});
@@ -45,9 +40,12 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       w_fea_(cfg.env.w_fea),
       compact_(cfg.env.state == "compact"),
       objective_reward_(cfg.env.reward == "objective"),
+      spec_params_(spec_params(cfg, n_, 0)),
       start_(positions_in_area(cfg.trajectory.starts, cfg, "trajectory.starts")),
       dest_(positions_in_area(cfg.trajectory.destinations, cfg, "trajectory.destinations")),
       oracle_(std::move(oracle)) {
+  spec_params_.users = users();
+  spec_ = shared_env_spec(spec_params_);
   for (int n = 0; n < n_; ++n)
     if (min_moves(n, start_(n, 0), start_(n, 1)) > t_max_ - 1)
       throw InputError("trajectory: UAV " + std::to_string(n) + " needs " +
@@ -59,6 +57,10 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
 
 void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle) {
   oracle_ = std::move(oracle);
+  if (users() != spec_params_.users) {
+    spec_params_.users = users();
+    spec_ = shared_env_spec(spec_params_);
+  }
   reset();
 }
 
@@ -223,10 +225,6 @@ std::vector<float> UavEnv::observation(int n) const {
   return o;
 }
 
-int UavEnv::state_size() const {
-  return compact_ ? 3 * kStateGrid * kStateGrid + 2 : 4 * n_ + 2 * static_cast<int>(oracle_->users().rows());
-}
-
 int UavEnv::users() const { return static_cast<int>(oracle_->users().rows()); }
 
 namespace {
@@ -272,7 +270,7 @@ void UavEnv::write_compact_state(float* s) const {
   const auto& users = oracle_->users();
   {
     constexpr int G = kStateGrid;
-    std::fill(s, s + 3 * G * G + 2, 0.0f);
+    std::fill(s, s + compact_state_size(), 0.0f);
     auto cell = [&](double x, double y) {
       const int ix = std::min(G - 1, std::max(0, static_cast<int>(x / area_x_ * G)));
       const int iy = std::min(G - 1, std::max(0, static_cast<int>(y / area_y_ * G)));
@@ -329,12 +327,21 @@ std::vector<float> UavEnv::state() const {
   return s;
 }
 
+void UavEnv::write_agent_state(int n, float* out) const {
+  write_state(out);
+  write_agent_context(n, out + state_size());
+  write_observation(n, out + state_size() + agent_context_size());
+}
+
 std::vector<float> UavEnv::agent_state(int n) const {
   std::vector<float> s(static_cast<std::size_t>(agent_state_size()));
-  write_state(s.data());
-  write_agent_context(n, s.data() + state_size());
-  write_observation(n, s.data() + state_size() + agent_context_size());
+  write_agent_state(n, s.data());
   return s;
+}
+
+void UavEnv::write_obs(int n, float* out) const {
+  if (spec_->observation_kind == ObservationKind::Set) write_set_observation(n, out);
+  else write_observation(n, out);
 }
 
 // ---- VecEnv ---------------------------------------------------------------------------------

@@ -110,8 +110,16 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   const bool given = !opt.users_seeds.empty();
   if (given && static_cast<int>(opt.users_seeds.size()) < opt.layouts)
     throw std::invalid_argument("evaluate_layouts: fewer users seeds than layouts");
+  if (opt.layouts < 1) throw InputError("layouts = " + std::to_string(opt.layouts) + " is out of range: allowed at least 1");
+  for (std::size_t i = 0; i < opt.planners.size(); ++i)
+    for (std::size_t j = 0; j < i; ++j)
+      if (opt.planners[i] == opt.planners[j])
+        throw InputError("planner '" + opt.planners[i] + "' is given twice: allowed each planner at most once");
   if (!given) layout_seed(opt.split, opt.first + static_cast<std::uint64_t>(opt.layouts) - 1);  // in range
-  if (!opt.cache_dir.empty()) std::filesystem::create_directories(opt.cache_dir);
+  if (!opt.cache_dir.empty()) {
+    check_output_dir(opt.cache_dir, "--cache");
+    std::filesystem::create_directories(opt.cache_dir);
+  }
   std::shared_ptr<const Beamformer> bf;
   try {
     bf = registry.create(cfg.env.oracle, cfg);

@@ -84,7 +84,7 @@ VecEnv make_training_envs(const Config& cfg, const BeamformerRegistry& registry)
 }
 
 int Encoder::width(const UavEnv& env) const {
-  if (set) return UavEnv::set_observation_size();
+  if (set) return env.set_observation_size();
   return UavEnv::observation_size() + (context ? env.agent_context_size() : 0);
 }
 

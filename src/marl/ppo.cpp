@@ -52,8 +52,9 @@ struct CriticInput {
       if (extra(e)) e.write_compact_state(out + set.width(e));
       return;
     }
-    const auto v = kind == "global" ? e.state() : kind == "agent" ? e.agent_state(n) : e.observation(n);
-    std::copy(v.begin(), v.end(), out);
+    if (kind == "global") e.write_state(out);
+    else if (kind == "agent") e.write_agent_state(n, out);
+    else e.write_observation(n, out);
   }
 };
 

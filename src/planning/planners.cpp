@@ -165,6 +165,13 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
                      " UAVs on this " + std::to_string(nx) + " x " + std::to_string(ny) + " grid, or at most " +
                      std::to_string(max_cells) + " cells for " + std::to_string(N) + " UAVs; use seqgreedy or a learned planner beyond");
   }
+  // The value table holds T_max x states doubles: at most 2^27 of them (1 GiB).
+  constexpr double kMaxTableEntries = 134217728.0;
+  if (Sd * Tmax > kMaxTableEntries)
+    throw InputError("the optimal planner's value table has " + format_double(Sd * Tmax) + " entries (" +
+                     format_double(Sd) + " joint states x trajectory.t_max = " + std::to_string(Tmax) +
+                     "): allowed at most 2^27 (1 GiB), i.e. trajectory.t_max <= " +
+                     std::to_string(static_cast<long long>(kMaxTableEntries / Sd)) + " on this grid; use seqgreedy beyond");
   const std::size_t S = static_cast<std::size_t>(Sd);
   std::vector<std::size_t> stride(static_cast<std::size_t>(N));
   for (int n = 0; n < N; ++n) stride[static_cast<std::size_t>(n)] = n == 0 ? 1 : stride[static_cast<std::size_t>(n - 1)] * static_cast<std::size_t>(G);

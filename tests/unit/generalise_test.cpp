@@ -208,7 +208,7 @@ TEST(Env, SetObservationIgnoresTheOrderOfUsersAndUavs) {
     swapped.trajectory.destinations[static_cast<std::size_t>(n)] = cfg.trajectory.destinations[static_cast<std::size_t>(perm[static_cast<std::size_t>(n)])];
   }
   UavEnv c = make_env(swapped, users);
-  const int D = UavEnv::set_observation_size();
+  const int D = a.set_observation_size();
   Rng rng(1);
   for (int t = 0; t < 6; ++t) {
     for (int n = 0; n < 3; ++n) {

@@ -189,10 +189,10 @@ TEST(Scale, CompactStateIsSizedIndependentlyOfNAndK) {
     cfg.env.state = "compact";
     auto oracle = std::make_shared<RateOracle>(cfg, builtin_beamformers().create("mrt", cfg), make_users(cfg, users, 1));
     UavEnv env(cfg, oracle);
-    EXPECT_EQ(env.state_size(), 3 * UavEnv::kStateGrid * UavEnv::kStateGrid + 2);
-    EXPECT_EQ(env.agent_context_size(), 2 * UavEnv::kNeighbours);
+    EXPECT_EQ(env.state_size(), 3 * kStateGrid * kStateGrid + 2);
+    EXPECT_EQ(env.agent_context_size(), 2 * kNeighbours);
     const auto s = env.state();
-    const int G2 = UavEnv::kStateGrid * UavEnv::kStateGrid;
+    const int G2 = kStateGrid * kStateGrid;
     double user_share = 0, uav_share = 0, dest_share = 0;
     for (int i = 0; i < G2; ++i) user_share += s[i], uav_share += s[G2 + i], dest_share += s[2 * G2 + i];
     EXPECT_NEAR(user_share, 1.0, 1e-4);

@@ -23,7 +23,7 @@ void check_output_path(const std::string& path);
 
 /// An output directory (`--out DIR`): refused with InputError when it, or a folder above it, exists
 /// and is not a directory.
-void check_output_dir(const std::string& dir);
+void check_output_dir(const std::string& dir, const std::string& flag = "--out");
 
 /// A run directory about to receive a fresh (not resumed) run: if any of `results` is already in
 /// `dir`, throws InputError ("already holds a run: allowed --resume, --force or a new directory")

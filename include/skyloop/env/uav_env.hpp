@@ -28,12 +28,9 @@
 #include <vector>
 
 #include "skyloop/env/rate_oracle.hpp"
+#include "skyloop/env/spec.hpp"
 
 namespace skyloop {
-
-enum Action : int { kUp = 0, kDown = 1, kLeft = 2, kRight = 3, kStay = 4 };
-constexpr int kActions = 5;
-const char* action_name(int a);
 
 struct StepInfo {
   double reward = 0;         // r[t] (eq:total_reward)
@@ -90,35 +87,37 @@ class UavEnv {
   /// Number of UAVs closer than D_min to another.
   int collisions(const Positions& p) const;
 
-  /// o_n[t] (11 reals): own position / area, mean displacement to the users / area, displacement
-  /// to the destination / area, one-hot previous action.
-  std::vector<float> observation(int n) const;
-  static int observation_size() { return 11; }
-  /// observation(n) written into out[0..10] (no allocation): the layout the Python module and
-  /// the learners' batch buffers use.
+  // ---- observations and states: the layouts are skyloop/env/spec.hpp's ---------------------
+  /// Every array this environment exposes, field by field (sizes, offsets, bounds).
+  const EnvSpec& spec() const { return *spec_; }
+  /// The agents' observation of spec().obs (paper or set, by marl.encoder) into out[0..obs.size-1].
+  void write_obs(int n, float* out) const;
+  /// o_n[t], the paper's 11 reals (spec().paper_obs): own position / area, mean displacement to
+  /// the users / area, displacement to the destination / area, one-hot previous action.
   void write_observation(int n, float* out) const;
-  /// state() written into out[0..state_size()-1].
+  std::vector<float> observation(int n) const;
+  static int observation_size() { return paper_observation_spec().size; }
+  /// s[t] (spec().state) under env.state = "paper": all UAV positions, all user positions, all
+  /// destinations, each / area (4N + 2K reals). Under "compact" (any N and K, 3 G^2 + 2 reals,
+  /// G = kStateGrid): the share of users, of UAVs and of not-yet-arrived UAVs' destinations in
+  /// each cell of a G x G grid over the area, then t / T_max and the share of UAVs arrived.
   void write_state(float* out) const;
-  /// s[t] under env.state = "paper": all UAV positions, all user positions, all destinations,
-  /// each / area (4N + 2K reals). Under "compact" (any N and K, 3 G^2 + 2 reals, G = 8): the
-  /// share of users, of UAVs and of not-yet-arrived UAVs' destinations in each cell of a G x G
-  /// grid over the area, then t / T_max and the share of UAVs arrived.
   std::vector<float> state() const;
-  int state_size() const;
-  static constexpr int kStateGrid = 8;
-  /// Who agent n is, for networks shared by all agents: paper: one-hot id (N reals); compact:
-  /// displacements / area to its kNeighbours nearest other UAVs, nearest first (zeros past N - 1).
-  int agent_context_size() const { return compact_ ? 2 * kNeighbours : n_; }
+  int state_size() const { return spec_->state.size; }
+  /// Who agent n is (spec().agent_context), for networks shared by all agents: paper: one-hot id
+  /// (N reals); compact: displacements / area to its kNeighbours nearest other UAVs, nearest
+  /// first (zeros past N - 1).
   void write_agent_context(int n, float* out) const;
-  static constexpr int kNeighbours = 4;
-  /// Agent-specific global state: s[t], agent n's context, o_n[t].
+  int agent_context_size() const { return spec_->agent_context.size; }
+  /// Agent-specific global state (spec().agent_state): s[t], agent n's context, o_n[t].
+  void write_agent_state(int n, float* out) const;
   std::vector<float> agent_state(int n) const;
-  int agent_state_size() const { return state_size() + agent_context_size() + observation_size(); }
+  int agent_state_size() const { return spec_->agent_state.size; }
 
   // ---- set observation (marl.encoder = "set"; beyond the paper) ----------------------------
   /// A permutation-invariant encoding of the users and the other UAVs around agent n, sized
   /// independently of K and N (a kernel mean embedding: DeepSets with fixed Gaussian features,
-  /// pooled by mean over the users and by sum over the UAVs):
+  /// pooled by mean over the users and by sum over the UAVs), spec().set_obs:
   ///  - own (11): position / area, displacement to its destination / area, slack (moves left
   ///    minus moves needed) / T_max, t / T_max, one-hot previous action;
   ///  - users (kWideGrid^2): at each point c of a kWideGrid x kWideGrid grid centred on the UAV
@@ -126,12 +125,11 @@ class UavEnv {
   ///  - UAVs, wide (kWideGrid^2): the same sum over the other UAVs (not divided by anything);
   ///  - UAVs, near (kNearGrid^2): spacing D_fly, width D_fly / 2: who is one move away.
   /// Reordering the users or the other UAVs leaves it unchanged (tests/unit/env_test.cpp).
-  static constexpr int kWideGrid = 7, kNearGrid = 5;
-  static constexpr int set_observation_size() { return 11 + 2 * kWideGrid * kWideGrid + kNearGrid * kNearGrid; }
   void write_set_observation(int n, float* out) const;
+  int set_observation_size() const { return spec_->set_obs.size; }
   int users() const;
-  /// The compact state (3 G^2 + 2 reals, whatever env.state says).
-  static constexpr int compact_state_size() { return 3 * kStateGrid * kStateGrid + 2; }
+  /// The compact state (spec().compact_state, whatever env.state says).
+  static int compact_state_size() { return compact_state_spec().size; }
   void write_compact_state(float* out) const;
 
   // ---- episode record -----------------------------------------------------------------------
@@ -156,6 +154,8 @@ class UavEnv {
   double w_rate_, w_arr_, w_bud_, w_col_, w_fea_;
   bool compact_ = false;  // env.state = "compact"
   bool objective_reward_ = false;  // env.reward = "objective"
+  SpecParams spec_params_;  // what spec_ is made from (N, K, area, horizon, env.state, marl.encoder)
+  std::shared_ptr<const EnvSpec> spec_;
   Positions start_, dest_, pos_;
   std::shared_ptr<RateOracle> oracle_;
   std::vector<bool> arrived_;

@@ -1,0 +1,121 @@
+#pragma once
+// The environment's spec: every array the trajectory environment exposes, named field by field
+// with its offset, size and bounds (in the spirit of EnvPool's StateSpec / ActionSpec). This is the
+// one place a layout is written: UavEnv's writers fill exactly these rows, and VecEnv, the
+// learners, the Python module and its adapters read sizes, fields and bounds from here.
+//
+// Arrays (one row each; "per agent" arrays have one row per UAV):
+//   obs          per agent  float32  the agents' observation: the paper's 11 reals (marl.encoder =
+//                                    "mlp") or the set observation (marl.encoder = "set")
+//   state        per env    float32  the global state: paper (4N + 2K reals) or compact (3 G^2 + 2)
+//   agent_context per agent float32  who agent n is: paper: one-hot id (N); compact: displacements
+//                                    to its kNeighbours nearest UAVs
+//   agent_state  per agent  float32  state, agent_context, then the paper observation (11)
+//   action_mask  per agent  int8     1 = allowed, one entry per action
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace skyloop {
+
+struct Config;
+
+enum class ObservationKind { Paper, Set };  // marl.encoder: mlp | set
+enum class StateKind { Paper, Compact };    // env.state: paper | compact
+
+/// One named field of a row: `size` consecutive values from `offset`, each in [low, high].
+struct SpecField {
+  std::string name;
+  int offset = 0;
+  int size = 1;
+  float low = 0, high = 0;
+};
+
+/// One array: its rows' fields, in order, without gaps.
+struct ArraySpec {
+  std::string name;     // obs | state | agent_context | agent_state | action_mask
+  std::string kind;     // paper | set | compact | id | neighbours | mask
+  std::string dtype;    // float32 | int8
+  bool per_agent = true;
+  std::vector<SpecField> fields;
+  int size = 0;         // values in one row (sum of the fields' sizes)
+
+  /// Appends a field at the current end of the row.
+  ArraySpec& add(const std::string& field, int count, float low, float high);
+  /// Appends every field of `other`, each name prefixed with "<prefix>.".
+  ArraySpec& append(const ArraySpec& other, const std::string& prefix);
+  /// The field named so; throws InputError naming the fields there are.
+  const SpecField& field(const std::string& field) const;
+  /// Lowest / highest bound of any field.
+  float low() const;
+  float high() const;
+};
+
+/// The paper's grid moves (the compile-time count the C++ planners and learners size arrays with;
+/// everything else reads grid_actions()).
+enum Action : int { kUp = 0, kDown = 1, kLeft = 2, kRight = 3, kStay = 4 };
+constexpr int kActions = 5;
+/// "UP", "DOWN", "LEFT", "RIGHT", "STAY"; "?" outside 0..kActions-1.
+const char* action_name(int a);
+
+/// The discrete action space: `names.size()` actions, index = action.
+struct ActionSpec {
+  std::vector<std::string> names;
+  int count() const { return static_cast<int>(names.size()); }
+};
+
+
+struct EnvSpec {
+  int agents = 0, users = 0;
+  ObservationKind observation_kind = ObservationKind::Paper;
+  StateKind state_kind = StateKind::Paper;
+  ActionSpec action;
+  ArraySpec obs, state, agent_context, agent_state, action_mask;
+  /// The paper's observation (always the tail of agent_state) and the set observation: both
+  /// layouts, whichever `obs` is.
+  ArraySpec paper_obs, set_obs, compact_state;
+};
+
+// Layout constants the writers and the spec share.
+constexpr int kStateGrid = 8;   // compact state: G x G cells over the area
+constexpr int kNeighbours = 4;  // compact agent context: nearest other UAVs
+constexpr int kWideGrid = 7;    // set observation: users and UAVs, spacing 2 D_fly
+constexpr int kNearGrid = 5;    // set observation: UAVs one move away, spacing D_fly
+
+/// The action space of the paper's grid mobility: UP, DOWN, LEFT, RIGHT, STAY.
+const ActionSpec& grid_actions();
+/// The paper's 11-real observation layout (bounds for any scenario).
+const ArraySpec& paper_observation_spec();
+/// What an environment's spec depends on.
+struct SpecParams {
+  int agents = 0, users = 0;
+  double area_x = 0, area_y = 0, d_fly = 0;
+  int t_max = 0;
+  StateKind state = StateKind::Paper;
+  ObservationKind observation = ObservationKind::Paper;
+  bool operator==(const SpecParams& o) const {
+    return agents == o.agents && users == o.users && area_x == o.area_x && area_y == o.area_y && d_fly == o.d_fly &&
+           t_max == o.t_max && state == o.state && observation == o.observation;
+  }
+};
+SpecParams spec_params(const Config& cfg, int agents, int users);
+
+/// The set observation (sizes independent of K and N); bounds from the scenario.
+ArraySpec set_observation_spec(const SpecParams& p);
+/// The compact state (3 G^2 + 2 reals).
+const ArraySpec& compact_state_spec();
+
+/// Every array of an environment with `agents` UAVs and `users` users under `cfg` (env.state,
+/// marl.encoder, the area and horizon).
+EnvSpec make_env_spec(const SpecParams& p);
+EnvSpec make_env_spec(const Config& cfg, int agents, int users);
+/// make_env_spec(p), built once per distinct p in this process and shared (environments of one
+/// VecEnv hold one spec between them).
+std::shared_ptr<const EnvSpec> shared_env_spec(const SpecParams& p);
+
+ObservationKind parse_observation_kind(const std::string& encoder);  // marl.encoder
+StateKind parse_state_kind(const std::string& state);                // env.state
+std::string to_string(ObservationKind k);
+std::string to_string(StateKind k);
+
+}  // namespace skyloop

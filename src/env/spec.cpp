@@ -1,0 +1,171 @@
+#include "skyloop/env/spec.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <mutex>
+
+#include "skyloop/core/config.hpp"
+#include "skyloop/core/error.hpp"
+
+namespace skyloop {
+
+ArraySpec& ArraySpec::add(const std::string& field, int count, float lo, float hi) {
+  fields.push_back({field, size, count, lo, hi});
+  size += count;
+  return *this;
+}
+
+ArraySpec& ArraySpec::append(const ArraySpec& other, const std::string& prefix) {
+  for (const auto& f : other.fields) add(prefix + "." + f.name, f.size, f.low, f.high);
+  return *this;
+}
+
+const SpecField& ArraySpec::field(const std::string& wanted) const {
+  for (const auto& f : fields)
+    if (f.name == wanted) return f;
+  std::string names;
+  for (const auto& f : fields) names += (names.empty() ? "" : ", ") + f.name;
+  throw InputError(name + " has no field '" + wanted + "': allowed " + names);
+}
+
+float ArraySpec::low() const {
+  float v = fields.empty() ? 0.0f : fields.front().low;
+  for (const auto& f : fields) v = std::min(v, f.low);
+  return v;
+}
+
+float ArraySpec::high() const {
+  float v = fields.empty() ? 0.0f : fields.front().high;
+  for (const auto& f : fields) v = std::max(v, f.high);
+  return v;
+}
+
+namespace {
+constexpr const char* kActionNames[kActions] = {"UP", "DOWN", "LEFT", "RIGHT", "STAY"};
+}  // namespace
+
+const char* action_name(int a) { return a >= 0 && a < kActions ? kActionNames[a] : "?"; }
+
+const ActionSpec& grid_actions() {
+  static const ActionSpec spec{std::vector<std::string>(kActionNames, kActionNames + kActions)};
+  return spec;
+}
+
+namespace {
+ArraySpec named(const std::string& name, const std::string& kind, const std::string& dtype, bool per_agent) {
+  ArraySpec s;
+  s.name = name, s.kind = kind, s.dtype = dtype, s.per_agent = per_agent;
+  return s;
+}
+}  // namespace
+
+const ArraySpec& paper_observation_spec() {
+  static const ArraySpec spec = [] {
+    ArraySpec s = named("obs", "paper", "float32", true);
+    s.add("own_position", 2, 0, 1)                 // (x, y) / area side
+        .add("users_mean_displacement", 2, -1, 1)   // mean over the users of (u - x) / area side
+        .add("destination_displacement", 2, -1, 1)  // (destination - x) / area side
+        .add("previous_action", grid_actions().count(), 0, 1);  // one-hot
+    return s;
+  }();
+  return spec;
+}
+
+SpecParams spec_params(const Config& cfg, int agents, int users) {
+  SpecParams p;
+  p.agents = agents, p.users = users;
+  p.area_x = cfg.scenario.area_x_m, p.area_y = cfg.scenario.area_y_m, p.d_fly = cfg.trajectory.d_fly_m;
+  p.t_max = cfg.trajectory.t_max;
+  p.state = parse_state_kind(cfg.env.state);
+  p.observation = parse_observation_kind(cfg.marl.encoder);
+  return p;
+}
+
+ArraySpec set_observation_spec(const SpecParams& p) {
+  const double moves = std::ceil(p.area_x / p.d_fly) + std::ceil(p.area_y / p.d_fly);
+  const float others = static_cast<float>(std::max(0, p.agents - 1));
+  ArraySpec s = named("obs", "set", "float32", true);
+  s.add("own_position", 2, 0, 1)
+      .add("destination_displacement", 2, -1, 1)
+      .add("slack", 1, static_cast<float>(-moves / p.t_max), 1)  // (moves left - moves needed) / T_max
+      .add("time", 1, 0, 1)                                                    // t / T_max
+      .add("previous_action", grid_actions().count(), 0, 1)
+      .add("users_density", kWideGrid * kWideGrid, 0, 4)  // (4 / K) sum_k of Gaussian kernels
+      .add("uavs_wide", kWideGrid * kWideGrid, 0, others)
+      .add("uavs_near", kNearGrid * kNearGrid, 0, others);
+  return s;
+}
+
+const ArraySpec& compact_state_spec() {
+  static const ArraySpec spec = [] {
+    constexpr int G2 = kStateGrid * kStateGrid;
+    ArraySpec s = named("state", "compact", "float32", false);
+    s.add("user_density", G2, 0, 1)           // share of the users in each cell
+        .add("uav_density", G2, 0, 1)         // share of the UAVs
+        .add("destination_density", G2, 0, 1)  // share of the not-yet-arrived UAVs' destinations
+        .add("time", 1, 0, 1)                  // t / T_max
+        .add("arrived_share", 1, 0, 1);
+    return s;
+  }();
+  return spec;
+}
+
+EnvSpec make_env_spec(const Config& cfg, int agents, int users) { return make_env_spec(spec_params(cfg, agents, users)); }
+
+std::shared_ptr<const EnvSpec> shared_env_spec(const SpecParams& p) {
+  static std::mutex mutex;
+  static std::vector<std::pair<SpecParams, std::shared_ptr<const EnvSpec>>> made;
+  std::lock_guard<std::mutex> lock(mutex);
+  for (const auto& [q, spec] : made)
+    if (q == p) return spec;
+  if (made.size() >= 64) made.erase(made.begin());  // a sweep over many scenarios: keep the newest
+  made.emplace_back(p, std::make_shared<const EnvSpec>(make_env_spec(p)));
+  return made.back().second;
+}
+
+EnvSpec make_env_spec(const SpecParams& p) {
+  const int agents = p.agents, users = p.users;
+  EnvSpec e;
+  e.agents = agents, e.users = users;
+  e.observation_kind = p.observation;
+  e.state_kind = p.state;
+  e.action = grid_actions();
+  e.paper_obs = paper_observation_spec();
+  e.set_obs = set_observation_spec(p);
+  e.compact_state = compact_state_spec();
+  e.obs = e.observation_kind == ObservationKind::Set ? e.set_obs : e.paper_obs;
+
+  if (e.state_kind == StateKind::Compact) {
+    e.state = e.compact_state;
+    e.agent_context = named("agent_context", "neighbours", "float32", true);
+    e.agent_context.add("neighbour_displacements", 2 * kNeighbours, -1, 1);  // nearest first, zeros past N - 1
+  } else {
+    e.state = named("state", "paper", "float32", false);
+    e.state.add("uav_positions", 2 * agents, 0, 1).add("user_positions", 2 * users, 0, 1).add("destinations", 2 * agents, 0, 1);
+    e.agent_context = named("agent_context", "id", "float32", true);
+    e.agent_context.add("agent_id", agents, 0, 1);  // one-hot
+  }
+  e.agent_state = named("agent_state", e.state.kind, "float32", true);
+  e.agent_state.append(e.state, "state").append(e.agent_context, "context").append(e.paper_obs, "obs");
+
+  e.action_mask = named("action_mask", "mask", "int8", true);
+  for (const auto& a : e.action.names) e.action_mask.add(a, 1, 0, 1);
+  return e;
+}
+
+ObservationKind parse_observation_kind(const std::string& encoder) {
+  if (encoder == "mlp") return ObservationKind::Paper;
+  if (encoder == "set") return ObservationKind::Set;
+  throw InputError("marl.encoder = \"" + encoder + "\" is not allowed: allowed one of: mlp, set");
+}
+
+StateKind parse_state_kind(const std::string& state) {
+  if (state == "paper") return StateKind::Paper;
+  if (state == "compact") return StateKind::Compact;
+  throw InputError("env.state = \"" + state + "\" is not allowed: allowed one of: paper, compact");
+}
+
+std::string to_string(ObservationKind k) { return k == ObservationKind::Set ? "set" : "paper"; }
+std::string to_string(StateKind k) { return k == StateKind::Compact ? "compact" : "paper"; }
+
+}  // namespace skyloop

@@ -41,7 +41,7 @@ def layer(i, o, std=np.sqrt(2)):
 
 
 class Agent(nn.Module):
-    def __init__(self, obs_dim, state_dim, actions=5, hidden=64):
+    def __init__(self, obs_dim, state_dim, actions=len(sl.ACTIONS), hidden=64):
         super().__init__()
         self.actor = nn.Sequential(layer(obs_dim, hidden), nn.Tanh(), layer(hidden, hidden), nn.Tanh(),
                                    layer(hidden, actions, 0.01))
@@ -57,7 +57,7 @@ class Agent(nn.Module):
 
 
 def with_id(obs):
-    """[M, N, 11] -> [M, N, 11 + N]: each agent's observation and its one-hot id (parameter sharing)."""
+    """[M, N, obs] -> [M, N, obs + N]: each agent's observation and its one-hot id (parameter sharing)."""
     M, N, _ = obs.shape
     return np.concatenate([obs, np.broadcast_to(np.eye(N, dtype=np.float32), (M, N, N))], axis=-1)
 
@@ -95,13 +95,14 @@ def train(config=None, steps=200_000, num_envs=16, num_steps=32, seed=1, lr=3e-4
     env = sl.VecEnv(cfg, num_envs, seed)
     M, N = env.num_envs, env.num_agents
     obs_dim, state_dim = env.obs_size + N, env.agent_state_size
-    agent = Agent(obs_dim, state_dim)
+    agent = Agent(obs_dim, state_dim, env.num_actions)
     opt = torch.optim.Adam(agent.parameters(), lr=lr, eps=1e-5)
 
     # Rollout storage [T, M, N, ...].
     b_obs = torch.zeros(num_steps, M, N, obs_dim)
     b_state = torch.zeros(num_steps, M, N, state_dim)
-    b_mask = torch.zeros(num_steps, M, N, 5, dtype=torch.int8)
+    b_mask = torch.zeros(num_steps, M, N, env.num_actions, dtype=torch.int8)
+    stay = sl.ACTIONS.index("STAY")
     b_act = torch.zeros(num_steps, M, N, dtype=torch.long)
     b_logp = torch.zeros(num_steps, M, N)
     b_val = torch.zeros(num_steps, M, N)
@@ -117,7 +118,7 @@ def train(config=None, steps=200_000, num_envs=16, num_steps=32, seed=1, lr=3e-4
     for it in range(iterations):
         for t in range(num_steps):
             b_obs[t], b_state[t], b_mask[t] = obs, state, mask
-            b_active[t] = (mask[..., :4].sum(-1) > 0).float()
+            b_active[t] = ((mask.sum(-1) - mask[..., stay]) > 0).float()  # a move other than STAY allowed
             with torch.no_grad():
                 d = agent.dist(obs, mask)
                 a = d.sample()

@@ -101,7 +101,7 @@ def _guard_class(cls):
     """Wraps the constructor and methods of a module class so that wrong argument types raise
     InputError (one line) rather than pybind11's TypeError listing."""
     for attr in list(vars(cls)):
-        if attr.startswith("__") and attr != "__init__":
+        if attr.startswith("__") and attr not in ("__init__", "__getitem__"):
             continue
         member = getattr(cls, attr)
         if callable(member) and not isinstance(member, type) and not isinstance(vars(cls)[attr], (property, staticmethod)):
@@ -116,6 +116,19 @@ for _name in ("sum_rate", "sinr", "rates", "network_sum_rate", "user_powers", "p
     if hasattr(_skyloop, _name):
         setattr(_skyloop, _name, _guard(getattr(_skyloop, _name), _name))
 derive_seed = _skyloop.derive_seed
+_cluster_init = _skyloop.Cluster.__init__
+
+
+def _checked_cluster_init(self, G, *args, **kwargs):
+    import numpy as np
+    if hasattr(G, "detach"):
+        G = G.detach().cpu().numpy()
+    if not isinstance(G, str) and np.ndim(G) != 2:
+        raise InputError(f"G has {np.ndim(G)} dimensions: allowed a complex [K_n, L] array (row k = h_k^H)")
+    _cluster_init(self, G, *args, **kwargs)
+
+
+_skyloop.Cluster.__init__ = _checked_cluster_init
 
 
 def _as_w(W):

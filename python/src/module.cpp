@@ -694,6 +694,11 @@ PYBIND11_MODULE(_skyloop, m) {
   m.def("plan", &plan, py::arg("config"), py::arg("planner"), py::arg("users_seed") = 3, py::arg("users") = py::none(),
         py::arg("planner_seed") = py::none());
   m.attr("ACTIONS") = py::tuple(py::cast(grid_actions().names));
+#ifdef SKYLOOP_HAS_TORCH
+  m.attr("HAS_TORCH") = true;
+#else
+  m.attr("HAS_TORCH") = false;
+#endif
   m.def("env_spec", [](const Config& cfg, int users) {
           if (users < 1) throw InputError("users = " + std::to_string(users) + " is out of range: allowed at least 1");
           return env_spec_dict(make_env_spec(cfg, static_cast<int>(cfg.trajectory.starts.size()), users));

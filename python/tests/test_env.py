@@ -130,6 +130,7 @@ def test_planners_from_python_equal_the_cli(skyloop_bin, tmp_path):
         sl.plan(cfg, "nosuch")
 
 
+@pytest.mark.skipif(not sl._skyloop.HAS_TORCH, reason="trained policies need a LibTorch build")
 def test_trained_policy_from_python(skyloop_bin, tmp_path):
     from conftest import run_cli
     out = tmp_path / "pol"

@@ -21,7 +21,8 @@ def test_ppo_example_learns_to_bring_every_uav_home():
     import torch
     cfg = sl.config(overrides=ppo.SMALL)
     torch.manual_seed(0)
-    before = ppo.evaluate(ppo.Agent(13, sl.VecEnv(cfg, 1, 0).agent_state_size), cfg, seed=2000)
+    env = sl.VecEnv(cfg, 1, 0)
+    before = ppo.evaluate(ppo.Agent(env.obs_size + env.num_agents, env.agent_state_size, env.num_actions), cfg, seed=2000)
     assert not before[0]["success"], "the untrained policy already arrives: the test proves nothing"
     for seed in (1, 2):
         agent, cfg, history = ppo.train(ppo.SMALL, steps=200_000, num_envs=16, seed=seed)

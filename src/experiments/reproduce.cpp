@@ -12,6 +12,7 @@
 #include "skyloop/experiments/reproduce.hpp"
 
 #include <algorithm>
+#include <ctime>
 #include <fmt/format.h>
 #include <fstream>
 #include <mutex>
@@ -149,6 +150,7 @@ class Runner {
   void run_phase(int phase, const std::vector<const ExperimentSpec*>& specs) {
     std::vector<Piece> pieces = plan(specs);
     const bool scale_out = t_ || shard_;
+    if (rank_ == 0) announce(phase, pieces, scale_out ? std::max(1, ranks_) : std::max(1, jobs_));
     if (!scale_out) {
       // One process: the assembly computes each piece in turn; MARL runs go first, --jobs at a time.
       if (phase == 1 && jobs_ > 1) prefetch_marl(pieces);
@@ -219,6 +221,23 @@ class Runner {
     ctx_.log.rdbuf(shown);
     if (rank_ != 0) return;
     record_farm(phase, tasks, records, since(t0));
+  }
+
+  /// One line before a phase's work: how many pieces are left, their estimated core-seconds
+  /// (`--plan`'s estimates) and the wall time and clock time that gives on `workers` cores.
+  void announce(int phase, const std::vector<Piece>& pieces, int workers) {
+    double work = 0;
+    std::size_t left = 0;
+    for (const auto& p : pieces)
+      if (!p.done()) work += p.cost, ++left;
+    if (left == 0) return;
+    const double wall = work / workers;
+    const std::time_t eta = std::time(nullptr) + static_cast<std::time_t>(wall);
+    char at[16];
+    std::strftime(at, sizeof at, "%H:%M", std::localtime(&eta));
+    log_ << fmt::format("phase {}: {} of {} pieces to compute, estimated {:.0f} core-s: about {:.1f} min on {} workers, ETA {}\n",
+                        phase, left, pieces.size(), work, wall / 60.0, workers, at)
+         << std::flush;
   }
 
   /// --plan: every piece with its estimate, done or not; phase 1 needs the models to exist.
@@ -330,6 +349,7 @@ class Runner {
               rc = run_process(argv, (dir / "train.log").string());
               sec = since(tr);
               if (rc == 0) {
+                ctx_.record_timing(need[i]->id, "marl-train", need[i]->cost, sec);
                 nlohmann::json j = {{"seconds", sec},
                                     {"steps_per_second", static_cast<double>(cfg.marl.total_steps) / sec},
                                     {"env_steps", cfg.marl.total_steps},

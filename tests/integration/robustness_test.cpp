@@ -268,7 +268,19 @@ TEST(Probe, MalformedInputsGiveOneLineAndExitTwo) {
       {"reproduce --profile tiny --jobs -3 --out " + D + "/rep", "--jobs = -3"},
       {"beamform eval --samples 1 --methods gnn=", "empty argument"},
       {"beamform eval --samples 1 --methods mrt,mrt", "'mrt' twice"},
-      {"plan --planner ''", "--planner '' has an empty item"},
+      {"plan --planner ''", "--planner: an empty value is not allowed"},
+      {"plan --planner ,", "--planner ',' has an empty item"},
+      // found by probing: each used to run, hang or report nonsense
+      {"train --seed '' --out " + D + "/empty_seed", "--seed: an empty value is not allowed"},
+      {"config show --set trajectory.destinations=[[20,20],[180,20],[20,100]]", "equals trajectory.starts[0]"},
+      {"plan --planner random --set trajectory.destinations=[[185,100],[180,20],[20,100]]", "is not on the D_fly grid"},
+      {"config show --set env.users_max=100000", "env.users_max = 100000 is out of range"},
+      {"plan --planner optimal --set trajectory.t_max=500", "trajectory.t_max <= 75"},
+      {"config show --set 'channel.p_max_dbm=50 # x'", "'#' starts a comment"},
+      {"eval --policy " + tiny_policy().string() + " --layouts 0", "--layouts = '0' is invalid"},
+      {"eval --policy " + tiny_policy().string() + " --layouts 1 --first -1", "--first = '-1' is invalid"},
+      {"eval --policy " + tiny_policy().string() + " --layouts 1 --cache /dev/null", "--cache '/dev/null' exists and is not a directory"},
+      {"eval --policy " + tiny_policy().string() + " --layouts 1 --planner random,random", "'random' twice"},
       {"frobnicate", "unknown command 'frobnicate': allowed beamform"},
       {"beamform frobnicate", "unknown command 'frobnicate' for 'beamform': allowed"},
       // outputs that are not regular files
@@ -309,7 +321,7 @@ TEST(Probe, ConfigShowAlwaysReloads) {
       else if (ch == '\x01') escaped += "\\u0001";
       else escaped += ch;
     }
-    spit(d / "in.toml", "[env]\nusers_file = \"" + escaped + "\"\n");
+    spit(d / "in.toml", "[env]\noracle = \"" + escaped + "\"\n");  // a free-text field nothing reads at load
     const auto a = run("config show --config " + (d / "in.toml").string());
     ASSERT_EQ(a.code, 0) << a.err;
     spit(d / "shown.toml", a.out);

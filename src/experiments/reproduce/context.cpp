@@ -1,6 +1,9 @@
 #include "context.hpp"
 
+#include <chrono>
 #include <cmath>
+#include <fstream>
+#include <mutex>
 #include <fmt/format.h>
 
 #include "skyloop/core/config_io.hpp"
@@ -90,18 +93,30 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
   run_planners(cfg, p, builtin_beamformers(), &quiet, &seconds);
 }
 
-/// Rough seconds on one core (the farm's order and the projections depend on it, never a result):
-/// MAPPO about 13,000 environment steps/s at N = 3 and 1,400 at N = 16 (BENCHMARKS.md); the value
-/// decomposition learners train about 2.7x faster, IPPO about as fast.
+// Rough seconds on one core (the farm's order, --plan, the ETA; never a result), calibrated from
+// the timings.csv of a quick-profile run on the 2-core machine (2026-11-23; BENCHMARKS.md,
+// "Reproduce: estimates"): MAPPO / IPPO 1.3e-4 s per environment step at N = 3 (the GNN oracle),
+// VDN / QMIX 0.45e-4; the set encoder with validation layouts adds 1.9e-4 and the shared spectrum's
+// interference-aware oracle 1.7e-4; the per-step cost grows as N^1.3 (measured at N = 16).
 double marl_cost(const Config& cfg) {
-  const double per_step = cfg.marl.algo == "vdn" || cfg.marl.algo == "qmix" ? 0.37 : 1.0;
-  return per_step * static_cast<double>(cfg.marl.total_steps) / 13000.0 * std::pow(cfg.scenario.uavs / 3.0, 1.3);
+  const double base = cfg.marl.algo == "vdn" || cfg.marl.algo == "qmix" ? 0.45e-4 : 1.3e-4;
+  const double per_step = base + (cfg.marl.encoder == "set" ? 1.9e-4 : 0.0) + (cfg.channel.spectrum == "shared" ? 1.7e-4 : 0.0);
+  return per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
+}
+/// The exact optimum of one layout: about 0.35 s per user on the paper's grid (1.77e6 joint states),
+/// in proportion to the joint states; one shared-spectrum network per state costs about 90x more
+/// (7.5 minutes measured for the paper scenario).
+double dp_cost(const Config& cfg, int users) {
+  const double cells = (std::floor(cfg.scenario.area_x_m / cfg.trajectory.d_fly_m) + 1) *
+                       (std::floor(cfg.scenario.area_y_m / cfg.trajectory.d_fly_m) + 1);
+  const double states = std::pow(cells, static_cast<double>(cfg.trajectory.starts.size())) / std::pow(121.0, 3);
+  return 0.35 * users * states * (cfg.channel.spectrum == "shared" ? 90.0 : 1.0) + 0.3;
 }
 double planner_cost(const Config& cfg, const std::string& p) {
   const double shared = cfg.channel.spectrum == "shared" ? 3.0 : 1.0;
-  if (p == "optimal") return 150.0 * shared;
-  if (p == "greedy") return 5.0 * shared;
-  return 1.0;
+  if (p == "optimal") return dp_cost(cfg, cfg.scenario.users);
+  if (p == "greedy") return 0.1 * shared;
+  return 0.05;
 }
 
 std::string id_of(const fs::path& p, const fs::path& root) { return p.lexically_relative(root).generic_string(); }
@@ -172,11 +187,10 @@ Piece StageContext::layouts_piece(const Config& cfg, const fs::path& dir, const 
   p.id = id_of(dir, out);
   p.kind = "eval";
   p.label = fmt::format("{} layouts K={}{}", o.layouts, cfg.scenario.users, policy_run.empty() ? "" : " policy");
-  // The optima are the cost unless a dependency solved them: about 10 core-seconds per layout for
-  // the paper scenario under the GNN oracle (measured: 100 layouts, greedy and random included, in
-  // 502 s on 2 cores); planner_cost's 150 s is the worst case of one trajectory figure.
-  const double dp = 10.0 * (cfg.channel.spectrum == "shared" ? 3.0 : 1.0);
-  p.cost = 0.05 * o.layouts + (deps.empty() ? dp * o.layouts : 0.0);
+  // The optima are the cost unless a dependency solved them (dp_cost per layout; K of a sampled
+  // layout taken at the middle of its range), plus about 0.05 s per layout for the planners.
+  const int k = cfg.env.users_min && cfg.env.users_max ? (cfg.env.users_min + cfg.env.users_max) / 2 : cfg.scenario.users;
+  p.cost = 0.05 * o.layouts + (deps.empty() ? dp_cost(cfg, k) * o.layouts : 0.0);
   if (!policy_run.empty()) deps.push_back(id_of(policy_run, out));
   p.deps = std::move(deps);
   p.done = [dir] { return fs::exists(dir / "summary.csv"); };
@@ -204,7 +218,35 @@ StageContext::RunInfo StageContext::run_info(const Config& cfg) const {
   return info;
 }
 
-bool StageContext::ensure(const Piece& p) const { return cache.ensure(p.id, p.done, p.run, &log); }
+bool StageContext::ensure(const Piece& p) const {
+  // The piece's own time (what it computed, less the pieces it ensured first) goes to
+  // timings.csv beside its estimate: what calibrates the estimates of `reproduce --plan`.
+  thread_local double nested = 0;
+  const double outer = nested;
+  nested = 0;
+  const auto t0 = std::chrono::steady_clock::now();
+  bool ran = false;
+  try {
+    ran = cache.ensure(p.id, p.done, p.run, &log);
+  } catch (...) {
+    nested = outer;
+    throw;
+  }
+  const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (ran) record_timing(p.id, p.kind, p.cost, total - nested);
+  nested = outer + total;
+  return ran;
+}
+
+void StageContext::record_timing(const std::string& id, const std::string& kind, double estimate, double seconds) const {
+  static std::mutex mutex;
+  std::lock_guard<std::mutex> lock(mutex);
+  const fs::path file = out / "timings.csv";
+  const bool fresh = !fs::exists(file);
+  std::ofstream f(file, std::ios::app);
+  if (fresh) f << "piece,kind,cost_estimate,seconds\n";
+  f << fmt::format("{},{},{:.3f},{:.3f}\n", id, kind, estimate, seconds);
+}
 
 void AssemblyProgress::done(const std::string& what, bool computed) {
   ++done_;

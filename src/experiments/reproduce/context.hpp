@@ -106,6 +106,8 @@ class StageContext {
 
   /// Runs a piece now (if it is not done) and says whether it computed anything.
   bool ensure(const Piece& p) const;
+  /// Appends (piece, kind, estimate, seconds) to OUT/timings.csv (one process's pieces).
+  void record_timing(const std::string& id, const std::string& kind, double estimate, double seconds) const;
 
   /// Writes a file of the assembled results (on the rank that assembles).
   void write(const fs::path& relative, const std::string& text) const;

@@ -22,11 +22,12 @@ constexpr std::size_t kChunk = 10;  // snapshots per piece: fine enough that the
 /// Rough seconds of one snapshot on one core for `method` (the farm's order and the projections
 /// depend on it, never a result). Calibrated on this project's measurements: a decision costs
 /// about linearly in the users served (BENCHMARKS.md, "Scale and fast inference"); the GA about
-/// 0.85 s per paper snapshot at 2000 x 100.
+/// 1.2 s per paper snapshot at 2000 x 100 and the coordinated methods 2.5e-4 s per user (both
+/// measured from a quick-profile run's timings.csv, 2026-11-23).
 double method_cost(const Config& cfg, const std::string& method) {
   const double users = cfg.scenario.users;
-  if (method == "ga") return 0.85 * users / 12.0 * (cfg.ga.generations * cfg.ga.population) / 200000.0;
-  if (method.rfind("nwmmse", 0) == 0 || method.rfind("crzf", 0) == 0 || method.rfind("czf", 0) == 0) return 1e-4 * users;
+  if (method == "ga") return 1.2 * users / 12.0 * (cfg.ga.generations * cfg.ga.population) / 200000.0;
+  if (method.rfind("nwmmse", 0) == 0 || method.rfind("crzf", 0) == 0 || method.rfind("czf", 0) == 0) return 2.5e-4 * users;
   if (method.rfind("wmmse", 0) == 0) return 2.5e-6 * users;
   return 1.5e-6 * users;
 }

@@ -106,6 +106,7 @@ void add_marl_commands(CLI::App& app, Action& action) {
       for (const auto& s : over.sets) apply_override(cfg, s);
       for (const auto& s : extra) apply_override(cfg, s);
       finalise(cfg);
+      finalise_users_file(cfg);
       if (many) {
         LayoutEvalOptions opt;
         opt.layouts = layouts;

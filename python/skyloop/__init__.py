@@ -4,8 +4,9 @@ environment, the planners, and the adapters the field's learners expect.
 Shapes (numpy):
   G  complex128 [K_n, L]   a cluster's channel, row k = h_k^H (so (G W)[k, j] = h_k^H w_j)
   W  complex128 [L, K_n]   a beamformer, column k = w_k
-  VecEnv: obs float32 [M, N, 11], state float32 [M, 4N + 2K], agent_state float32 [M, N, S + N + 11],
-          action_mask int8 [M, N, 5] (an arrived UAV: [0, 0, 0, 0, 1]), reward float32 [M]
+  VecEnv: obs float32 [M, N, O], state float32 [M, S], agent_state float32 [M, N, A], action_mask
+          int8 [M, N, len(ACTIONS)] (an arrived UAV may only STAY), reward float32 [M]; the sizes,
+          field names, offsets and bounds are the environment's spec (VecEnv.spec)
 
 Errors in input (a config key, a value out of range, a bad action) raise ``skyloop.InputError``
 (a ValueError) carrying the same one-line message as the CLI.

@@ -149,7 +149,7 @@ except ImportError:
 
 class ParallelEnv(_ParallelBase):
     """PettingZoo Parallel API over one skyloop environment. Arrived UAVs stay in ``agents`` (they
-    keep serving users) with action mask [0, 0, 0, 0, 1] until the episode ends; then ``agents``
+    keep serving users) with a STAY-only action mask until the episode ends; then ``agents``
     is empty until ``reset``. Rewards are the team reward, given to every agent."""
 
     metadata = {"name": "skyloop_uav_v0", "render_modes": [], "is_parallelizable": True}

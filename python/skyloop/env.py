@@ -15,7 +15,7 @@ observation (zeros elsewhere). ``info`` also carries the finished episode's ``ob
 average sum rate), ``T``, ``home``, ``success`` and ``episode_reward``.
 
 Arrived UAVs stay in the agent list: they keep serving users, their action mask is
-[0, 0, 0, 0, 1] and any action given for them is executed as STAY.
+STAY only and any action given for them is executed as STAY.
 """
 from __future__ import annotations
 

@@ -130,3 +130,14 @@ def test_cli_out_with_a_trailing_slash_on_a_file(skyloop_bin, tmp_path):
     r = run_cli("plan", "--planner", "random", "--set", "env.oracle=zf", "--out", str(trail) + "/")
     assert r.returncode == 2 and "exists and is not a directory" in r.stderr and r.stderr.count("\n") == 1, r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == before and trail.read_text() == "keep me\n"
+
+
+def test_cli_header_and_config_state_the_users_files_k(skyloop_bin, tmp_path):
+    from conftest import run_cli
+    f = tmp_path / "users.toml"
+    f.write_text("users = [[10.0, 10.0], [150.0, 120.0]]\n")
+    r = run_cli("plan", "--planner", "greedy", "--set", "env.oracle=zf", "--set", f"env.users_file={f}",
+                "--set", "scenario.users=7", "--out", str(tmp_path / "p"))
+    assert r.returncode == 0, r.stderr
+    assert "K = 2 users" in r.stdout
+    assert "users = 2 " in (tmp_path / "p" / "config.toml").read_text()

@@ -143,20 +143,23 @@ void apply_override(Config& cfg, const std::string& assignment) {
   set_field(cfg, *field, to_value(*field, *parsed.get("v")));
 }
 
+void finalise_users_file(Config& cfg) {
+  if (cfg.env.users_file.empty()) return;
+  // The users come from the file: K is its count, in the config and every report.
+  const auto lists = read_point_lists(read_file(cfg.env.users_file, "env.users_file"), cfg.env.users_file, {"users"});
+  const Field* users = find_field("scenario.users");
+  const auto k = static_cast<std::int64_t>(lists[0].size());
+  if (k < users->lo || k > users->hi)
+    throw InputError("env.users_file = " + cfg.env.users_file + " has " + std::to_string(k) + " users: allowed " + users->allowed());
+  cfg.scenario.users = static_cast<int>(k);
+}
+
 Config resolve_config(const std::optional<std::string>& path, const std::vector<std::string>& overrides) {
   Config cfg;
   if (path) apply_toml(cfg, read_file(*path, "config file"), *path);
   for (const auto& o : overrides) apply_override(cfg, o);
   finalise(cfg);
-  if (!cfg.env.users_file.empty()) {
-    // The users come from the file: K is its count, in the config and every report.
-    const auto lists = read_point_lists(read_file(cfg.env.users_file, "env.users_file"), cfg.env.users_file, {"users"});
-    const Field* users = find_field("scenario.users");
-    const auto k = static_cast<std::int64_t>(lists[0].size());
-    if (k < users->lo || k > users->hi)
-      throw InputError("env.users_file = " + cfg.env.users_file + " has " + std::to_string(k) + " users: allowed " + users->allowed());
-    cfg.scenario.users = static_cast<int>(k);
-  }
+  finalise_users_file(cfg);
   return cfg;
 }
 

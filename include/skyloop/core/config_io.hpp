@@ -36,6 +36,9 @@ Positions positions_in_area(const std::vector<Point2>& pts, const Config& cfg, c
 /// of run.seed, [0, 2^62]. Anything else (a sign, letters, trailing text, a value past the range)
 /// throws InputError "--seed = '-1' is invalid: allowed an integer in [0, 4611686018427387904]".
 std::uint64_t parse_seed(const std::string& flag, const std::string& text);
+/// With env.users_file set: scenario.users = the file's user count (read and checked here), so that
+/// every config and report states the K the environment has. resolve_config calls it.
+void finalise_users_file(Config& cfg);
 /// A whole number in [lo, hi] given on the command line as `flag`: digits only (no sign, no
 /// fraction, not empty); throws InputError "<flag> = '<text>' is invalid: allowed an integer in [lo, hi]".
 std::uint64_t parse_count(const std::string& flag, const std::string& text, std::uint64_t lo, std::uint64_t hi);

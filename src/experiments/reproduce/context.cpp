@@ -46,6 +46,7 @@ Config StageContext::base(const ExperimentSpec& s, const std::vector<std::string
   Config c = resolve(s.set);
   for (const auto& e : extra) apply_override(c, e);
   finalise(c);
+  finalise_users_file(c);
   // The environment's oracle and the MARL runs use this run's models.
   if (auto it = model_paths.find(c.env.oracle); it != model_paths.end())
     c.env.oracle = model_labels().at(c.env.oracle).base + "=" + it->second;

@@ -240,6 +240,10 @@ std::vector<Field> make_fields() {
                    "agent network input: mlp = the paper's 11-real observation; set = permutation-invariant encoder over "
                    "user and neighbour displacements (any K and N)",
                    {"mlp", "set"}, [](Config& c) -> std::string& { return c.marl.encoder; }));
+  f.push_back(text("marl.backend",
+                   "PPO learners' network library: fast = fused float32 passes on the CPU (the default); torch = LibTorch's "
+                   "autograd (the reference; needed for nn.device = cuda)",
+                   {"fast", "torch"}, [](Config& c) -> std::string& { return c.marl.backend; }));
   f.push_back(integer("marl.val_layouts", "held-out validation layouts scored at every checkpoint; policy.pt = the best (0 = the last policy)",
                       0, 100000, [](Config& c) -> int& { return c.marl.val_layouts; }));
   f.push_back(integer("marl.checkpoint_every", "updates between checkpoints", 1, 1e7, [](Config& c) -> int& { return c.marl.checkpoint_every; }));

@@ -19,7 +19,8 @@ const nn::ArchiveKind& policy_kind() {
   return k;
 }
 
-void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt) {
+void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt,
+          const std::function<void(torch::serialize::OutputArchive&)>& extra) {
   torch::serialize::OutputArchive archive;
   auto put = [&](const char* key, torch::nn::Module* m) {
     if (!m) return;
@@ -36,12 +37,14 @@ void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch
     opt->save(sub);
     archive.write("optimizer", sub);
   }
+  if (extra) extra(archive);
   nn::write_archive(path, policy_kind(), meta, archive);
 }
 
 nlohmann::json read_meta(const std::string& path) { return nn::open_archive(path, policy_kind()).meta; }
 
-void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt) {
+void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt,
+          const std::function<void(torch::serialize::InputArchive&)>& extra) {
   auto a = nn::open_archive(path, policy_kind()).archive;
   auto get = [&](const char* key, torch::nn::Module* m) {
     if (!m) return;
@@ -63,7 +66,14 @@ void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt) {
     if (!a.try_read("optimizer", sub)) throw InputError("policy '" + path + "' holds no optimiser state: cannot resume from it");
     opt->load(sub);
   }
+  if (extra) extra(a);
 }
+
+void TorchLearned::save(const std::string& path, const nlohmann::json& meta, bool optimiser) {
+  marl::save(path, meta, nets_, optimiser ? &optimiser_ : nullptr);
+}
+
+void TorchLearned::load(const std::string& path, bool optimiser) { marl::load(path, nets_, optimiser ? &optimiser_ : nullptr); }
 
 std::shared_ptr<const Beamformer> make_oracle_beamformer(const Config& cfg, const BeamformerRegistry& registry) {
   try {
@@ -103,10 +113,14 @@ Encoder encoder_of(const Config& cfg, bool context) {
 
 SafetyOptions safety_of(const Config& cfg) { return SafetyOptions{cfg.marl.action_mask, cfg.marl.shield}; }
 
-void RunningStats::update(const torch::Tensor& x) {
-  const double n = static_cast<double>(x.numel());
-  if (n == 0) return;
-  const double m = x.mean().item<double>(), v = x.var(false).item<double>();
+void RunningStats::update(const float* x, std::size_t count_x) {
+  if (count_x == 0) return;
+  const double n = static_cast<double>(count_x);
+  double m = 0, v = 0;
+  for (std::size_t i = 0; i < count_x; ++i) m += x[i];
+  m /= n;
+  for (std::size_t i = 0; i < count_x; ++i) v += (x[i] - m) * (x[i] - m);
+  v /= n;
   const double delta = m - mean, total = count + n;
   mean += delta * n / total;
   var = (var * count + v * n + delta * delta * count * n / total) / total;
@@ -124,16 +138,18 @@ void EpisodeStats::add(const StepInfo& s, int uavs) {
 
 std::string metrics_header() {
   return "seed,env_steps,episodes,charts/episode_reward,charts/sum_rate,charts/arrival_rate,charts/collisions,"
-         "charts/boundary_events,losses/policy,losses/value,losses/entropy,charts/epsilon,charts/steps_per_s\n";
+         "charts/boundary_events,losses/policy,losses/value,losses/entropy,losses/old_approx_kl,losses/approx_kl,"
+         "losses/clipfrac,losses/explained_variance,losses/grad_norm,charts/epsilon,charts/steps_per_s\n";
 }
 
-std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, double pl, double vl, double ent,
-                        double eps, double sps) {
+std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, const LearnerLog& log, double sps) {
   const double n = std::max(1, e.episodes);
   auto f = [&](double x) { return e.episodes ? format_double(x / n) : std::string(""); };
-  return fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, steps, e.episodes, f(e.reward), f(e.objective),
-                     f(e.home), f(e.collisions), f(e.boundary), format_double(pl), format_double(vl), format_double(ent),
-                     format_double(eps), format_double(sps));
+  auto g = [](double x) { return std::isnan(x) ? std::string("") : format_double(x); };
+  return fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, steps, e.episodes, f(e.reward),
+                     f(e.objective), f(e.home), f(e.collisions), f(e.boundary), g(log.policy_loss), g(log.value_loss),
+                     g(log.entropy), g(log.old_approx_kl), g(log.approx_kl), g(log.clipfrac), g(log.explained_variance),
+                     g(log.grad_norm), g(log.epsilon), format_double(sps));
 }
 
 EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner) {
@@ -154,23 +170,26 @@ Run::Run(const Config& cfg, const MarlTrainOptions& opt)
   remove_stale_temporaries(opt.out_dir);
 }
 
-nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int size, Nets& nets,
-                           torch::optim::Optimizer& opt, std::string& metrics) const {
+nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int size, Learned& learned,
+                           std::string& metrics) const {
   const auto old = read_meta(last);
   if (old.value("algo", "") != cfg.marl.algo || old.value("hidden", 0) != cfg.marl.hidden || old.value(size_key, 0) != size)
     throw InputError("--resume: '" + last + "' holds a " + old.value("algo", std::string("?")) +
                      " run of other sizes: allowed the same algo, hidden size and scenario as the config");
-  load(last, nets, &opt);
+  if (old.value("backend", std::string("torch")) != learner_backend(cfg))
+    throw InputError("--resume: '" + last + "' was trained with marl.backend = \"" + old.value("backend", std::string("torch")) +
+                     "\": allowed the same backend as the run it continues");
+  learned.load(last, true);
   if (std::filesystem::exists(dir / "metrics.csv")) metrics = read_file((dir / "metrics.csv").string());
   return old;
 }
 
-void Run::checkpoint(const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer& opt, const std::string& metrics) const {
-  save(last, meta, nets, &opt);
+void Run::checkpoint(const nlohmann::json& meta, Learned& learned, const std::string& metrics) const {
+  learned.save(last, meta, true);
   write_file_atomic((dir / "metrics.csv").string(), metrics);
 }
 
-void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets, std::int64_t steps) {
+void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Learned& learned, std::int64_t steps) {
   if (cfg.marl.val_layouts <= 0) return;
   auto policy = MarlPolicy::load(last);
   const auto bf = make_oracle_beamformer(cfg, *opt.registry);
@@ -186,18 +205,17 @@ void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohman
   const bool best = complete > best_complete + 1e-12 || (std::abs(complete - best_complete) <= 1e-12 && objective > best_objective);
   if (best) {
     best_complete = complete, best_objective = objective;
-    save(final_path, meta, nets, nullptr);
+    learned.save(final_path, meta, false);
   }
   validation_csv += fmt::format("{},{},{},{},{},{}\n", cfg.run.seed, steps, V, format_double(complete), format_double(objective), best ? 1 : 0);
   write_file_atomic((dir / "validation.csv").string(), validation_csv);
 }
 
-MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets,
-                            torch::optim::Optimizer& optimizer, const std::string& metrics, std::int64_t steps,
-                            std::int64_t start_steps) {
-  checkpoint(meta, nets, optimizer, metrics);
-  if (cfg.marl.val_layouts > 0) validate(cfg, opt, meta, nets, steps);  // policy.pt = the best
-  else save(final_path, meta, nets, nullptr);
+MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Learned& learned,
+                            const std::string& metrics, std::int64_t steps, std::int64_t start_steps) {
+  checkpoint(meta, learned, metrics);
+  if (cfg.marl.val_layouts > 0) validate(cfg, opt, meta, learned, steps);  // policy.pt = the best
+  else learned.save(final_path, meta, false);
   MarlTrainResult result;
   result.env_steps = steps;
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -205,6 +223,10 @@ MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, cons
   auto policy = MarlPolicy::load(final_path);
   result.evaluation = evaluate(cfg, *opt.registry, *policy);
   return result;
+}
+
+std::string learner_backend(const Config& cfg) {
+  return cfg.marl.algo == "vdn" || cfg.marl.algo == "qmix" ? "torch" : cfg.marl.backend;
 }
 
 torch::Device device_of(const Config& cfg) {

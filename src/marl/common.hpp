@@ -1,6 +1,8 @@
 #pragma once
 // Shared pieces of the learners: checkpoints, environment set-up, metrics, evaluation.
 #include <chrono>
+#include <cmath>
+#include <functional>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -32,12 +34,39 @@ struct Encoder {
 Encoder encoder_of(const Config& cfg, bool context);
 SafetyOptions safety_of(const Config& cfg);
 
+/// A learner's networks and optimiser as the run's archives see them (last.pt, policy.pt).
+class Learned {
+ public:
+  virtual ~Learned() = default;
+  /// Writes the networks, and with `optimiser` the optimiser's state, to a policy archive
+  /// (atomically).
+  virtual void save(const std::string& path, const nlohmann::json& meta, bool optimiser) = 0;
+  /// Reads them back (--resume).
+  virtual void load(const std::string& path, bool optimiser) = 0;
+};
+
+/// Learned over LibTorch modules and a LibTorch optimiser.
+class TorchLearned final : public Learned {
+ public:
+  TorchLearned(Nets& nets, torch::optim::Optimizer& optimiser) : nets_(nets), optimiser_(optimiser) {}
+  void save(const std::string& path, const nlohmann::json& meta, bool optimiser) override;
+  void load(const std::string& path, bool optimiser) override;
+
+ private:
+  Nets& nets_;
+  torch::optim::Optimizer& optimiser_;
+};
+
 /// Writes the archive atomically: meta JSON, the present networks, optionally the optimiser.
-void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt);
+/// `extra` (if set) writes more entries (a backend's own optimiser state).
+void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt,
+          const std::function<void(torch::serialize::OutputArchive&)>& extra = {});
 /// Reads meta; builds nothing. Throws InputError for missing / corrupt / foreign files.
 nlohmann::json read_meta(const std::string& path);
 /// Loads the networks present in `nets` (and the optimiser if given) from `path`.
-void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt);
+/// `extra` (if set) reads the entries `save` wrote with it.
+void load(const std::string& path, Nets& nets, torch::optim::Optimizer* opt,
+          const std::function<void(torch::serialize::InputArchive&)>& extra = {});
 
 /// The beamformer behind R[t] (env.oracle), errors naming the field.
 std::shared_ptr<const Beamformer> make_oracle_beamformer(const Config& cfg, const BeamformerRegistry& registry);
@@ -50,9 +79,10 @@ VecEnv make_training_envs(const Config& cfg, const BeamformerRegistry& registry)
 /// Running mean / variance (Welford over batches), for value normalisation.
 struct RunningStats {
   double mean = 0, var = 1, count = 1e-4;
-  void update(const torch::Tensor& x);
-  torch::Tensor normalise(const torch::Tensor& x) const { return (x - mean) / std::sqrt(var + 1e-8); }
-  torch::Tensor denormalise(const torch::Tensor& x) const { return x * std::sqrt(var + 1e-8) + mean; }
+  /// Merges the batch x[0..n-1] (its mean and population variance).
+  void update(const float* x, std::size_t n);
+  double normalise(double x) const { return (x - mean) / std::sqrt(var + 1e-8); }
+  double denormalise(double x) const { return x * std::sqrt(var + 1e-8) + mean; }
 };
 
 /// Episode statistics gathered between two log lines.
@@ -63,15 +93,24 @@ struct EpisodeStats {
   void clear() { *this = EpisodeStats{}; }
 };
 
-/// Appends one metrics row and rewrites metrics.csv atomically.
+/// The learner's side of a metrics row (CleanRL's names); NaN leaves a column empty (a learner
+/// without that quantity).
+struct LearnerLog {
+  double policy_loss = NAN, value_loss = NAN, entropy = NAN, old_approx_kl = NAN, approx_kl = NAN, clipfrac = NAN,
+         explained_variance = NAN, grad_norm = NAN, epsilon = NAN;
+};
+
+/// metrics.csv: the header, and one row.
 std::string metrics_header();
-std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, double policy_loss, double value_loss,
-                        double entropy, double epsilon, double steps_per_s);
+std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, const LearnerLog& log, double steps_per_s);
 
 /// Evaluates `planner` on the training scenario (deterministic) and returns the record.
 EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner);
 
 torch::Device device_of(const Config& cfg);
+/// The network library a run of cfg trains with: marl.backend for the PPO learners, "torch" for
+/// the value-decomposition ones (recorded in the policy header as "backend").
+std::string learner_backend(const Config& cfg);
 
 /// What every learner needs before its loop: torch threads set, the run's paths (checked for
 /// --resume), the device, and M environments on the shared training scenario.
@@ -88,19 +127,17 @@ struct Run {
   /// For --resume: checks that last.pt holds a run of the same algo, hidden size and
   /// `size_key` = `size`, loads its networks and optimiser and the earlier metrics.csv into
   /// `metrics`, and returns its header.
-  nlohmann::json resume(const Config& cfg, const std::string& size_key, int size, Nets& nets, torch::optim::Optimizer& opt,
-                        std::string& metrics) const;
+  nlohmann::json resume(const Config& cfg, const std::string& size_key, int size, Learned& learned, std::string& metrics) const;
   /// Resumable checkpoint: last.pt (networks and optimiser) and metrics.csv, both atomically.
-  void checkpoint(const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer& opt, const std::string& metrics) const;
+  void checkpoint(const nlohmann::json& meta, Learned& learned, const std::string& metrics) const;
   /// After the loop: writes the final policy (final_path) and the last checkpoint, then returns
   /// the timings and the deterministic evaluation of the final policy.
   /// With marl.val_layouts: scores the policy just checkpointed (last.pt) on the validation
   /// layouts, appends a row to validation.csv and keeps it as policy.pt if it is the best so far
   /// (more missions complete, then a higher mean objective).
-  void validate(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets, std::int64_t steps);
-  MarlTrainResult finish(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Nets& nets,
-                         torch::optim::Optimizer& optimizer, const std::string& metrics, std::int64_t steps,
-                         std::int64_t start_steps);
+  void validate(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Learned& learned, std::int64_t steps);
+  MarlTrainResult finish(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Learned& learned,
+                         const std::string& metrics, std::int64_t steps, std::int64_t start_steps);
 };
 
 }  // namespace skyloop::marl

@@ -1,17 +1,18 @@
-// MAPPO and IPPO (Section V, Algorithm alg:mappo_training) on one PPO core. They differ only in
-// the critic's input: MAPPO's centralised critic sees the global state (or the agent-specific
-// global state), IPPO's sees the agent's local observation.
-#include <filesystem>
+// MAPPO and IPPO (Section V, Algorithm alg:mappo_training) on one PPO core (ppo.hpp). They
+// differ only in the critic's input: MAPPO's centralised critic sees the global state (or the
+// agent-specific global state), IPPO's sees the agent's local observation.
+#include "ppo.hpp"
+
+#include <cmath>
 #include <fmt/format.h>
 #include <numeric>
 #include <ostream>
 
-#include "common.hpp"
+#include "fast_mlp.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/progress.hpp"
-#include "skyloop/core/rng.hpp"
 #include "skyloop/nn/learned.hpp"
 
 namespace skyloop {
@@ -33,256 +34,582 @@ std::vector<double> gae(const std::vector<double>& rewards, const std::vector<do
 
 namespace marl {
 
+// ---- the critic's input --------------------------------------------------------------------------
+
+CriticReader CriticReader::of(const Config& cfg, const Encoder& encoder) {
+  CriticReader r;
+  r.encoder = encoder;
+  if (cfg.marl.algo == "ippo") r.input = Input::LocalObservation;
+  else r.input = cfg.marl.critic_state == "global" ? Input::GlobalState : Input::AgentState;
+  return r;
+}
+
+const char* CriticReader::name() const {
+  switch (input) {
+    case Input::GlobalState: return "global";
+    case Input::AgentState: return "agent";
+    case Input::LocalObservation: break;
+  }
+  return "local";
+}
+
+int CriticReader::width(const UavEnv& e) const {
+  if (encoder.set) return encoder.width(e) + (input != Input::LocalObservation ? UavEnv::compact_state_size() : 0);
+  switch (input) {
+    case Input::GlobalState: return e.state_size();
+    case Input::AgentState: return e.agent_state_size();
+    case Input::LocalObservation: break;
+  }
+  return UavEnv::observation_size();
+}
+
+void CriticReader::write(const UavEnv& e, int n, float* out) const {
+  if (encoder.set) {
+    encoder.write(e, n, out);
+    if (input != Input::LocalObservation) e.write_compact_state(out + encoder.width(e));
+    return;
+  }
+  switch (input) {
+    case Input::GlobalState: return e.write_state(out);
+    case Input::AgentState: return e.write_agent_state(n, out);
+    case Input::LocalObservation: break;
+  }
+  e.write_observation(n, out);
+}
+
+// ---- storage -------------------------------------------------------------------------------------
+
+Rollout::Rollout(int steps, int envs, int agents, int obs, int critic)
+    : T(steps), M(envs), N(agents), obs_width(obs), critic_width(critic) {
+  const std::size_t S = samples();
+  observations.resize(S * static_cast<std::size_t>(obs));
+  critic_inputs.resize(S * static_cast<std::size_t>(critic));
+  actions.resize(S);
+  logprobs.resize(S);
+  values.resize(S);
+  active.resize(S);
+  allowed.resize(S * kActions);
+  rewards.resize(static_cast<std::size_t>(T) * M);
+  dones.resize(rewards.size());
+  next_values.resize(static_cast<std::size_t>(M) * N);
+  advantages.resize(S);
+  returns.resize(S);
+}
+
+void UpdateStats::add(const UpdateStats& o, double w) {
+  policy_loss += w * o.policy_loss;
+  value_loss += w * o.value_loss;
+  entropy += w * o.entropy;
+  old_approx_kl += w * o.old_approx_kl;
+  approx_kl += w * o.approx_kl;
+  clipfrac += w * o.clipfrac;
+  grad_norm += w * o.grad_norm;
+}
+
+UpdateStats ppo_loss(const Minibatch& b, const PpoSettings& s, const float* logits, int logit_stride, const float* values,
+                     int value_stride, float* dlogits, float* dvalues) {
+  const int R = b.rows;
+  UpdateStats u;
+  // Actor: the clipped surrogate and the entropy over the allowed moves.
+  double active = 0;
+  for (int i = 0; i < R; ++i) active += b.active[static_cast<std::size_t>(i)];
+  const double per_active = 1.0 / std::max(active, 1.0);
+  for (int i = 0; i < R; ++i) {
+    const float* z = logits + static_cast<std::size_t>(i) * logit_stride;
+    const float* allowed = b.allowed.data() + static_cast<std::size_t>(i) * kActions;
+    double mx = -1e300;
+    for (int k = 0; k < kActions; ++k)
+      if (allowed[k] > 0) mx = std::max(mx, static_cast<double>(z[k]));
+    double sum = 0;
+    for (int k = 0; k < kActions; ++k)
+      if (allowed[k] > 0) sum += std::exp(z[k] - mx);
+    const double log_sum = mx + std::log(sum);
+    double p[kActions], logp[kActions], entropy = 0;
+    for (int k = 0; k < kActions; ++k) {
+      logp[k] = allowed[k] > 0 ? z[k] - log_sum : 0.0;
+      p[k] = allowed[k] > 0 ? std::exp(logp[k]) : 0.0;
+      entropy -= p[k] * logp[k];
+    }
+    const auto a = static_cast<int>(b.actions[static_cast<std::size_t>(i)]);
+    const double adv = b.advantages[static_cast<std::size_t>(i)];
+    const double log_ratio = logp[a] - b.logprobs[static_cast<std::size_t>(i)];
+    const double ratio = std::exp(log_ratio);
+    const double lo = 1 - s.clip, hi = 1 + s.clip;
+    const double s1 = ratio * adv, s2 = std::min(std::max(ratio, lo), hi) * adv;
+    // d min(s1, s2) / d ratio, ties split as autograd splits them.
+    const double in_range = ratio >= lo && ratio <= hi ? 1.0 : 0.0;
+    const double dsurr = s1 < s2 ? adv : s1 > s2 ? adv * in_range : 0.5 * adv + 0.5 * adv * in_range;
+    const double w = b.active[static_cast<std::size_t>(i)] * per_active;
+    u.policy_loss -= w * std::min(s1, s2);
+    u.entropy += w * entropy;
+    u.old_approx_kl += w * -log_ratio;
+    u.approx_kl += w * ((ratio - 1) - log_ratio);
+    u.clipfrac += w * (std::abs(ratio - 1) > s.clip ? 1.0 : 0.0);
+    // d/dz_k: -w dsurr ratio (1[k = a] - p_k) from the surrogate, -c2 w (-p_k (log p_k + H)) from the entropy.
+    const double dlogp = -w * dsurr * ratio;
+    float* dz = dlogits + static_cast<std::size_t>(i) * logit_stride;
+    for (int k = 0; k < kActions; ++k)
+      dz[k] = static_cast<float>(dlogp * ((k == a ? 1.0 : 0.0) - p[k]) + s.entropy_coef * w * p[k] * (logp[k] + entropy));
+  }
+  // Critic: the clipped value loss, a plain mean over the rows.
+  for (int i = 0; i < R; ++i) {
+    const double v = values[static_cast<std::size_t>(i) * value_stride], v_old = b.values[static_cast<std::size_t>(i)];
+    const double ret = b.returns[static_cast<std::size_t>(i)];
+    const double delta = v - v_old;
+    const double vc = v_old + std::min(std::max(delta, -s.clip), s.clip);
+    const double l1 = (v - ret) * (v - ret), l2 = (vc - ret) * (vc - ret);
+    u.value_loss += std::max(l1, l2) / R;
+    const double in_range = delta >= -s.clip && delta <= s.clip ? 1.0 : 0.0;
+    const double d1 = 2 * (v - ret), d2 = 2 * (vc - ret) * in_range;
+    const double dv = l1 > l2 ? d1 : l1 < l2 ? d2 : 0.5 * (d1 + d2);
+    dvalues[static_cast<std::size_t>(i) * value_stride] = static_cast<float>(s.value_coef * dv / R);
+  }
+  return u;
+}
+
+// ---- backends ------------------------------------------------------------------------------------
+
 namespace {
 
-/// The critic's input. mlp encoder: the global state (MAPPO, critic_state = global), the
-/// agent-specific global state (agent) or the local observation (IPPO). set encoder: the agent's
-/// set observation, plus the compact state for MAPPO.
-struct CriticInput {
-  std::string kind;  // global | agent | local
-  Encoder set;       // set.set: the set observation
-  int extra(const UavEnv&) const { return set.set && kind != "local" ? UavEnv::compact_state_size() : 0; }
-  int size(const UavEnv& e) const {
-    if (set.set) return set.width(e) + extra(e);
-    return kind == "global" ? e.state_size() : kind == "agent" ? e.agent_state_size() : UavEnv::observation_size();
+/// The actor and critic as LibTorch modules, in MlpNet's default initialisation under `seed`.
+Nets initial_nets(int obs_width, int critic_width, int hidden, std::uint64_t seed) {
+  torch::manual_seed(seed);
+  Nets nets;
+  nets.actor = MlpNet(obs_width, hidden, kActions);
+  nets.critic = MlpNet(critic_width, hidden, 1);
+  return nets;
+}
+
+/// The reference: LibTorch's autograd and Adam.
+class TorchPpo final : public PpoNetworks {
+ public:
+  TorchPpo(Nets nets, double learning_rate, const torch::Device& device) : nets_(std::move(nets)), device_(device) {
+    nets_.actor->to(device);
+    nets_.critic->to(device);
+    params_ = nets_.actor->parameters();
+    for (auto& p : nets_.critic->parameters()) params_.push_back(p);
+    adam_ = std::make_unique<torch::optim::Adam>(params_, torch::optim::AdamOptions(learning_rate));
   }
-  void write(const UavEnv& e, int n, float* out) const {
-    if (set.set) {
-      set.write(e, n, out);
-      if (extra(e)) e.write_compact_state(out + set.width(e));
-      return;
+
+  void logits(const float* obs, int rows, float* out) override { forward(nets_.actor, obs, rows, kActions, out); }
+  void values(const float* in, int rows, float* out) override { forward(nets_.critic, in, rows, 1, out); }
+
+  UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
+    const int64_t R = b.rows;
+    auto blob = [&](const std::vector<float>& v, std::vector<int64_t> shape) {
+      return torch::from_blob(const_cast<float*>(v.data()), shape).to(device_);
+    };
+    const auto active = blob(b.active, {R});
+    const auto logp_old = blob(b.logprobs, {R});
+    const auto logp_all =
+        torch::log_softmax(masked_logits(nets_.actor(blob(b.observations, {R, b.obs_width})), blob(b.allowed, {R, kActions})), 1);
+    const auto actions = torch::from_blob(const_cast<std::int64_t*>(b.actions.data()), {R}, torch::kInt64).to(device_);
+    const auto logp = logp_all.gather(1, actions.unsqueeze(1)).squeeze(1);
+    const auto entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
+    const auto policy_loss = -masked_mean(clipped_surrogate(logp, logp_old, blob(b.advantages, {R}), s.clip), active);
+    const auto v = nets_.critic(blob(b.critic_inputs, {R, b.critic_width})).view({R});
+    const auto value_loss = clipped_value_loss(v, blob(b.values, {R}), blob(b.returns, {R}), s.clip);
+    const auto loss = policy_loss + s.value_coef * value_loss - s.entropy_coef * entropy;  // eq:total_loss
+    adam_->zero_grad();
+    loss.backward();
+    UpdateStats u;
+    {
+      torch::NoGradGuard ng;
+      double sq = 0;
+      for (const auto& p : params_)
+        if (p.grad().defined()) sq += p.grad().pow(2).sum().item<double>();
+      u.grad_norm = std::sqrt(sq);
     }
-    if (kind == "global") e.write_state(out);
-    else if (kind == "agent") e.write_agent_state(n, out);
-    else e.write_observation(n, out);
+    if (s.grad_clip > 0) torch::nn::utils::clip_grad_norm_(params_, s.grad_clip);
+    adam_->step();
+    torch::NoGradGuard ng;
+    const auto log_ratio = logp - logp_old;
+    const auto ratio = log_ratio.exp();
+    u.policy_loss = policy_loss.item<double>();
+    u.value_loss = value_loss.item<double>();
+    u.entropy = entropy.item<double>();
+    u.old_approx_kl = masked_mean(-log_ratio, active).item<double>();
+    u.approx_kl = masked_mean((ratio - 1) - log_ratio, active).item<double>();
+    u.clipfrac = masked_mean(((ratio - 1).abs() > s.clip).to(torch::kFloat), active).item<double>();
+    return u;
   }
+
+  void save(const std::string& path, const nlohmann::json& meta, bool optimiser) override {
+    marl::save(path, meta, nets_, optimiser ? adam_.get() : nullptr);
+  }
+  void load(const std::string& path, bool optimiser) override { marl::load(path, nets_, optimiser ? adam_.get() : nullptr); }
+
+ private:
+  void forward(MlpNet& net, const float* in, int rows, int width, float* out) {
+    torch::NoGradGuard ng;
+    const auto y = net(torch::from_blob(const_cast<float*>(in), {rows, net->l1->options.in_features()}).to(device_))
+                       .to(torch::kCPU)
+                       .contiguous();
+    std::copy(y.data_ptr<float>(), y.data_ptr<float>() + static_cast<std::size_t>(rows) * width, out);
+  }
+
+  Nets nets_;
+  torch::Device device_;
+  std::vector<torch::Tensor> params_;
+  std::unique_ptr<torch::optim::Adam> adam_;
+};
+
+/// The default: fused float32 passes (fast_mlp.hpp), the loss's gradient written out.
+class FastPpo final : public PpoNetworks {
+ public:
+  FastPpo(Nets nets, double learning_rate)
+      : torch_(std::move(nets)),
+        actor_(static_cast<int>(torch_.actor->l1->options.in_features()), static_cast<int>(torch_.actor->l1->options.out_features()), kActions),
+        critic_(static_cast<int>(torch_.critic->l1->options.in_features()), static_cast<int>(torch_.critic->l1->options.out_features()), 1) {
+    from_torch();
+    actor_adam_.learning_rate = critic_adam_.learning_rate = learning_rate;
+  }
+
+  void logits(const float* obs, int rows, float* out) override { forward(actor_, obs, rows, kActions, out); }
+  void values(const float* in, int rows, float* out) override { forward(critic_, in, rows, 1, out); }
+
+  UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
+    const int R = b.rows, as = actor_.out_stride(), vs = critic_.out_stride();
+    const std::size_t na = actor_.size();
+    grad_.assign(na + critic_.size(), 0.0f);
+    logits_.resize(static_cast<std::size_t>(R) * as);
+    values_.resize(static_cast<std::size_t>(R) * vs);
+    dlogits_.assign(logits_.size(), 0.0f);
+    dvalues_.assign(values_.size(), 0.0f);
+    actor_.forward(b.observations.data(), R, logits_.data(), &actor_cache_);
+    critic_.forward(b.critic_inputs.data(), R, values_.data(), &critic_cache_);
+    UpdateStats u = ppo_loss(b, s, logits_.data(), as, values_.data(), vs, dlogits_.data(), dvalues_.data());
+    actor_.backward(actor_cache_, dlogits_.data(), grad_.data());
+    critic_.backward(critic_cache_, dvalues_.data(), grad_.data() + na);
+    // Global norm, clipping (LibTorch's clip_grad_norm_ rule), Adam.
+    u.grad_norm = fast::norm(grad_);
+    if (s.grad_clip > 0) {
+      const double coef = s.grad_clip / (u.grad_norm + 1e-6);
+      if (coef < 1)
+        for (auto& g : grad_) g = static_cast<float>(g * coef);
+    }
+    actor_adam_.step(actor_.params().data(), grad_.data(), na);
+    critic_adam_.step(critic_.params().data(), grad_.data() + na, critic_.size());
+    actor_.refresh();
+    critic_.refresh();
+    return u;
+  }
+
+  void save(const std::string& path, const nlohmann::json& meta, bool optimiser) override {
+    to_torch();
+    std::function<void(torch::serialize::OutputArchive&)> extra;
+    if (optimiser)
+      extra = [this](torch::serialize::OutputArchive& a) {
+        torch::serialize::OutputArchive sub;
+        auto put = [&](const char* key, const std::vector<float>& v) {
+          sub.write(key, torch::from_blob(const_cast<float*>(v.data()), {static_cast<int64_t>(v.size())}).clone());
+        };
+        put("actor_m", actor_adam_.m);
+        put("actor_v", actor_adam_.v);
+        put("critic_m", critic_adam_.m);
+        put("critic_v", critic_adam_.v);
+        sub.write("steps", torch::tensor(actor_adam_.steps, torch::kInt64));
+        a.write("fast_adam", sub);
+      };
+    marl::save(path, meta, torch_, nullptr, extra);
+  }
+
+  void load(const std::string& path, bool optimiser) override {
+    std::function<void(torch::serialize::InputArchive&)> extra;
+    if (optimiser)
+      extra = [&](torch::serialize::InputArchive& a) {
+        torch::serialize::InputArchive sub;
+        if (!a.try_read("fast_adam", sub)) throw InputError("policy '" + path + "' holds no optimiser state: cannot resume from it");
+        auto get = [&](const char* key, std::vector<float>& v) {
+          torch::Tensor t;
+          sub.read(key, t);
+          t = t.to(torch::kFloat).contiguous();
+          v.assign(t.data_ptr<float>(), t.data_ptr<float>() + t.numel());
+        };
+        get("actor_m", actor_adam_.m);
+        get("actor_v", actor_adam_.v);
+        get("critic_m", critic_adam_.m);
+        get("critic_v", critic_adam_.v);
+        torch::Tensor steps;
+        sub.read("steps", steps);
+        actor_adam_.steps = critic_adam_.steps = steps.item<std::int64_t>();
+        if (actor_adam_.m.size() != actor_.size() || critic_adam_.m.size() != critic_.size())
+          throw InputError("policy '" + path + "': its optimiser state does not match its networks");
+      };
+    marl::load(path, torch_, nullptr, extra);
+    from_torch();
+  }
+
+ private:
+  static std::array<torch::Tensor, 6> tensors(MlpNet& net) {
+    return {net->l1->weight, net->l1->bias, net->l2->weight, net->l2->bias, net->l3->weight, net->l3->bias};
+  }
+  void from_torch() {
+    for (auto [net, fast] : {std::pair<MlpNet*, fast::Mlp*>{&torch_.actor, &actor_}, {&torch_.critic, &critic_}}) {
+      const auto t = tensors(*net);
+      std::array<torch::Tensor, 6> c;
+      std::array<const float*, 6> p{};
+      for (std::size_t i = 0; i < 6; ++i) c[i] = t[i].detach().to(torch::kCPU).contiguous(), p[i] = c[i].data_ptr<float>();
+      fast->set_torch_layout(p);
+    }
+  }
+  void to_torch() {
+    torch::NoGradGuard ng;
+    for (auto [net, fast] : {std::pair<MlpNet*, fast::Mlp*>{&torch_.actor, &actor_}, {&torch_.critic, &critic_}}) {
+      const auto t = tensors(*net);
+      std::array<float*, 6> p{};
+      for (std::size_t i = 0; i < 6; ++i) p[i] = t[i].data_ptr<float>();
+      fast->get_torch_layout(p);
+    }
+  }
+  void forward(const fast::Mlp& net, const float* in, int rows, int width, float* out) {
+    scratch_.resize(static_cast<std::size_t>(rows) * net.out_stride());
+    net.forward(in, rows, scratch_.data(), &infer_cache_);
+    for (int i = 0; i < rows; ++i)
+      std::copy(scratch_.data() + static_cast<std::size_t>(i) * net.out_stride(),
+                scratch_.data() + static_cast<std::size_t>(i) * net.out_stride() + width, out + static_cast<std::size_t>(i) * width);
+  }
+
+  Nets torch_;  // the archive's form of the weights (written on save, read on load)
+  fast::Mlp actor_, critic_;
+  fast::Adam actor_adam_, critic_adam_;
+  fast::Mlp::Cache actor_cache_, critic_cache_, infer_cache_;
+  std::vector<float> grad_, logits_, values_, dlogits_, dvalues_, scratch_;
 };
 
 }  // namespace
 
+std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
+                                               double learning_rate, const torch::Device& device, std::uint64_t seed) {
+  auto nets = initial_nets(obs_width, critic_width, hidden, seed);
+  if (backend == "torch") return std::make_unique<TorchPpo>(std::move(nets), learning_rate, device);
+  if (backend != "fast") throw InputError("marl.backend = \"" + backend + "\" is not allowed: allowed one of fast, torch");
+  if (device.is_cuda())
+    throw InputError("marl.backend = \"fast\" runs on the CPU: with nn.device = \"cuda\" set marl.backend = \"torch\"");
+  return std::make_unique<FastPpo>(std::move(nets), learning_rate);
+}
+
+// ---- the three phases ----------------------------------------------------------------------------
+
+void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety, PpoNetworks& nets,
+             const RunningStats& value_norm, Rng& rng, Rollout& r, EpisodeStats& stats) {
+  const int M = r.M, N = r.N;
+  const std::size_t step_rows = static_cast<std::size_t>(M) * N;
+  std::vector<float> logits(step_rows * kActions);
+  std::vector<std::vector<int>> actions(static_cast<std::size_t>(M));
+  for (int t = 0; t < r.T; ++t) {
+    float* obs = r.observations.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.obs_width);
+    float* crit = r.critic_inputs.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.critic_width);
+    for (int e = 0; e < M; ++e)
+      for (int n = 0; n < N; ++n) {
+        const auto i = static_cast<std::size_t>(e * N + n);
+        encoder.write(vec.env(e), n, obs + i * static_cast<std::size_t>(r.obs_width));
+        critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width));
+        r.active[r.at(t, e, n)] = static_cast<float>(vec.env(e).mask(n));
+        r.logprobs[r.at(t, e, n)] = 0.0f;  // agents that STAY without sampling (arrived) keep these
+        std::fill_n(r.allowed.data() + r.at(t, e, n) * kActions, kActions, 1.0f);
+      }
+    nets.logits(obs, static_cast<int>(step_rows), logits.data());
+    float* values = r.values.data() + r.at(t, 0, 0);
+    nets.values(crit, static_cast<int>(step_rows), values);
+    for (std::size_t i = 0; i < step_rows; ++i) values[i] = static_cast<float>(value_norm.denormalise(values[i]));
+    for (int e = 0; e < M; ++e) {
+      // Each UAV samples from its policy restricted to its allowed moves (the reachability
+      // mask and the shield against the UAVs already placed); arrived agents STAY.
+      actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety, [&](int n, unsigned allowed) {
+        const std::size_t i = r.at(t, e, n);
+        const float* z = logits.data() + static_cast<std::size_t>(e * N + n) * kActions;
+        double mx = -1e30;
+        for (int k = 0; k < kActions; ++k)
+          if (allowed >> k & 1u) mx = std::max(mx, static_cast<double>(z[k]));
+        double sum = 0;
+        for (int k = 0; k < kActions; ++k)
+          if (allowed >> k & 1u) sum += std::exp(static_cast<double>(z[k]) - mx);
+        const double u = rng.uniform() * sum;
+        double acc = 0;
+        int a = -1;
+        for (int k = 0; k < kActions; ++k) {
+          r.allowed[i * kActions + static_cast<std::size_t>(k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
+          if (!(allowed >> k & 1u)) continue;
+          acc += std::exp(static_cast<double>(z[k]) - mx);
+          if (a < 0 && u < acc) a = k;
+        }
+        if (a < 0)
+          for (int k = kActions; k-- > 0;)
+            if (allowed >> k & 1u) {
+              a = k;
+              break;
+            }
+        r.logprobs[i] = static_cast<float>(static_cast<double>(z[a]) - mx - std::log(sum));
+        return a;
+      });
+      for (int n = 0; n < N; ++n) r.actions[r.at(t, e, n)] = actions[static_cast<std::size_t>(e)][static_cast<std::size_t>(n)];
+    }
+    const auto infos = vec.step(actions);
+    for (int e = 0; e < M; ++e) {
+      const auto& info = infos[static_cast<std::size_t>(e)];
+      r.rewards[static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)] = static_cast<float>(info.reward);
+      r.dones[static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)] = info.done ? 1.0f : 0.0f;
+      if (info.done) stats.add(info, N);
+    }
+  }
+  // Bootstrap values of the states after the rollout.
+  std::vector<float> crit(step_rows * static_cast<std::size_t>(r.critic_width));
+  for (int e = 0; e < M; ++e)
+    for (int n = 0; n < N; ++n) critic.write(vec.env(e), n, crit.data() + static_cast<std::size_t>(e * N + n) * r.critic_width);
+  nets.values(crit.data(), static_cast<int>(step_rows), r.next_values.data());
+  for (auto& v : r.next_values) v = static_cast<float>(value_norm.denormalise(v));
+}
+
+void compute_advantages(Rollout& r, double gamma, double lambda) {
+  for (int e = 0; e < r.M; ++e)
+    for (int n = 0; n < r.N; ++n) {
+      double next_advantage = 0, next_value = r.next_values[static_cast<std::size_t>(e * r.N + n)];
+      for (int t = r.T; t-- > 0;) {
+        const std::size_t i = r.at(t, e, n), j = static_cast<std::size_t>(t) * r.M + static_cast<std::size_t>(e);
+        const double keep = r.dones[j] > 0 ? 0.0 : 1.0;
+        const double delta = r.rewards[j] + gamma * keep * next_value - r.values[i];
+        next_advantage = delta + gamma * lambda * keep * next_advantage;
+        next_value = r.values[i];
+        r.advantages[i] = static_cast<float>(next_advantage);
+        r.returns[i] = static_cast<float>(next_advantage + r.values[i]);
+      }
+    }
+}
+
+double explained_variance(const Rollout& r) {
+  double w = 0, my = 0, md = 0;
+  for (std::size_t i = 0; i < r.samples(); ++i) {
+    w += r.active[i];
+    my += r.active[i] * r.returns[i];
+    md += r.active[i] * (r.returns[i] - r.values[i]);
+  }
+  if (w <= 0) return NAN;
+  my /= w, md /= w;
+  double vy = 0, vd = 0;
+  for (std::size_t i = 0; i < r.samples(); ++i) {
+    const double d = r.returns[i] - r.values[i];
+    vy += r.active[i] * (r.returns[i] - my) * (r.returns[i] - my);
+    vd += r.active[i] * (d - md) * (d - md);
+  }
+  return vy > 0 ? 1.0 - vd / vy : NAN;
+}
+
+UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng, Minibatch& b) {
+  const std::size_t S = r.samples();
+  // Advantages normalised over the active agents; value targets in normalised units.
+  double w = 0, mean = 0, var = 0;
+  for (std::size_t i = 0; i < S; ++i) w += r.active[i], mean += r.active[i] * r.advantages[i];
+  mean /= std::max(w, 1.0);
+  for (std::size_t i = 0; i < S; ++i) var += r.active[i] * (r.advantages[i] - mean) * (r.advantages[i] - mean);
+  var /= std::max(w, 1.0);
+  const double scale = 1.0 / std::sqrt(var + 1e-8);
+  if (m.value_norm) value_norm.update(r.returns.data(), S);
+  auto norm = [&](float x) { return static_cast<float>(m.value_norm ? value_norm.normalise(x) : x); };
+
+  const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef, m.grad_clip};
+  const int rows = static_cast<int>(std::max<std::size_t>(1, S / static_cast<std::size_t>(m.minibatches)));
+  b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width;
+  b.observations.resize(static_cast<std::size_t>(rows) * r.obs_width);
+  b.critic_inputs.resize(static_cast<std::size_t>(rows) * r.critic_width);
+  b.allowed.resize(static_cast<std::size_t>(rows) * kActions);
+  for (auto* v : {&b.logprobs, &b.advantages, &b.returns, &b.values, &b.active}) v->resize(static_cast<std::size_t>(rows));
+  b.actions.resize(static_cast<std::size_t>(rows));
+
+  UpdateStats mean_stats;
+  int steps = 0;
+  std::vector<std::size_t> order(S);
+  std::vector<UpdateStats> all;
+  for (int epoch = 0; epoch < m.epochs; ++epoch) {
+    std::iota(order.begin(), order.end(), std::size_t{0});
+    for (std::size_t i = S; i > 1; --i) std::swap(order[i - 1], order[rng.below(i)]);
+    for (std::size_t first = 0; first + static_cast<std::size_t>(rows) <= S; first += static_cast<std::size_t>(rows)) {
+      for (int k = 0; k < rows; ++k) {
+        const std::size_t i = order[first + static_cast<std::size_t>(k)], kk = static_cast<std::size_t>(k);
+        std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
+        std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
+        std::copy_n(r.allowed.data() + i * kActions, kActions, b.allowed.data() + kk * kActions);
+        b.actions[kk] = r.actions[i];
+        b.logprobs[kk] = r.logprobs[i];
+        b.active[kk] = r.active[i];
+        b.advantages[kk] = static_cast<float>((r.advantages[i] - mean) * scale);
+        b.returns[kk] = norm(r.returns[i]);
+        b.values[kk] = norm(r.values[i]);
+      }
+      all.push_back(nets.step(b, settings));
+      ++steps;
+    }
+  }
+  for (const auto& u : all) mean_stats.add(u, 1.0 / std::max(steps, 1));
+  return mean_stats;
+}
+
+// ---- the learner ---------------------------------------------------------------------------------
+
 MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
-  namespace fs = std::filesystem;
-  using Clock = std::chrono::steady_clock;
   const auto& m = cfg.marl;
   Run run(cfg, opt);
-  const auto& dir = run.dir;
-  const auto& device = run.device;
   VecEnv& vec = run.vec;
-  const Encoder enc = encoder_of(cfg, false);
+  const Encoder encoder = encoder_of(cfg, false);
+  const CriticReader critic = CriticReader::of(cfg, encoder);
   const SafetyOptions safety = safety_of(cfg);
-  const int N = vec.env(0).uavs(), M = vec.size(), obs_dim = enc.width(vec.env(0));
-  const CriticInput critic_in{m.algo == "ippo" ? "local" : m.critic_state, enc};
-  const int cin = critic_in.size(vec.env(0));
-
-  torch::manual_seed(cfg.run.seed);
-  Nets nets;
-  nets.actor = MlpNet(obs_dim, m.hidden, kActions);
-  nets.critic = MlpNet(cin, m.hidden, 1);
-  nets.actor->to(device);
-  nets.critic->to(device);
-  std::vector<torch::Tensor> params = nets.actor->parameters();
-  for (auto& p : nets.critic->parameters()) params.push_back(p);
-  torch::optim::Adam adam(params, torch::optim::AdamOptions(m.learning_rate));
-  RunningStats vnorm;
+  const int N = vec.env(0).uavs(), M = vec.size(), obs_width = encoder.width(vec.env(0)), critic_width = critic.width(vec.env(0));
+  auto nets = make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed);
+  RunningStats value_norm;
 
   std::int64_t steps = 0, updates = 0;
   std::string metrics = metrics_header();
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
-                          {"obs_dim", obs_dim}, {"encoder", m.encoder},
-                          {"critic_input", critic_in.kind}, {"critic_dim", cin},
+                          {"obs_dim", obs_width}, {"encoder", m.encoder}, {"backend", m.backend},
+                          {"critic_input", critic.name()}, {"critic_dim", critic_width},
                           {"hidden", m.hidden}, {"env_steps", steps}, {"updates", updates},
-                          {"value_mean", vnorm.mean}, {"value_var", vnorm.var}, {"value_count", vnorm.count},
+                          {"value_mean", value_norm.mean}, {"value_var", value_norm.var}, {"value_count", value_norm.count},
                           {"config", to_toml(cfg)}};
   };
   if (opt.resume) {
-    const auto old = run.resume(cfg, "critic_dim", cin, nets, adam, metrics);
+    const auto old = run.resume(cfg, "critic_dim", critic_width, *nets, metrics);
     steps = old.value("env_steps", std::int64_t{0});
     updates = old.value("updates", std::int64_t{0});
-    vnorm.mean = old.value("value_mean", 0.0);
-    vnorm.var = old.value("value_var", 1.0);
-    vnorm.count = old.value("value_count", 1e-4);
+    value_norm.mean = old.value("value_mean", 0.0);
+    value_norm.var = old.value("value_var", 1.0);
+    value_norm.count = old.value("value_count", 1e-4);
     if (opt.progress) *opt.progress << "resuming " << m.algo << " at " << steps << " environment steps\n";
   }
-  write_file_atomic((dir / "config.toml").string(), to_toml(cfg));
+  write_file_atomic((run.dir / "config.toml").string(), to_toml(cfg));
 
-  const int T = m.rollout;
-  const std::int64_t per_update = static_cast<std::int64_t>(T) * M;
-  const auto t_start = run.start;
+  const std::int64_t per_update = static_cast<std::int64_t>(m.rollout) * M;
   const std::int64_t start_steps = steps;
   std::unique_ptr<Progress> bar;
   if (opt.progress)
     bar = std::make_unique<Progress>(fmt::format("{} {} steps", m.algo, m.total_steps),
                                      static_cast<std::size_t>((m.total_steps - steps + per_update - 1) / per_update), *opt.progress, 10.0, 2.0);
+  Rollout rollout(m.rollout, M, N, obs_width, critic_width);
+  Minibatch scratch;
   EpisodeStats stats;
-  double last_pl = 0, last_vl = 0, last_ent = 0;
-
   while (steps < m.total_steps) {
     Rng rng(derive_seed(cfg.run.seed, 0x50504fULL, static_cast<std::uint64_t>(updates)));
-    // ---- rollout -----------------------------------------------------------------------------
-    std::vector<float> obs_buf, crit_buf;
-    obs_buf.reserve(static_cast<std::size_t>(T * M * N * obs_dim));
-    crit_buf.reserve(static_cast<std::size_t>(T * M * N * cin));
-    std::vector<int64_t> act_buf;
-    std::vector<float> logp_buf, mask_buf, allow_buf, val_buf, rew_buf, done_buf;
-    std::vector<float> obs(static_cast<std::size_t>(M * N * obs_dim)), crit(static_cast<std::size_t>(M * N * cin));
-    for (int t = 0; t < T; ++t) {
-      std::vector<float> mask;
-      for (int e = 0; e < M; ++e)
-        for (int n = 0; n < N; ++n) {
-          const auto i = static_cast<std::size_t>(e * N + n);
-          enc.write(vec.env(e), n, obs.data() + i * static_cast<std::size_t>(obs_dim));
-          critic_in.write(vec.env(e), n, crit.data() + i * static_cast<std::size_t>(cin));
-          mask.push_back(static_cast<float>(vec.env(e).mask(n)));
-        }
-      torch::Tensor logits, values;
-      {
-        torch::NoGradGuard ng;
-        logits = nets.actor(torch::from_blob(obs.data(), {M * N, obs_dim}).to(device)).to(torch::kCPU).contiguous();
-        values = vnorm.denormalise(nets.critic(torch::from_blob(crit.data(), {M * N, cin}).to(device)).to(torch::kCPU)).view({M * N});
-      }
-      auto la = logits.accessor<float, 2>();
-      const auto values_c = values.contiguous();
-      auto va = values_c.accessor<float, 1>();  // not values[i].item(): one tensor per agent and step
-      std::vector<std::vector<int>> actions(static_cast<std::size_t>(M));
-      std::vector<float> allow(static_cast<std::size_t>(M * N * kActions), 1.0f), logp(static_cast<std::size_t>(M * N), 0.0f);
-      for (int e = 0; e < M; ++e) {
-        // Each UAV samples from its policy restricted to its allowed moves (the reachability
-        // mask and the shield against the UAVs already placed); arrived agents STAY.
-        actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety, [&](int n, unsigned allowed) {
-          const int i = e * N + n;
-          double mx = -1e30;
-          for (int k = 0; k < kActions; ++k)
-            if (allowed >> k & 1u) mx = std::max(mx, static_cast<double>(la[i][k]));
-          double z = 0;
-          for (int k = 0; k < kActions; ++k)
-            if (allowed >> k & 1u) z += std::exp(static_cast<double>(la[i][k]) - mx);
-          double u = rng.uniform() * z, acc = 0;
-          int a = -1;
-          for (int k = 0; k < kActions; ++k) {
-            allow[static_cast<std::size_t>(i * kActions + k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
-            if (!(allowed >> k & 1u)) continue;
-            acc += std::exp(static_cast<double>(la[i][k]) - mx);
-            if (a < 0 && u < acc) a = k;
-          }
-          if (a < 0)
-            for (int k = kActions; k-- > 0;)
-              if (allowed >> k & 1u) { a = k; break; }
-          logp[static_cast<std::size_t>(i)] = static_cast<float>(static_cast<double>(la[i][a]) - mx - std::log(z));
-          return a;
-        });
-      }
-      for (int i = 0; i < M * N; ++i) {
-        const int a = actions[static_cast<std::size_t>(i / N)][static_cast<std::size_t>(i % N)];
-        act_buf.push_back(a);
-        logp_buf.push_back(logp[static_cast<std::size_t>(i)]);
-        val_buf.push_back(va[i]);
-      }
-      obs_buf.insert(obs_buf.end(), obs.begin(), obs.end());
-      crit_buf.insert(crit_buf.end(), crit.begin(), crit.end());
-      mask_buf.insert(mask_buf.end(), mask.begin(), mask.end());
-      allow_buf.insert(allow_buf.end(), allow.begin(), allow.end());
-      const auto infos = vec.step(actions);
-      for (int e = 0; e < M; ++e) {
-        rew_buf.push_back(static_cast<float>(infos[static_cast<std::size_t>(e)].reward));
-        done_buf.push_back(infos[static_cast<std::size_t>(e)].done ? 1.0f : 0.0f);
-        if (infos[static_cast<std::size_t>(e)].done) stats.add(infos[static_cast<std::size_t>(e)], N);
-      }
-    }
+    collect(vec, encoder, critic, safety, *nets, value_norm, rng, rollout, stats);
     steps += per_update;
-    // Bootstrap values of the states after the rollout.
-    std::vector<float> crit_last(static_cast<std::size_t>(M * N * cin));
-    for (int e = 0; e < M; ++e)
-      for (int n = 0; n < N; ++n) critic_in.write(vec.env(e), n, crit_last.data() + static_cast<std::size_t>((e * N + n) * cin));
-    torch::Tensor v_last;
-    {
-      torch::NoGradGuard ng;
-      v_last = vnorm.denormalise(nets.critic(torch::from_blob(crit_last.data(), {M * N, cin}).to(device)).to(torch::kCPU)).view({M * N});
-    }
-    const auto v_last_c = v_last.contiguous();
-    const auto v_last_a = v_last_c.accessor<float, 1>();
-    // ---- GAE per (environment, agent), with the team reward ------------------------------------
-    std::vector<float> adv_buf(static_cast<std::size_t>(T * M * N)), ret_buf(adv_buf.size());
-    for (int e = 0; e < M; ++e)
-      for (int n = 0; n < N; ++n) {
-        std::vector<double> r(static_cast<std::size_t>(T)), v(static_cast<std::size_t>(T + 1));
-        std::vector<int> d(static_cast<std::size_t>(T));
-        for (int t = 0; t < T; ++t) {
-          r[static_cast<std::size_t>(t)] = rew_buf[static_cast<std::size_t>(t * M + e)];
-          d[static_cast<std::size_t>(t)] = done_buf[static_cast<std::size_t>(t * M + e)] > 0;
-          v[static_cast<std::size_t>(t)] = val_buf[static_cast<std::size_t>((t * M + e) * N + n)];
-        }
-        v[static_cast<std::size_t>(T)] = v_last_a[e * N + n];
-        const auto a = gae(r, v, d, m.gamma, m.gae_lambda);
-        for (int t = 0; t < T; ++t) {
-          const auto i = static_cast<std::size_t>((t * M + e) * N + n);
-          adv_buf[i] = static_cast<float>(a[static_cast<std::size_t>(t)]);
-          ret_buf[i] = static_cast<float>(a[static_cast<std::size_t>(t)] + v[static_cast<std::size_t>(t)]);
-        }
-      }
-    const int64_t B = static_cast<int64_t>(T) * M * N;
-    const auto obs_t = torch::from_blob(obs_buf.data(), {B, obs_dim}).clone().to(device);
-    const auto crit_t = torch::from_blob(crit_buf.data(), {B, cin}).clone().to(device);
-    const auto act_t = torch::tensor(act_buf, torch::kInt64).to(device);
-    const auto logp_t = torch::from_blob(logp_buf.data(), {B}).clone().to(device);
-    const auto mask_t = torch::from_blob(mask_buf.data(), {B}).clone().to(device);
-    const auto allow_t = torch::from_blob(allow_buf.data(), {B, kActions}).clone().to(device);
-    auto adv_t = torch::from_blob(adv_buf.data(), {B}).clone().to(device);
-    auto ret_t = torch::from_blob(ret_buf.data(), {B}).clone().to(device);
-    auto vold_t = torch::from_blob(val_buf.data(), {B}).clone().to(device);
-    // Advantages normalised over the active agents; value targets in normalised units.
-    {
-      const auto mean = masked_mean(adv_t, mask_t);
-      const auto var = masked_mean((adv_t - mean).pow(2), mask_t);
-      adv_t = (adv_t - mean) / torch::sqrt(var + 1e-8);
-    }
-    if (m.value_norm) vnorm.update(ret_t.to(torch::kCPU));
-    const auto ret_n = m.value_norm ? vnorm.normalise(ret_t) : ret_t;
-    const auto vold_n = m.value_norm ? vnorm.normalise(vold_t) : vold_t;
-    // ---- PPO epochs ----------------------------------------------------------------------------
-    double pl = 0, vl = 0, ent = 0;
-    int count = 0;
-    const int64_t mb = std::max<int64_t>(1, B / m.minibatches);
-    for (int epoch = 0; epoch < m.epochs; ++epoch) {
-      std::vector<int64_t> perm(static_cast<std::size_t>(B));
-      std::iota(perm.begin(), perm.end(), 0);
-      for (std::size_t i = perm.size(); i > 1; --i) std::swap(perm[i - 1], perm[rng.below(i)]);
-      const auto perm_t = torch::tensor(perm, torch::kInt64).to(device);
-      for (int64_t first = 0; first + mb <= B; first += mb) {
-        const auto idx = perm_t.narrow(0, first, mb);
-        const auto logp_all = torch::log_softmax(masked_logits(nets.actor(obs_t.index_select(0, idx)), allow_t.index_select(0, idx)), 1);
-        const auto logp = logp_all.gather(1, act_t.index_select(0, idx).unsqueeze(1)).squeeze(1);
-        const auto entropy = -(logp_all.exp() * logp_all).sum(1);
-        const auto mk = mask_t.index_select(0, idx);
-        const auto actor_loss = -masked_mean(clipped_surrogate(logp, logp_t.index_select(0, idx), adv_t.index_select(0, idx), m.clip), mk);
-        const auto v = nets.critic(crit_t.index_select(0, idx)).view({mb});
-        const auto critic_loss = clipped_value_loss(v, vold_n.index_select(0, idx), ret_n.index_select(0, idx), m.clip);
-        const auto ent_mean = masked_mean(entropy, mk);
-        const auto loss = actor_loss + m.value_coef * critic_loss - m.entropy_coef * ent_mean;  // eq:total_loss
-        adam.zero_grad();
-        loss.backward();
-        if (m.grad_clip > 0) torch::nn::utils::clip_grad_norm_(params, m.grad_clip);
-        adam.step();
-        pl += actor_loss.item<double>();
-        vl += critic_loss.item<double>();
-        ent += ent_mean.item<double>();
-        ++count;
-      }
-    }
+    compute_advantages(rollout, m.gamma, m.gae_lambda);
+    const double explained = explained_variance(rollout);
+    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch);
     ++updates;
-    last_pl = pl / std::max(1, count), last_vl = vl / std::max(1, count), last_ent = ent / std::max(1, count);
-    const double elapsed = std::chrono::duration<double>(Clock::now() - t_start).count();
-    const double sps = static_cast<double>(steps - start_steps) / std::max(elapsed, 1e-9);
+    const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - run.start).count();
     if (stats.episodes > 0 || steps >= m.total_steps) {
-      metrics += metrics_row(cfg.run.seed, steps, stats, last_pl, last_vl, last_ent, 0.0, sps);
+      LearnerLog log;
+      log.policy_loss = u.policy_loss, log.value_loss = u.value_loss, log.entropy = u.entropy;
+      log.old_approx_kl = u.old_approx_kl, log.approx_kl = u.approx_kl, log.clipfrac = u.clipfrac;
+      log.explained_variance = explained, log.grad_norm = u.grad_norm;
+      metrics += metrics_row(cfg.run.seed, steps, stats, log, static_cast<double>(steps - start_steps) / std::max(elapsed, 1e-9));
       stats.clear();
     }
-    if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) run.checkpoint(meta(), nets, adam, metrics);
-    if (updates % m.checkpoint_every == 0 && steps < m.total_steps) run.validate(cfg, opt, meta(), nets, steps);
+    if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) run.checkpoint(meta(), *nets, metrics);
+    if (updates % m.checkpoint_every == 0 && steps < m.total_steps) run.validate(cfg, opt, meta(), *nets, steps);
     if (bar) bar->advance();
   }
   if (bar) bar->finish();
-  return run.finish(cfg, opt, meta(), nets, adam, metrics, steps, start_steps);
+  return run.finish(cfg, opt, meta(), *nets, metrics, steps, start_steps);
 }
 
 }  // namespace marl

@@ -43,6 +43,13 @@ struct Recording {
   void clear() { *this = Recording{}; }
 };
 
+LearnerLog vdn_log(double td_loss, double epsilon) {
+  LearnerLog log;
+  log.value_loss = td_loss;
+  log.epsilon = epsilon;
+  return log;
+}
+
 }  // namespace
 
 MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOptions& opt) {
@@ -68,6 +75,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   if (qmix)
     for (auto& p : nets.mixer->parameters()) params.push_back(p);
   torch::optim::Adam adam(params, torch::optim::AdamOptions(m.learning_rate));
+  TorchLearned learned(nets, adam);
   auto sync_target = [&] {
     torch::NoGradGuard ng;
     auto copy = [](torch::nn::Module& dst, torch::nn::Module& src) {
@@ -81,13 +89,13 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   std::string metrics = metrics_header();
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
-                          {"obs_dim", UavEnv::observation_size()}, {"context_dim", D - UavEnv::observation_size()}, {"state_dim", S}, {"hidden", m.hidden},
+                          {"obs_dim", UavEnv::observation_size()}, {"context_dim", D - UavEnv::observation_size()}, {"state_dim", S}, {"hidden", m.hidden}, {"backend", "torch"},
                           {"encoder", m.encoder},
                           {"mixer_embed", m.mixer_embed}, {"env_steps", steps}, {"grad_steps", grad_steps},
                           {"episodes", episodes}, {"config", to_toml(cfg)}};
   };
   if (opt.resume) {
-    const auto old = run.resume(cfg, "state_dim", S, nets, adam, metrics);
+    const auto old = run.resume(cfg, "state_dim", S, learned, metrics);
     steps = old.value("env_steps", std::int64_t{0});
     grad_steps = old.value("grad_steps", std::int64_t{0});
     episodes = old.value("episodes", std::int64_t{0});
@@ -252,17 +260,17 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
       ++updates;
       const double sps = static_cast<double>(steps - start_steps) /
                          std::max(std::chrono::duration<double>(Clock::now() - t_start).count(), 1e-9);
-      metrics += metrics_row(cfg.run.seed, steps, stats, 0.0, loss_count ? loss_sum / loss_count : 0.0, 0.0, eps, sps);
+      metrics += metrics_row(cfg.run.seed, steps, stats, vdn_log(loss_count ? loss_sum / loss_count : 0.0, eps), sps);
       stats.clear();
       loss_sum = 0;
       loss_count = 0;
-      if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) run.checkpoint(meta(), nets, adam, metrics);
-      if (updates % m.checkpoint_every == 0 && steps < m.total_steps) run.validate(cfg, opt, meta(), nets, steps);
+      if (updates % m.checkpoint_every == 0 || steps >= m.total_steps) run.checkpoint(meta(), learned, metrics);
+      if (updates % m.checkpoint_every == 0 && steps < m.total_steps) run.validate(cfg, opt, meta(), learned, steps);
       if (bar) bar->advance();
     }
   }
   if (bar) bar->finish();
-  return run.finish(cfg, opt, meta(), nets, adam, metrics, steps, start_steps);
+  return run.finish(cfg, opt, meta(), learned, metrics, steps, start_steps);
 }
 
 }  // namespace skyloop::marl

@@ -35,9 +35,11 @@ namespace {
 #endif
 
 using Kernel = void (*)(const float*, int, int, const float*, int, int, const float*, float*, int, bool);
+using Elementwise = void (*)(float*, long);
 
 struct Choice {
-  Kernel fn;
+  Kernel fn, fn_at;
+  Elementwise tanh;
   const char* isa;
 };
 
@@ -48,11 +50,11 @@ Choice choose() {
   __builtin_cpu_init();
   const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
   const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
-  if (cap == "default") return {generic::gemm, "default"};
-  if (avx512 && cap != "avx2") return {avx512::gemm, "avx512"};
-  if (avx2) return {avx2::gemm, "avx2"};
+  if (cap == "default") return {generic::gemm, generic::gemm_at, generic::tanh_inplace, "default"};
+  if (avx512 && cap != "avx2") return {avx512::gemm, avx512::gemm_at, avx512::tanh_inplace, "avx512"};
+  if (avx2) return {avx2::gemm, avx2::gemm_at, avx2::tanh_inplace, "avx2"};
 #endif
-  return {generic::gemm, "default"};
+  return {generic::gemm, generic::gemm_at, generic::tanh_inplace, "default"};
 }
 
 const Choice& chosen() {
@@ -83,6 +85,19 @@ void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, 
   if (ldc < w.out_pad) throw std::logic_error("fast::gemm: unpadded buffers");
   chosen().fn(A, lda, rows, w.wt.data(), w.in, w.out_pad, w.bias.empty() ? nullptr : w.bias.data(), C, ldc, accumulate);
 }
+
+void matmul(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* bias, float* C, int ldc,
+            bool accumulate) {
+  if (cols_pad % kColBlock != 0 || ldc < cols_pad) throw std::logic_error("fast::matmul: unpadded buffers");
+  chosen().fn(A, lda, rows, B, inner, cols_pad, bias, C, ldc, accumulate);
+}
+
+void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, float* C, int ldc) {
+  if (cols_pad % kColBlock != 0 || ldc < cols_pad) throw std::logic_error("fast::matmul_at: unpadded buffers");
+  chosen().fn_at(A, lda, rows, B, inner, cols_pad, nullptr, C, ldc, true);
+}
+
+void tanh_inplace(float* x, long n) { chosen().tanh(x, n); }
 
 std::string kernel_isa() { return chosen().isa; }
 

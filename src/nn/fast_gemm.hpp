@@ -29,6 +29,19 @@ Dense pack(const float* w, int out, int in_total, int first, int count, const fl
 /// accumulate = false overwrites C (with the bias, if any); true adds to it.
 void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, bool accumulate);
 
+/// The same kernel on any row-major B [inner x cols_pad] (cols_pad a multiple of kColBlock):
+/// C[i, :cols_pad] (+)= A[i, :inner] B (+ bias) for i < rows. The training path (the learners'
+/// fused MLPs, src/marl/fast_mlp.hpp) builds its forward and backward passes from it.
+void matmul(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* bias, float* C, int ldc,
+            bool accumulate);
+
+/// C[:rows, :cols_pad] += A^T B for A [inner x rows] of row stride lda: a weight's gradient
+/// X^T dY straight from the activations X [batch x in] (rows = in, inner = batch).
+void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, float* C, int ldc);
+
+/// x[i] = tanh(x[i]) for i < n, vectorised (absolute error within a few float32 ulps of 1).
+void tanh_inplace(float* x, long n);
+
 /// The kernel in use: "avx512", "avx2" or "default".
 std::string kernel_isa();
 

@@ -1,0 +1,152 @@
+#include "fast_mlp.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <stdexcept>
+
+#include "../nn/fast_gemm.hpp"
+
+namespace skyloop::marl::fast {
+
+namespace gemm = skyloop::nn::fast;
+
+namespace {
+
+/// bias_grad[c] += sum_r d[r, c] for c < cols.
+void column_sums(const float* d, int rows, int cols, int ld, float* bias_grad) {
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) bias_grad[c] += d[static_cast<std::size_t>(r) * ld + c];
+}
+
+/// dh[i] *= 1 - h[i]^2 (tanh's derivative from its output).
+void tanh_backward(const float* h, float* dh, std::size_t n) {
+  for (std::size_t i = 0; i < n; ++i) dh[i] *= 1.0f - h[i] * h[i];
+}
+
+template <typename T>
+void grow(std::vector<T>& v, std::size_t n) {
+  if (v.size() < n) v.resize(n);
+}
+
+}  // namespace
+
+Mlp::Mlp(int in, int hidden, int out)
+    : in_(in), hidden_(hidden), out_(out), hidden_pad_(gemm::pad_cols(hidden)), out_pad_(gemm::pad_cols(out)) {
+  if (in < 1 || hidden < 1 || out < 1) throw std::invalid_argument("fast::Mlp: sizes must be positive");
+  std::size_t at = 0;
+  auto take = [&](std::size_t n) {
+    const std::size_t here = at;
+    at += n;
+    return here;
+  };
+  w1_ = take(static_cast<std::size_t>(in_) * hidden_pad_);
+  b1_ = take(static_cast<std::size_t>(hidden_pad_));
+  w2_ = take(static_cast<std::size_t>(hidden_) * hidden_pad_);
+  b2_ = take(static_cast<std::size_t>(hidden_pad_));
+  w3_ = take(static_cast<std::size_t>(hidden_) * out_pad_);
+  b3_ = take(static_cast<std::size_t>(out_pad_));
+  params_.assign(at, 0.0f);
+  refresh();
+}
+
+void Mlp::refresh() {
+  // W [out x in] from the packed W^T [in x out_pad], rows padded to hidden_pad_.
+  w2_rows_.assign(static_cast<std::size_t>(hidden_) * hidden_pad_, 0.0f);
+  w3_rows_.assign(static_cast<std::size_t>(out_) * hidden_pad_, 0.0f);
+  for (int i = 0; i < hidden_; ++i)
+    for (int o = 0; o < hidden_; ++o)
+      w2_rows_[static_cast<std::size_t>(o) * hidden_pad_ + i] = params_[w2_ + static_cast<std::size_t>(i) * hidden_pad_ + o];
+  for (int i = 0; i < hidden_; ++i)
+    for (int o = 0; o < out_; ++o)
+      w3_rows_[static_cast<std::size_t>(o) * hidden_pad_ + i] = params_[w3_ + static_cast<std::size_t>(i) * out_pad_ + o];
+}
+
+void Mlp::set_torch_layout(const std::array<const float*, 6>& p) {
+  std::fill(params_.begin(), params_.end(), 0.0f);
+  auto put = [&](std::size_t w, std::size_t b, const float* wsrc, const float* bsrc, int out, int in, int stride) {
+    for (int o = 0; o < out; ++o) {
+      for (int i = 0; i < in; ++i) params_[w + static_cast<std::size_t>(i) * stride + o] = wsrc[static_cast<std::size_t>(o) * in + i];
+      params_[b + static_cast<std::size_t>(o)] = bsrc[o];
+    }
+  };
+  put(w1_, b1_, p[0], p[1], hidden_, in_, hidden_pad_);
+  put(w2_, b2_, p[2], p[3], hidden_, hidden_, hidden_pad_);
+  put(w3_, b3_, p[4], p[5], out_, hidden_, out_pad_);
+  refresh();
+}
+
+void Mlp::get_torch_layout(const std::array<float*, 6>& p) const {
+  auto get = [&](std::size_t w, std::size_t b, float* wdst, float* bdst, int out, int in, int stride) {
+    for (int o = 0; o < out; ++o) {
+      for (int i = 0; i < in; ++i) wdst[static_cast<std::size_t>(o) * in + i] = params_[w + static_cast<std::size_t>(i) * stride + o];
+      bdst[o] = params_[b + static_cast<std::size_t>(o)];
+    }
+  };
+  get(w1_, b1_, p[0], p[1], hidden_, in_, hidden_pad_);
+  get(w2_, b2_, p[2], p[3], hidden_, hidden_, hidden_pad_);
+  get(w3_, b3_, p[4], p[5], out_, hidden_, out_pad_);
+}
+
+void Mlp::forward(const float* x, int rows, float* out, Cache* cache) const {
+  if (rows <= 0) return;
+  Cache local;
+  Cache& c = cache ? *cache : local;
+  const std::size_t hn = static_cast<std::size_t>(rows) * hidden_pad_;
+  grow(c.h1, hn);
+  grow(c.h2, hn);
+  c.rows = rows;
+  c.x = x;
+  const float* p = params_.data();
+  gemm::matmul(x, in_, rows, p + w1_, in_, hidden_pad_, p + b1_, c.h1.data(), hidden_pad_, false);
+  gemm::tanh_inplace(c.h1.data(), static_cast<long>(hn));
+  gemm::matmul(c.h1.data(), hidden_pad_, rows, p + w2_, hidden_, hidden_pad_, p + b2_, c.h2.data(), hidden_pad_, false);
+  gemm::tanh_inplace(c.h2.data(), static_cast<long>(hn));
+  gemm::matmul(c.h2.data(), hidden_pad_, rows, p + w3_, hidden_, out_pad_, p + b3_, out, out_pad_, false);
+}
+
+void Mlp::backward(Cache& c, const float* dout, float* grad) const {
+  const int rows = c.rows;
+  if (rows <= 0) return;
+  const std::size_t hn = static_cast<std::size_t>(rows) * hidden_pad_;
+  grow(c.dh, hn);
+  // Layer 3: dW3^T += h2^T dout, db3 += sum dout, dh2 = dout W3.
+  gemm::matmul_at(c.h2.data(), hidden_pad_, hidden_, dout, rows, out_pad_, grad + w3_, out_pad_);
+  column_sums(dout, rows, out_, out_pad_, grad + b3_);
+  gemm::matmul(dout, out_pad_, rows, w3_rows_.data(), out_, hidden_pad_, nullptr, c.dh.data(), hidden_pad_, false);
+  tanh_backward(c.h2.data(), c.dh.data(), hn);
+  // Layer 2 (dh holds dz2).
+  gemm::matmul_at(c.h1.data(), hidden_pad_, hidden_, c.dh.data(), rows, hidden_pad_, grad + w2_, hidden_pad_);
+  column_sums(c.dh.data(), rows, hidden_, hidden_pad_, grad + b2_);
+  // dh1 = dz2 W2 goes into h2's buffer (h2 is no longer needed), then dz1.
+  gemm::matmul(c.dh.data(), hidden_pad_, rows, w2_rows_.data(), hidden_, hidden_pad_, nullptr, c.h2.data(), hidden_pad_, false);
+  tanh_backward(c.h1.data(), c.h2.data(), hn);
+  // Layer 1.
+  gemm::matmul_at(c.x, in_, in_, c.h2.data(), rows, hidden_pad_, grad + w1_, hidden_pad_);
+  column_sums(c.h2.data(), rows, hidden_, hidden_pad_, grad + b1_);
+}
+
+void Adam::step(float* params, const float* grad, std::size_t n) {
+  if (m.size() != n) m.assign(n, 0.0f), v.assign(n, 0.0f);
+  ++steps;
+  const double bc1 = 1.0 - std::pow(beta1, static_cast<double>(steps));
+  const double bc2 = 1.0 - std::pow(beta2, static_cast<double>(steps));
+  const float step_size = static_cast<float>(learning_rate / bc1);
+  const float root_bc2 = static_cast<float>(std::sqrt(bc2));
+  const float b1 = static_cast<float>(beta1), b2 = static_cast<float>(beta2), e = static_cast<float>(eps);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float g = grad[i];
+    m[i] = b1 * m[i] + (1.0f - b1) * g;
+    v[i] = b2 * v[i] + (1.0f - b2) * g * g;
+    params[i] -= step_size * m[i] / (std::sqrt(v[i]) / root_bc2 + e);
+  }
+}
+
+double norm(const std::vector<float>& g) {
+  double s = 0;
+  for (const float x : g) s += static_cast<double>(x) * x;
+  return std::sqrt(s);
+}
+
+}  // namespace skyloop::marl::fast

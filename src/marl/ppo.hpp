@@ -1,0 +1,125 @@
+#pragma once
+// The PPO core behind MAPPO and IPPO (Section V, Algorithm alg:mappo_training), in the shape of
+// CleanRL's ppo.py: a rollout storage shaped [T, M, N, ...], and three named phases
+//
+//   collect(...)             T steps of M environments, N agents each, with the current policy
+//   compute_advantages(...)  GAE per (environment, agent) with the team reward
+//   update(...)              marl.epochs passes of marl.minibatches clipped PPO steps
+//
+// over a PpoNetworks (actor, critic and their optimiser) that has two backends: "fast", the fused
+// float32 forward and backward passes of fast_mlp.hpp (the default), and "torch", LibTorch's
+// autograd (the reference, and the path for nn.device = cuda). marl.backend chooses.
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "common.hpp"
+#include "skyloop/core/rng.hpp"
+
+namespace skyloop::marl {
+
+/// What the critic reads, resolved once from marl.algo / marl.critic_state / marl.encoder.
+/// mlp encoder: the global state (MAPPO, critic_state = global), the agent-specific global state
+/// (agent) or the local observation (IPPO). set encoder: the agent's set observation, plus the
+/// compact state for MAPPO.
+struct CriticReader {
+  enum class Input { GlobalState, AgentState, LocalObservation };
+  Input input = Input::AgentState;
+  Encoder encoder;
+  static CriticReader of(const Config& cfg, const Encoder& encoder);
+  const char* name() const;  // global | agent | local (the policy header's critic_input)
+  int width(const UavEnv& env) const;
+  void write(const UavEnv& env, int n, float* out) const;
+};
+
+/// One rollout: T steps of M environments with N agents. Per-agent arrays are [T, M, N, ...]
+/// row-major (index at(t, e, n)), per-environment ones [T, M].
+struct Rollout {
+  Rollout(int steps, int envs, int agents, int obs_width, int critic_width);
+  int T, M, N, obs_width, critic_width;
+  std::vector<float> observations;     // [T, M, N, obs_width]: what the actor read
+  std::vector<float> critic_inputs;    // [T, M, N, critic_width]
+  std::vector<std::int64_t> actions;   // [T, M, N]
+  std::vector<float> logprobs;         // [T, M, N]: log pi_old(a | o) among the allowed moves
+  std::vector<float> values;           // [T, M, N]: V_old (denormalised)
+  std::vector<float> active;           // [T, M, N]: 1 while the UAV has not arrived
+  std::vector<float> allowed;          // [T, M, N, kActions]: 1 for the moves the UAV could take
+  std::vector<float> rewards, dones;   // [T, M]: team reward, 1 when the episode ended with the step
+  std::vector<float> next_values;      // [M, N]: V of the state after the last step (bootstrap)
+  std::vector<float> advantages;       // [T, M, N] (compute_advantages)
+  std::vector<float> returns;          // [T, M, N] = advantages + values
+  std::size_t at(int t, int e, int n) const {
+    return (static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)) * N + static_cast<std::size_t>(n);
+  }
+  std::size_t samples() const { return static_cast<std::size_t>(T) * M * N; }
+};
+
+/// Minibatch rows gathered contiguously from a rollout (advantages normalised, returns and old
+/// values in the critic's normalised units).
+struct Minibatch {
+  int rows = 0, obs_width = 0, critic_width = 0;
+  std::vector<float> observations, critic_inputs, logprobs, advantages, returns, values, active, allowed;
+  std::vector<std::int64_t> actions;
+};
+
+struct PpoSettings {
+  double clip = 0.2, value_coef = 0.5, entropy_coef = 0.01, grad_clip = 10.0;
+};
+
+/// One gradient step's statistics (CleanRL's names: losses/policy_loss, losses/value_loss,
+/// losses/entropy, losses/old_approx_kl, losses/approx_kl, losses/clipfrac), and the global
+/// gradient norm before clipping. Policy terms are means over active agents.
+struct UpdateStats {
+  double policy_loss = 0, value_loss = 0, entropy = 0, old_approx_kl = 0, approx_kl = 0, clipfrac = 0, grad_norm = 0;
+  void add(const UpdateStats& o, double w);
+};
+
+/// The loss of eq:total_loss (see PpoNetworks::step) on a minibatch from the networks' outputs
+/// (logits [rows x logit_stride], first kActions columns; values [rows x value_stride], first
+/// column), and its gradient with respect to them, written into the same places of dlogits and
+/// dvalues (other columns untouched). The fast backend's loss; the torch backend differentiates
+/// the same loss with autograd. grad_norm is left 0.
+UpdateStats ppo_loss(const Minibatch& batch, const PpoSettings& settings, const float* logits, int logit_stride,
+                     const float* values, int value_stride, float* dlogits, float* dvalues);
+
+/// Actor, critic and their optimiser (Adam, one learning rate), on one backend.
+class PpoNetworks : public Learned {
+ public:
+  /// logits [rows x kActions] of the actor on observations [rows x obs_width].
+  virtual void logits(const float* observations, int rows, float* out) = 0;
+  /// The critic's values [rows] in its normalised units.
+  virtual void values(const float* critic_inputs, int rows, float* out) = 0;
+  /// One step on the loss of eq:total_loss over the minibatch: the clipped surrogate (masked
+  /// mean over active agents), value_coef x the clipped value loss (eq:critic_loss, mean over
+  /// rows), minus entropy_coef x the masked mean entropy of the policy among the allowed moves;
+  /// the global gradient norm clipped to grad_clip (0: off).
+  virtual UpdateStats step(const Minibatch& batch, const PpoSettings& settings) = 0;
+};
+
+/// Actor obs_width -> hidden -> hidden -> kActions and critic critic_width -> ... -> 1, both
+/// initialised from LibTorch's default initialisation under `seed` (so both backends start from
+/// the same weights). backend: "fast" | "torch".
+std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
+                                               double learning_rate, const torch::Device& device, std::uint64_t seed);
+
+/// Fills the rollout with T steps of every environment: each active UAV samples from its policy
+/// among the moves its safety settings allow (sequential_safe_actions); arrived UAVs STAY.
+/// Finished episodes go to `stats`. Leaves next_values for the bootstrap.
+void collect(VecEnv& envs, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety,
+             PpoNetworks& nets, const RunningStats& value_norm, Rng& rng, Rollout& rollout, EpisodeStats& stats);
+
+/// GAE (gae() in marl.hpp) per (environment, agent) over the rollout: advantages and returns.
+void compute_advantages(Rollout& rollout, double gamma, double lambda);
+
+/// The fraction of the returns' variance the old values explain, over active agents:
+/// 1 - Var[returns - values] / Var[returns] (NaN when the returns do not vary).
+double explained_variance(const Rollout& rollout);
+
+/// marl.epochs passes over the rollout in marl.minibatches shuffled minibatches (order from
+/// `rng`); normalises the advantages over active agents and (marl.value_norm) updates
+/// `value_norm` with the returns first. Returns the mean statistics over all steps.
+UpdateStats update(const Rollout& rollout, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng,
+                   Minibatch& scratch);
+
+}  // namespace skyloop::marl

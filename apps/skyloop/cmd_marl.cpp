@@ -3,6 +3,7 @@
 #include <iostream>
 
 #include "common.hpp"
+#include "skyloop/planning/registry.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/config_io.hpp"
@@ -68,7 +69,7 @@ void add_marl_commands(CLI::App& app, Action& action) {
   eval->add_option("--policy", v->policies, "run directory (or policy.pt) of `skyloop train`; repeat for several");
   eval->add_option("--users", v->users, "number of users K (default: as trained)");
   eval->add_option("--seed", v->seed, "one layout: users seed (default: the training scenario's marl.users_seed)");
-  eval->add_option("--planner", v->planners, "also run these planners on the same users: random, greedy, seqgreedy, optimal");
+  eval->add_option("--planner", v->planners, "also run these planners on the same users: " + builtin_planners().names_text());
   eval->add_option("--layouts", v->layouts, "evaluate on this many layouts of --split, each against its exact optimum");
   eval->add_option("--split", v->split, "layouts from: test (default), validation or train (skyloop/env/layouts.hpp)");
   eval->add_option("--first", v->first, "index of the first layout (default 0)");

@@ -1,6 +1,7 @@
 #include <iostream>
 
 #include "common.hpp"
+#include "skyloop/planning/registry.hpp"
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/experiments/planning_run.hpp"
@@ -22,8 +23,8 @@ struct PlanCliOptions {
 
 void add_plan_command(CLI::App& app, Action& action) {
   auto o = std::make_shared<PlanCliOptions>();
-  auto* cmd = app.add_subcommand("plan", "plan UAV trajectories (random, greedy, seqgreedy, optimal) on one scenario");
-  cmd->add_option("--planner", o->planners, "comma-separated: random, greedy, seqgreedy, optimal")->capture_default_str();
+  auto* cmd = app.add_subcommand("plan", "plan UAV trajectories (" + builtin_planners().names_text() + ") on one scenario");
+  cmd->add_option("--planner", o->planners, "comma-separated: " + builtin_planners().names_text())->capture_default_str();
   cmd->add_option("--users", o->users, "number of users K (sets scenario.users)");
   cmd->add_option("--seed", o->seed, "seed of the users (and of the random planner)")->capture_default_str();
   cmd->add_option("--oracle", o->oracle, "beamformer behind R[t] (sets env.oracle; default the paper's GNN)");

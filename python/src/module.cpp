@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <mutex>
 
+#include "skyloop/planning/registry.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
@@ -449,13 +450,18 @@ py::dict plan(const Config& cfg, const std::string& planner, std::uint64_t users
   const Positions users = users_xy ? positions_from(Array<double>::ensure(*users_xy), cfg, "users")
                                    : make_users(cfg, cfg.scenario.users, users_seed);
   // The random planner's stream: as `skyloop plan --seed S` (derive_seed(S, "RAND")) unless given.
-  std::unique_ptr<Planner> p = make_planner(planner, planner_seed ? *planner_seed : derive_seed(users_seed, 0x52414e44ULL));
+  std::unique_ptr<Planner> p;
+  if (builtin_planners().contains(planner)) {
+    PlannerArgs args;
+    args.seed = planner_seed ? *planner_seed : derive_seed(users_seed, 0x52414e44ULL);
+    p = builtin_planners().create(planner, args);
+  }
 #ifdef SKYLOOP_HAS_TORCH
   if (!p && !planner.empty() && (std::filesystem::is_directory(planner) || std::filesystem::exists(planner)))
     p = MarlPolicy::load(planner);
 #endif
   if (!p)
-    throw InputError("planner '" + planner + "' is unknown: allowed " + kPlannerNames + ", or a trained policy directory");
+    throw InputError("planner '" + planner + "' is unknown: allowed " + builtin_planners().names_text() + ", or a trained policy directory");
   EpisodeRecord rec;
   {
     py::gil_scoped_release nogil;

@@ -5,6 +5,7 @@
 #include <sstream>
 #include <toml++/toml.h>
 
+#include "skyloop/planning/registry.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/paths.hpp"
@@ -185,7 +186,7 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
       if (s.algos.empty()) s.algos = {"mappo"};
       for (const auto& a : s.algos) check_in(source, "experiment.algos", a, {"mappo", "ippo", "vdn", "qmix"});
     }
-    for (const auto& p : s.planners) check_in(source, "experiment.planners", p, {"random", "greedy", "seqgreedy", "optimal"});
+    for (const auto& p : s.planners) check_in(source, "experiment.planners", p, builtin_planners().names());
   }
   return s;
 }

@@ -9,6 +9,7 @@
 #include <mutex>
 #include <ostream>
 
+#include "skyloop/planning/registry.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/csv.hpp"
 #include "skyloop/core/error.hpp"
@@ -96,7 +97,8 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   if (opt.layouts < 1) throw InputError("--layouts = " + std::to_string(opt.layouts) + " is out of range: allowed at least 1");
   for (const auto& p : opt.planners) {
     if (p == "optimal") continue;
-    if (!make_planner(p, 0)) throw InputError("--planner '" + p + "' is unknown: allowed " + kPlannerNames);
+    if (!builtin_planners().contains(p))
+      throw InputError("--planner '" + p + "' is unknown: allowed " + builtin_planners().names_text());
   }
   // Policy labels, checked (and loaded once) before the work.
   std::vector<std::string> labels;
@@ -146,7 +148,9 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
       out.push_back(row_of(rec, label, std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()));
     };
     for (const auto& name : names) {
-      auto p = make_planner(name, derive_seed(seed, 0x52414e44ULL));
+      PlannerArgs args;
+      args.seed = derive_seed(seed, 0x52414e44ULL);
+      auto p = builtin_planners().create(name, args);
       timed(*p, name);
     }
     for (std::size_t k = 0; k < labels.size(); ++k) {

@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 #include <ostream>
 
+#include "skyloop/planning/registry.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
@@ -13,7 +14,7 @@ namespace skyloop {
 
 std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& opt, const BeamformerRegistry& registry,
                                         std::ostream* progress, std::vector<double>* seconds) {
-  if (opt.planners.empty() && opt.extra.empty()) throw InputError(std::string("--planner is empty: allowed ") + kPlannerNames);
+  if (opt.planners.empty() && opt.extra.empty()) throw InputError("--planner is empty: allowed " + builtin_planners().names_text());
   std::vector<std::shared_ptr<Planner>> planners;
   const Positions users = make_users(cfg, cfg.scenario.users, opt.seed);
   // The exact optimum depends on the resolved config (not the learners' [marl] settings) and the
@@ -23,9 +24,9 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
   const std::string memo = to_toml(key) + "|users " +
                            std::to_string(hash_bytes(users.data(), sizeof(double) * static_cast<std::size_t>(users.size())));
   for (const auto& p : opt.planners) {
-    auto planner = make_planner(p, derive_seed(opt.seed, 0x52414e44ULL), progress, memo);
-    if (!planner) throw InputError("--planner '" + p + "' is unknown: allowed " + kPlannerNames);
-    planners.push_back(std::move(planner));
+    PlannerArgs args;
+    args.seed = derive_seed(opt.seed, 0x52414e44ULL), args.progress = progress, args.memo_key = memo;
+    planners.push_back(builtin_planners().create(p, args));  // InputError naming the known planners
   }
   planners.insert(planners.end(), opt.extra.begin(), opt.extra.end());
   if (!opt.out_dir.empty()) check_output_dir(opt.out_dir);  // before the work, not after it

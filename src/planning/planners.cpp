@@ -81,6 +81,8 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
   std::stable_sort(order.begin(), order.end(),
                    [&](int a, int b) { return slack[static_cast<std::size_t>(a)] < slack[static_cast<std::size_t>(b)]; });
   std::vector<int> a(static_cast<std::size_t>(n), kStay);
+  // Each UAV's feasible moves in the order the greedy pass prefers them (its choice first).
+  std::vector<std::vector<int>> ranked(static_cast<std::size_t>(n), std::vector<int>{kStay});
   Positions placed = env.positions();  // chosen moves so far; the others still in place
   const double dmin = env.d_min() - 1e-9;
   for (int i : order) {
@@ -104,27 +106,75 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
     if (options.empty()) continue;  // cannot happen on a feasible mission: STAY keeps it as it was
     const bool any_clear = std::find(clear.begin(), clear.end(), 1) != clear.end();
     const auto rates = env.oracle().sum_rates(next);
-    std::size_t best = options.size();
-    for (std::size_t c = 0; c < options.size(); ++c) {
-      if (any_clear && !clear[c]) continue;
-      if (best == options.size() || rates[c] > rates[best]) best = c;
-    }
-    a[static_cast<std::size_t>(i)] = options[best];
-    placed = next[best];
+    std::vector<std::size_t> pref(options.size());
+    for (std::size_t c = 0; c < pref.size(); ++c) pref[c] = c;
+    std::stable_sort(pref.begin(), pref.end(), [&](std::size_t x, std::size_t y) {
+      if (any_clear && clear[x] != clear[y]) return clear[x] > clear[y];
+      return rates[x] > rates[y];
+    });
+    auto& r = ranked[static_cast<std::size_t>(i)];
+    r.clear();
+    for (std::size_t c : pref) r.push_back(options[c]);
+    a[static_cast<std::size_t>(i)] = options[pref.front()];
+    placed = next[pref.front()];
   }
+  if (env.collisions(env.next_positions(a)) == 0) return a;
+  // The pass left a collision (a UAV met a move chosen before it with no clear move of its own).
+  // Search the UAVs' ranked moves depth-first, in the same order, for a collision-free joint move:
+  // the first found deviates least from the greedy choices. Bounded; the greedy move otherwise.
+  std::vector<double> x(static_cast<std::size_t>(n)), y(static_cast<std::size_t>(n));
+  std::vector<std::vector<std::pair<double, double>>> target(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i)
+    for (int k : ranked[static_cast<std::size_t>(i)]) {
+      double nx = env.positions()(i, 0), ny = env.positions()(i, 1);
+      env.move(env.positions()(i, 0), env.positions()(i, 1), k, nx, ny);
+      target[static_cast<std::size_t>(i)].emplace_back(nx, ny);
+    }
+  std::vector<std::size_t> pick(static_cast<std::size_t>(n), 0);
+  long budget = kSearchBudget;
+  int depth = 0;
+  while (depth >= 0 && budget-- > 0) {
+    if (depth == n) {
+      for (int d = 0; d < n; ++d) {
+        const int i = order[static_cast<std::size_t>(d)];
+        a[static_cast<std::size_t>(i)] = ranked[static_cast<std::size_t>(i)][pick[static_cast<std::size_t>(d)]];
+      }
+      return a;
+    }
+    const int i = order[static_cast<std::size_t>(depth)];
+    auto& k = pick[static_cast<std::size_t>(depth)];
+    if (k >= ranked[static_cast<std::size_t>(i)].size()) {  // exhausted: back up
+      k = 0;
+      if (--depth >= 0) ++pick[static_cast<std::size_t>(depth)];
+      continue;
+    }
+    const auto [nx, ny] = target[static_cast<std::size_t>(i)][k];
+    bool ok = true;
+    for (int d = 0; d < depth && ok; ++d) {
+      const int m = order[static_cast<std::size_t>(d)];
+      ok = std::hypot(nx - x[static_cast<std::size_t>(m)], ny - y[static_cast<std::size_t>(m)]) >= dmin;
+    }
+    if (!ok) {
+      ++k;
+      continue;
+    }
+    x[static_cast<std::size_t>(i)] = nx, y[static_cast<std::size_t>(i)] = ny;
+    ++depth;
+    if (depth < n) pick[static_cast<std::size_t>(depth)] = 0;
+  }
+  for (int i = 0; i < n; ++i) a[static_cast<std::size_t>(i)] = ranked[static_cast<std::size_t>(i)].front();
   return a;
 }
 
-std::unique_ptr<Planner> make_planner(const std::string& name, std::uint64_t random_seed, std::ostream* progress,
-                                      std::string memo_key) {
-  if (name == "random") return std::make_unique<RandomPlanner>(random_seed);
-  if (name == "greedy") return std::make_unique<GreedyPlanner>();
-  if (name == "seqgreedy") return std::make_unique<SequentialGreedyPlanner>();
-  if (name == "optimal") return std::make_unique<OptimalPlanner>(progress, std::move(memo_key));
-  return nullptr;
-}
-
 // ---- exact optimum --------------------------------------------------------------------------
+
+bool fits_optimal(const UavEnv& env) {
+  const double d = env.d_fly();
+  const double ox = std::fmod(env.starts()(0, 0), d), oy = std::fmod(env.starts()(0, 1), d);
+  const double G = (std::floor((env.area_x() - ox) / d + 1e-9) + 1) * (std::floor((env.area_y() - oy) / d + 1e-9) + 1);
+  const double states = std::pow(G, env.uavs());
+  return states <= 5e6 && states * env.t_max() <= 134217728.0;
+}
 
 OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   using Clock = std::chrono::steady_clock;

@@ -14,6 +14,7 @@
 #include <string>
 #include <thread>
 
+#include "skyloop/planning/registry.hpp"
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/channel/network.hpp"
 #include "skyloop/channel/system_model.hpp"
@@ -65,7 +66,9 @@ void exercise(const std::string& assignment) {
     // table limits, tested on the paper grid below.
     if (std::string(planner) == "optimal" && cfg.scenario.users > 256) continue;
     UavEnv env(cfg, oracle);
-    const auto p = make_planner(planner, 1);
+    PlannerArgs args;
+    args.seed = 1;
+    const auto p = builtin_planners().create(planner, args);
     (void)run_episode(env, *p);
   }
   UavEnv env(cfg, oracle);

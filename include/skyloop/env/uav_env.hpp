@@ -65,6 +65,7 @@ class UavEnv {
   int t_max() const { return t_max_; }
   bool done() const { return done_; }
   const Positions& positions() const { return pos_; }
+  const Positions& starts() const { return start_; }
   const Positions& destinations() const { return dest_; }
   bool arrived(int n) const { return arrived_[static_cast<std::size_t>(n)]; }
   /// Active-agent mask m_n (0 once arrived).

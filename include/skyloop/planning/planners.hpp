@@ -54,9 +54,13 @@ class GreedyPlanner final : public Planner {
 /// next-slot sum rate given the moves already chosen, the UAVs still to choose held in place.
 /// An action that brings the UAV within D_min of a UAV already placed (or of one still in place)
 /// is masked whenever another feasible action avoids it. Ties go to the lowest action index.
-/// The 5 candidates of each UAV go to the oracle in one batched call.
+/// The 5 candidates of each UAV go to the oracle in one batched call. If the pass still leaves a
+/// collision, a depth-first search over each UAV's moves in the pass's order of preference finds
+/// a collision-free joint move whenever one exists (within kSearchBudget steps; beyond it, the
+/// pass's move).
 class SequentialGreedyPlanner final : public Planner {
  public:
+  static constexpr long kSearchBudget = 2000000;
   std::string name() const override { return "seqgreedy"; }
   std::vector<int> act(UavEnv& env) override;
 };
@@ -102,12 +106,46 @@ class OptimalPlanner final : public Planner {
   OptimalPlan plan_;
 };
 
-/// The heuristic and exact planners by name: "random" (seeded by random_seed), "greedy",
-/// "seqgreedy", "optimal" (progress and memo_key as OptimalPlanner); nullptr for another name.
-std::unique_ptr<Planner> make_planner(const std::string& name, std::uint64_t random_seed, std::ostream* progress = nullptr,
-                                      std::string memo_key = {});
-/// The names make_planner knows, for error messages: "random, greedy, seqgreedy, optimal".
-constexpr const char* kPlannerNames = "random, greedy, seqgreedy, optimal";
+/// Whether solve_optimal can run on this scenario: the joint grid (cells^N) within 5e6 states and
+/// the value table (states x T_max) within 2^27 entries.
+bool fits_optimal(const UavEnv& env);
+
+struct BestKnownPlan {
+  double objective = 0;                     // (1/T) sum_{t=1}^T R[t]
+  int T = 0;
+  std::vector<std::vector<int>> actions;    // joint action of slots 1..T-1
+  bool exact = false;                       // the exact optimum (solve_optimal) rather than best responses
+  double start_objective = 0;               // the sequential greedy's, where the best responses began
+  int rounds = 0, improvements = 0, collisions = 0;
+  double seconds = 0;
+};
+
+/// The best joint trajectories known without the joint DP: the exact optimum (solve_optimal)
+/// where it fits (fits_optimal) unless `iterated` is set; otherwise, from the sequential greedy's
+/// episode, rounds of best responses: for each UAV in turn, its exact optimum of the joint
+/// objective over its own trajectory (Dinkelbach's method and a DP over its grid cells and the
+/// slots, the sum rate evaluated with the other UAVs at their fixed positions of each slot,
+/// cells within D_min of them excluded, waiting at its destination until the others are home),
+/// kept if it lowers the collisions or raises the objective; until a round improves no UAV or
+/// `max_rounds`. Each round evaluates about (grid cells x T_max) joint positions per UAV.
+BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress = nullptr, int max_rounds = 20, bool iterated = false);
+
+/// Replays solve_best_known's plan.
+class BestKnownPlanner final : public Planner {
+ public:
+  explicit BestKnownPlanner(std::ostream* progress = nullptr, int max_rounds = 20, bool iterated = false)
+      : progress_(progress), max_rounds_(max_rounds), force_iterated_(iterated) {}
+  std::string name() const override { return "bestknown"; }
+  void reset(UavEnv& env) override;
+  std::vector<int> act(UavEnv& env) override;
+  const BestKnownPlan& plan() const { return plan_; }
+
+ private:
+  std::ostream* progress_;
+  int max_rounds_;
+  bool force_iterated_;
+  BestKnownPlan plan_;
+};
 
 /// Best objective by enumerating every feasible joint action sequence (tiny instances only; the
 /// check of solve_optimal). -1 if no sequence brings every UAV home by T_max.

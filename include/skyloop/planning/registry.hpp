@@ -1,0 +1,53 @@
+#pragma once
+// Trajectory planners by name, like the beamformer registry: the CLI (`plan --planner`, `eval
+// --planner`), the experiment files (experiment.planners), `reproduce` and Python all read this
+// one list. A user adds their own:
+//
+//   skyloop::builtin_planners().add("mine", "my heuristic", [](const skyloop::PlannerArgs& a) {
+//     return std::make_unique<MyPlanner>(a.seed);
+//   });
+#include <cstdint>
+#include <functional>
+#include <iosfwd>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "skyloop/planning/planners.hpp"
+
+namespace skyloop {
+
+struct PlannerArgs {
+  std::uint64_t seed = 0;           // randomised planners
+  std::ostream* progress = nullptr; // long-running planners report here
+  std::string memo_key;             // optimal: plans kept for the process under this key (OptimalPlanner)
+};
+
+using PlannerFactory = std::function<std::unique_ptr<Planner>(const PlannerArgs&)>;
+
+class PlannerRegistry {
+ public:
+  /// Adds (or replaces) a planner; names keep the order of their first registration.
+  void add(const std::string& name, std::string description, PlannerFactory factory);
+  /// Builds the planner; throws InputError "planner 'x' is unknown: allowed a, b, c".
+  std::unique_ptr<Planner> create(const std::string& name, const PlannerArgs& args = {}) const;
+  bool contains(const std::string& name) const;
+  std::vector<std::string> names() const;
+  /// "random, greedy, ..." for help texts and errors.
+  std::string names_text() const;
+  /// (name, description) in registration order.
+  std::vector<std::pair<std::string, std::string>> list() const;
+
+ private:
+  struct Entry {
+    std::string name, description;
+    PlannerFactory factory;
+  };
+  std::vector<Entry> entries_;
+};
+
+/// The built-in planners: random, greedy, seqgreedy, bestknown, optimal.
+PlannerRegistry& builtin_planners();
+
+}  // namespace skyloop

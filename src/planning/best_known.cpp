@@ -1,0 +1,250 @@
+// The best-known planner: the exact optimum where the joint dynamic programme fits, and beyond it
+// iterated best responses, each UAV's exact single-UAV optimum (Dinkelbach over its own grid and
+// the slots) with the other UAVs' trajectories fixed, until no UAV improves the joint objective.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <ostream>
+
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+#include "skyloop/planning/planners.hpp"
+
+namespace skyloop {
+
+namespace {
+
+constexpr double kNegInf = -std::numeric_limits<double>::infinity();
+
+/// One UAV's D_fly lattice through its start, clipped to the area.
+struct Lattice {
+  double ox = 0, oy = 0, d = 1;
+  int nx = 0, ny = 0;
+  Lattice(const UavEnv& env, int n) : d(env.d_fly()) {
+    ox = std::fmod(env.starts()(n, 0), d), oy = std::fmod(env.starts()(n, 1), d);
+    nx = static_cast<int>(std::floor((env.area_x() - ox) / d + 1e-9)) + 1;
+    ny = static_cast<int>(std::floor((env.area_y() - oy) / d + 1e-9)) + 1;
+  }
+  int cells() const { return nx * ny; }
+  int cell(double x, double y) const {
+    return static_cast<int>(std::lround((y - oy) / d)) * nx + static_cast<int>(std::lround((x - ox) / d));
+  }
+  double x(int c) const { return ox + d * (c % nx); }
+  double y(int c) const { return oy + d * (c / nx); }
+  int manhattan(int a, int b) const { return std::abs(a % nx - b % nx) + std::abs(a / nx - b / nx); }
+  /// The cell after action a, or -1 outside the grid.
+  int step(int c, int a) const {
+    const int ix = c % nx + (a == kRight) - (a == kLeft), iy = c / nx + (a == kUp) - (a == kDown);
+    return ix >= 0 && ix < nx && iy >= 0 && iy < ny ? iy * nx + ix : -1;
+  }
+  int action(int from, int to) const {
+    for (int a = 0; a < kActions; ++a)
+      if (step(from, a) == to) return a;
+    throw std::logic_error("best-known planner: non-adjacent cells on a trajectory");
+  }
+};
+
+/// Joint trajectories as positions per UAV and slot (slot 1 = the starts); after its arrival a
+/// UAV stays at its destination.
+struct Trajectories {
+  std::vector<std::vector<int>> cell;  // [N][T_n] cells of each UAV's own lattice, slot 1..T_n
+  int T() const {
+    std::size_t t = 0;
+    for (const auto& c : cell) t = std::max(t, c.size());
+    return static_cast<int>(t);
+  }
+  int at(int n, int t) const {  // cell at slot t (1-based), the destination after arrival
+    const auto& c = cell[static_cast<std::size_t>(n)];
+    return c[std::min(c.size(), static_cast<std::size_t>(t)) - 1];
+  }
+};
+
+}  // namespace
+
+BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_rounds, bool iterated) {
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  BestKnownPlan plan;
+  if (!iterated && fits_optimal(env)) {
+    const auto o = solve_optimal(env, progress);
+    plan.objective = o.objective, plan.T = o.T, plan.actions = o.actions, plan.exact = true;
+    plan.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    return plan;
+  }
+  env.reset();
+  const int N = env.uavs(), Tmax = env.t_max();
+  std::vector<Lattice> lat;
+  for (int n = 0; n < N; ++n) lat.emplace_back(env, n);
+  std::vector<int> s_cell(static_cast<std::size_t>(N)), d_cell(static_cast<std::size_t>(N));
+  for (int n = 0; n < N; ++n) {
+    s_cell[static_cast<std::size_t>(n)] = lat[static_cast<std::size_t>(n)].cell(env.starts()(n, 0), env.starts()(n, 1));
+    d_cell[static_cast<std::size_t>(n)] = lat[static_cast<std::size_t>(n)].cell(env.destinations()(n, 0), env.destinations()(n, 1));
+  }
+  const double dmin = env.d_min() - 1e-9;
+
+  // Start from the sequential greedy's episode.
+  Trajectories cur;
+  cur.cell.resize(static_cast<std::size_t>(N));
+  {
+    SequentialGreedyPlanner seq;
+    const auto rec = run_episode(env, seq);
+    for (int n = 0; n < N; ++n) {
+      auto& c = cur.cell[static_cast<std::size_t>(n)];
+      for (const auto& p : rec.positions) {
+        c.push_back(lat[static_cast<std::size_t>(n)].cell(p(n, 0), p(n, 1)));
+        if (c.back() == d_cell[static_cast<std::size_t>(n)]) break;
+      }
+      if (c.back() != d_cell[static_cast<std::size_t>(n)])
+        throw InputError("the best-known planner's start (the sequential greedy) does not bring UAV " + std::to_string(n) +
+                         " home by trajectory.t_max");
+    }
+  }
+  auto positions_at = [&](const Trajectories& tr, int t) {
+    Positions p(N, 2);
+    for (int n = 0; n < N; ++n) {
+      const int c = tr.at(n, t);
+      p(n, 0) = lat[static_cast<std::size_t>(n)].x(c), p(n, 1) = lat[static_cast<std::size_t>(n)].y(c);
+    }
+    return p;
+  };
+  auto evaluate = [&](const Trajectories& tr, int& collisions) {
+    std::vector<Positions> slots;
+    collisions = 0;
+    for (int t = 1; t <= tr.T(); ++t) {
+      slots.push_back(positions_at(tr, t));
+      collisions += env.collisions(slots.back());
+    }
+    const auto r = env.oracle().sum_rates(slots);
+    double total = 0;
+    for (double x : r) total += x;
+    return total / static_cast<double>(tr.T());
+  };
+  int cur_collisions = 0;
+  double cur_objective = evaluate(cur, cur_collisions);
+  plan.start_objective = cur_objective;
+
+  // Best response of UAV i with the others fixed.
+  auto best_response = [&](int i, Trajectories& tr, double& objective, int& collisions) {
+    const auto& L = lat[static_cast<std::size_t>(i)];
+    const int G = L.cells(), si = s_cell[static_cast<std::size_t>(i)], di = d_cell[static_cast<std::size_t>(i)];
+    int T_others = 0;
+    for (int m = 0; m < N; ++m)
+      if (m != i) T_others = std::max(T_others, static_cast<int>(tr.cell[static_cast<std::size_t>(m)].size()));
+    // R[t][c]: the sum rate at slot t with UAV i at c (NaN: not reachable there, or too close to
+    // another UAV at t). Slots up to max(T_max, T_others).
+    const int Tend = std::max(Tmax, T_others);
+    std::vector<std::vector<double>> R(static_cast<std::size_t>(Tend + 1), std::vector<double>(static_cast<std::size_t>(G), NAN));
+    std::vector<Positions> batch;
+    std::vector<std::pair<int, int>> where;
+    for (int t = 1; t <= Tend; ++t) {
+      Positions p = positions_at(tr, t);
+      for (int c = 0; c < G; ++c) {
+        const bool on_path = t <= Tmax ? L.manhattan(si, c) <= t - 1 && L.manhattan(c, di) <= Tmax - t : c == di;
+        if (!on_path) continue;
+        const double x = L.x(c), y = L.y(c);
+        bool clear = true;
+        for (int m = 0; m < N && clear; ++m)
+          if (m != i) clear = std::hypot(x - p(m, 0), y - p(m, 1)) >= dmin;
+        if (!clear) continue;
+        p(i, 0) = x, p(i, 1) = y;
+        batch.push_back(p);
+        where.emplace_back(t, c);
+      }
+    }
+    const auto rates = env.oracle().sum_rates(batch);
+    for (std::size_t k = 0; k < rates.size(); ++k) R[static_cast<std::size_t>(where[k].first)][static_cast<std::size_t>(where[k].second)] = rates[k];
+    // After arriving at slot tau, UAV i waits at its destination until the others are home.
+    auto tail = [&](int tau, double lambda) {
+      double v = 0;
+      for (int t = tau + 1; t <= T_others; ++t) {
+        const double r = R[static_cast<std::size_t>(t)][static_cast<std::size_t>(di)];
+        if (std::isnan(r)) return kNegInf;
+        v += r - lambda;
+      }
+      return v;
+    };
+    if (std::isnan(R[1][static_cast<std::size_t>(si)])) return false;
+    double lambda = objective;
+    std::vector<std::vector<double>> V(static_cast<std::size_t>(Tmax + 1), std::vector<double>(static_cast<std::size_t>(G), kNegInf));
+    bool improved = false;
+    for (int iter = 0; iter < 50; ++iter) {
+      // V[t][c]: the best sum of (R - lambda) over slots t + 1.. from cell c at slot t (not arrived).
+      for (int t = Tmax; t >= 1; --t)
+        for (int c = 0; c < G; ++c) {
+          double best = kNegInf;
+          if (t < Tmax && c != di && !std::isnan(R[static_cast<std::size_t>(t)][static_cast<std::size_t>(c)]))
+            for (int a = 0; a < kActions; ++a) {
+              const int c2 = a == kStay ? c : L.step(c, a);
+              if (c2 < 0) continue;
+              const double r = R[static_cast<std::size_t>(t + 1)][static_cast<std::size_t>(c2)];
+              if (std::isnan(r)) continue;
+              const double rest = c2 == di ? tail(t + 1, lambda) : V[static_cast<std::size_t>(t + 1)][static_cast<std::size_t>(c2)];
+              best = std::max(best, r - lambda + rest);
+            }
+          V[static_cast<std::size_t>(t)][static_cast<std::size_t>(c)] = best;
+        }
+      if (!std::isfinite(V[1][static_cast<std::size_t>(si)])) return improved;
+      // The maximiser's path and its true objective.
+      std::vector<int> path{si};
+      while (path.back() != di) {
+        const int t = static_cast<int>(path.size()), c = path.back();
+        int next = -1;
+        double best = kNegInf;
+        for (int a = 0; a < kActions; ++a) {
+          const int c2 = a == kStay ? c : L.step(c, a);
+          if (c2 < 0) continue;
+          const double r = R[static_cast<std::size_t>(t + 1)][static_cast<std::size_t>(c2)];
+          if (std::isnan(r)) continue;
+          const double v = r - lambda + (c2 == di ? tail(t + 1, lambda) : V[static_cast<std::size_t>(t + 1)][static_cast<std::size_t>(c2)]);
+          if (v > best) best = v, next = c2;
+        }
+        path.push_back(next);
+      }
+      Trajectories trial = tr;
+      trial.cell[static_cast<std::size_t>(i)] = path;
+      int trial_collisions = 0;
+      const double j = evaluate(trial, trial_collisions);
+      const bool better = trial_collisions < collisions || (trial_collisions == collisions && j > objective * (1 + 1e-12));
+      if (!better) break;
+      tr = trial, objective = j, collisions = trial_collisions, improved = true;
+      if (j <= lambda * (1 + 1e-12)) break;
+      lambda = j;
+    }
+    return improved;
+  };
+
+  for (int round = 1; round <= max_rounds; ++round) {
+    plan.rounds = round;
+    bool any = false;
+    for (int i = 0; i < N; ++i)
+      if (best_response(i, cur, cur_objective, cur_collisions)) any = true, ++plan.improvements;
+    if (progress)
+      *progress << "bestknown: round " << round << "  objective " << format_double(cur_objective) << "  collisions "
+                << cur_collisions << "\n" << std::flush;
+    if (!any) break;
+  }
+  plan.objective = cur_objective;
+  plan.T = cur.T();
+  plan.collisions = cur_collisions;
+  for (int t = 1; t < plan.T; ++t) {
+    std::vector<int> a(static_cast<std::size_t>(N), kStay);
+    for (int n = 0; n < N; ++n)
+      if (cur.at(n, t) != d_cell[static_cast<std::size_t>(n)])
+        a[static_cast<std::size_t>(n)] = lat[static_cast<std::size_t>(n)].action(cur.at(n, t), cur.at(n, t + 1));
+    plan.actions.push_back(std::move(a));
+  }
+  plan.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  env.reset();
+  return plan;
+}
+
+void BestKnownPlanner::reset(UavEnv& env) { plan_ = solve_best_known(env, progress_, max_rounds_, force_iterated_); }
+
+std::vector<int> BestKnownPlanner::act(UavEnv& env) {
+  const auto k = static_cast<std::size_t>(env.t() - 1);
+  if (k >= plan_.actions.size()) return std::vector<int>(static_cast<std::size_t>(env.uavs()), kStay);
+  return plan_.actions[k];
+}
+
+}  // namespace skyloop

@@ -1,0 +1,65 @@
+#include "skyloop/planning/registry.hpp"
+
+#include "skyloop/core/error.hpp"
+
+namespace skyloop {
+
+void PlannerRegistry::add(const std::string& name, std::string description, PlannerFactory factory) {
+  for (auto& e : entries_)
+    if (e.name == name) {
+      e.description = std::move(description);
+      e.factory = std::move(factory);
+      return;
+    }
+  entries_.push_back(Entry{name, std::move(description), std::move(factory)});
+}
+
+std::unique_ptr<Planner> PlannerRegistry::create(const std::string& name, const PlannerArgs& args) const {
+  for (const auto& e : entries_)
+    if (e.name == name) return e.factory(args);
+  throw InputError("planner '" + name + "' is unknown: allowed " + names_text());
+}
+
+bool PlannerRegistry::contains(const std::string& name) const {
+  for (const auto& e : entries_)
+    if (e.name == name) return true;
+  return false;
+}
+
+std::vector<std::string> PlannerRegistry::names() const {
+  std::vector<std::string> out;
+  for (const auto& e : entries_) out.push_back(e.name);
+  return out;
+}
+
+std::string PlannerRegistry::names_text() const {
+  std::string out;
+  for (const auto& e : entries_) out += (out.empty() ? "" : ", ") + e.name;
+  return out;
+}
+
+std::vector<std::pair<std::string, std::string>> PlannerRegistry::list() const {
+  std::vector<std::pair<std::string, std::string>> out;
+  for (const auto& e : entries_) out.emplace_back(e.name, e.description);
+  return out;
+}
+
+PlannerRegistry& builtin_planners() {
+  static PlannerRegistry reg = [] {
+    PlannerRegistry r;
+    r.add("random", "uniform over each UAV's feasible moves (the paper's Random)",
+          [](const PlannerArgs& a) { return std::make_unique<RandomPlanner>(a.seed); });
+    r.add("greedy", "best next-slot sum rate over all 5^N joint moves, collision-free first (the paper's Greedy; N <= 8)",
+          [](const PlannerArgs&) { return std::make_unique<GreedyPlanner>(); });
+    r.add("seqgreedy", "greedy one UAV at a time (least slack first), with a search for a collision-free joint move; linear in N",
+          [](const PlannerArgs&) { return std::make_unique<SequentialGreedyPlanner>(); });
+    r.add("bestknown", "each UAV's exact trajectory given the others', iterated until no UAV improves (scales to large N)",
+          [](const PlannerArgs& a) { return std::make_unique<BestKnownPlanner>(a.progress); });
+    r.add("optimal", "the exact optimum of P2.2 by dynamic programming over the joint grid state (small N)",
+          [](const PlannerArgs& a) { return std::make_unique<OptimalPlanner>(a.progress, a.memo_key); });
+    return r;
+  }();
+  return reg;
+}
+
+}  // namespace skyloop

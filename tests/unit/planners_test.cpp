@@ -1,0 +1,144 @@
+// The planners beyond the paper's baselines: the sequential greedy's collision-free search, the
+// best-known planner against the exact optimum, and the planner registry.
+#include <gtest/gtest.h>
+
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/experiments/builtin.hpp"
+#include "skyloop/planning/planners.hpp"
+#include "skyloop/planning/registry.hpp"
+
+using namespace skyloop;
+
+namespace {
+
+Config scene(const std::vector<std::string>& sets) {
+  std::vector<std::string> all = {"env.oracle=mrt"};
+  all.insert(all.end(), sets.begin(), sets.end());
+  return resolve_config(std::nullopt, all);
+}
+
+std::shared_ptr<RateOracle> oracle_of(const Config& cfg, std::uint64_t users_seed) {
+  return std::make_shared<RateOracle>(cfg, builtin_beamformers().create(cfg.env.oracle, cfg),
+                                      make_users(cfg, cfg.scenario.users, users_seed));
+}
+
+/// Whether some joint move of feasible actions leaves no two UAVs within D_min (all 5^N).
+bool collision_free_move_exists(const UavEnv& env) {
+  const int n = env.uavs();
+  int total = 1;
+  for (int i = 0; i < n; ++i) total *= kActions;
+  for (int j = 0; j < total; ++j) {
+    std::vector<int> a(static_cast<std::size_t>(n));
+    bool ok = true;
+    for (int i = 0, r = j; i < n && ok; ++i, r /= kActions) {
+      a[static_cast<std::size_t>(i)] = r % kActions;
+      ok = env.feasible(i, a[static_cast<std::size_t>(i)]);
+    }
+    if (ok && env.collisions(env.next_positions(a)) == 0) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+// Crowded small scenes (4 to 6 UAVs on a 7 x 7 lattice, D_min above D_fly), walked by the random
+// planner into every kind of crowding: wherever a collision-free joint move of feasible actions
+// exists (checked over all 5^N), the sequential greedy's move is collision-free and feasible.
+TEST(Planners, SequentialGreedyAvoidsCollisionsWheneverItCan) {
+  int checked = 0, crowded = 0;
+  for (int uavs : {4, 5, 6})
+    for (std::uint64_t layout = 1; layout <= 12; ++layout) {
+      Config cfg = scene({"scenario.uavs=" + std::to_string(uavs), "scenario.users=8", "scenario.area_x_m=120",
+                          "scenario.area_y_m=120", "trajectory.layout=generated", "trajectory.layout_seed=" + std::to_string(layout),
+                          "trajectory.t_max=16", "trajectory.d_min_m=25"});
+      UavEnv env(cfg, oracle_of(cfg, layout));
+      RandomPlanner walk(layout);
+      SequentialGreedyPlanner seq;
+      env.reset();
+      walk.reset(env);
+      seq.reset(env);
+      while (!env.done()) {
+        const auto a = seq.act(env);
+        for (int i = 0; i < env.uavs(); ++i) ASSERT_TRUE(env.feasible(i, a[static_cast<std::size_t>(i)]));
+        crowded += env.collisions(env.next_positions(walk.act(env))) > 0;
+        if (collision_free_move_exists(env)) {
+          ++checked;
+          EXPECT_EQ(env.collisions(env.next_positions(a)), 0) << uavs << " UAVs, layout " << layout << ", slot " << env.t();
+        }
+        env.step(walk.act(env));
+      }
+    }
+  EXPECT_GT(checked, 100);
+  EXPECT_GT(crowded, 10) << "the scenes should be crowded enough for random moves to collide";
+}
+
+// Where the joint DP runs, the best-known planner is the exact optimum; its best responses alone
+// are exact for one UAV, and for 2 and 3 UAVs lie between the sequential greedy and the optimum.
+TEST(Planners, BestKnownAgainstTheExactOptimum) {
+  for (int uavs : {1, 2, 3})
+    for (std::uint64_t layout = 1; layout <= 3; ++layout) {
+      Config cfg = scene({"scenario.uavs=" + std::to_string(uavs), "scenario.users=10", "scenario.area_x_m=120",
+                          "scenario.area_y_m=120", "trajectory.layout=generated", "trajectory.layout_seed=" + std::to_string(layout),
+                          "trajectory.t_max=14", "env.oracle=zf"});
+      UavEnv env(cfg, oracle_of(cfg, 10 + layout));
+      const double optimum = solve_optimal(env).objective;
+      const auto exact = solve_best_known(env);
+      EXPECT_TRUE(exact.exact);
+      EXPECT_DOUBLE_EQ(exact.objective, optimum);
+      const auto iterated = solve_best_known(env, nullptr, 20, true);
+      EXPECT_FALSE(iterated.exact);
+      EXPECT_EQ(iterated.collisions, 0);
+      EXPECT_LE(iterated.objective, optimum * (1 + 1e-12)) << uavs << " UAVs, layout " << layout;
+      EXPECT_GE(iterated.objective, iterated.start_objective) << "best responses never lose";
+      if (uavs == 1) EXPECT_NEAR(iterated.objective, optimum, 1e-12 * optimum) << "one UAV: the best response is the optimum";
+      // Replayed in the environment, the plan scores what it says.
+      BestKnownPlanner p(nullptr, 20, true);
+      const auto rec = run_episode(env, p);
+      EXPECT_TRUE(rec.success);
+      EXPECT_EQ(rec.collisions, 0);
+      EXPECT_EQ(rec.boundary, 0);
+      EXPECT_NEAR(rec.objective, iterated.objective, 1e-9 * optimum);
+    }
+}
+
+// Beyond the DP (16 UAVs, 400 m, 300 users): every UAV home without a collision, at least the
+// sequential greedy's objective.
+TEST(Planners, BestKnownScalesBeyondTheDp) {
+  Config cfg = scene({"scenario.uavs=16", "scenario.users=300", "scenario.area_x_m=400", "scenario.area_y_m=400",
+                      "trajectory.layout=generated", "trajectory.t_max=30", "env.oracle=zfsel"});
+  UavEnv env(cfg, oracle_of(cfg, 4));
+  EXPECT_FALSE(fits_optimal(env));
+  BestKnownPlanner best;
+  const auto rec = run_episode(env, best);
+  EXPECT_FALSE(best.plan().exact);
+  EXPECT_TRUE(rec.success);
+  EXPECT_EQ(rec.collisions, 0);
+  EXPECT_EQ(rec.boundary, 0);
+  SequentialGreedyPlanner seq;
+  EXPECT_GE(rec.objective, run_episode(env, seq).objective);
+  EXPECT_GE(best.plan().rounds, 1);
+}
+
+TEST(Planners, RegistryNamesEveryPlannerAndRefusesOthersInOneLine) {
+  const auto names = builtin_planners().names();
+  EXPECT_EQ(names, (std::vector<std::string>{"random", "greedy", "seqgreedy", "bestknown", "optimal"}));
+  for (const auto& n : names) EXPECT_EQ(builtin_planners().create(n)->name(), n);
+  try {
+    builtin_planners().create("astar");
+    FAIL() << "an unknown planner was built";
+  } catch (const InputError& e) {
+    EXPECT_STREQ(e.what(), "planner 'astar' is unknown: allowed random, greedy, seqgreedy, bestknown, optimal");
+  }
+  // A user's planner joins the list every consumer reads.
+  PlannerRegistry mine = builtin_planners();
+  mine.add("stay", "everyone stays", [](const PlannerArgs&) {
+    struct Stay final : Planner {
+      std::string name() const override { return "stay"; }
+      std::vector<int> act(UavEnv& env) override { return std::vector<int>(static_cast<std::size_t>(env.uavs()), kStay); }
+    };
+    return std::make_unique<Stay>();
+  });
+  EXPECT_EQ(mine.names().back(), "stay");
+  EXPECT_EQ(mine.create("stay")->name(), "stay");
+}

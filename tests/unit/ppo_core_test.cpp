@@ -1,0 +1,363 @@
+// The PPO core's phases (collect, compute_advantages, update) each on its own, and the fast
+// backend's fused passes against LibTorch's autograd.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "../../src/marl/fast_mlp.hpp"
+#include "../../src/marl/ppo.hpp"
+#include "skyloop/beamforming/linear.hpp"
+#include "skyloop/core/error.hpp"
+
+using namespace skyloop;
+using namespace skyloop::marl;
+
+namespace {
+
+torch::Tensor to_double(const torch::Tensor& t) { return t.detach().to(torch::kDouble); }
+
+/// Max |a - b| over two tensors (any dtype).
+double max_error(const torch::Tensor& a, const torch::Tensor& b) { return (to_double(a) - to_double(b)).abs().max().item<double>(); }
+
+/// "Within float32 rounding": the fast result is no further from the float64 result than a small
+/// multiple of LibTorch's own float32 result, plus 16 float32 ulps of the tensor's scale (for
+/// entries where LibTorch happens to round exactly). Both paths sum the same products in other
+/// orders; neither is exact.
+void expect_within_rounding(const torch::Tensor& fast, const torch::Tensor& torch32, const torch::Tensor& exact,
+                            const std::string& what) {
+  const double scale = to_double(exact).abs().max().item<double>();
+  const double e_fast = max_error(fast, exact), e_torch = max_error(torch32, exact);
+  EXPECT_LE(e_fast, 4 * e_torch + 16 * 6e-8 * scale) << what << ": fast " << e_fast << ", torch float32 " << e_torch
+                                                      << ", scale " << scale;
+}
+
+std::vector<float> as_vector(const torch::Tensor& t) {
+  const auto c = t.detach().to(torch::kFloat).contiguous();
+  return std::vector<float>(c.data_ptr<float>(), c.data_ptr<float>() + c.numel());
+}
+
+/// The fast twin of a LibTorch MlpNet.
+fast::Mlp twin(MlpNet& net) {
+  fast::Mlp m(static_cast<int>(net->l1->options.in_features()), static_cast<int>(net->l1->options.out_features()),
+              static_cast<int>(net->l3->options.out_features()));
+  std::array<torch::Tensor, 6> t{net->l1->weight.detach().contiguous(), net->l1->bias.detach().contiguous(),
+                                 net->l2->weight.detach().contiguous(), net->l2->bias.detach().contiguous(),
+                                 net->l3->weight.detach().contiguous(), net->l3->bias.detach().contiguous()};
+  std::array<const float*, 6> p{};
+  for (std::size_t i = 0; i < 6; ++i) p[i] = t[i].data_ptr<float>();
+  m.set_torch_layout(p);
+  return m;
+}
+
+/// A packed parameter-sized vector (a gradient) in LibTorch's layout, as 6 tensors.
+std::array<torch::Tensor, 6> unpack(const fast::Mlp& shape, const std::vector<float>& packed) {
+  fast::Mlp m(shape.in(), shape.hidden(), shape.out());
+  m.params() = packed;
+  std::array<torch::Tensor, 6> t{torch::zeros({shape.hidden(), shape.in()}), torch::zeros({shape.hidden()}),
+                                 torch::zeros({shape.hidden(), shape.hidden()}), torch::zeros({shape.hidden()}),
+                                 torch::zeros({shape.out(), shape.hidden()}), torch::zeros({shape.out()})};
+  std::array<float*, 6> p{};
+  for (std::size_t i = 0; i < 6; ++i) p[i] = t[i].data_ptr<float>();
+  m.get_torch_layout(p);
+  return t;
+}
+
+/// A minibatch with every case of the loss: masked moves, inactive agents, ratios inside and
+/// outside the clip range on both signs of the advantage, values inside and outside the value clip.
+Minibatch random_minibatch(int rows, int obs_width, int critic_width, std::uint64_t seed) {
+  std::mt19937_64 g(seed);
+  std::uniform_real_distribution<float> u(-1, 1);
+  Minibatch b;
+  b.rows = rows, b.obs_width = obs_width, b.critic_width = critic_width;
+  for (int i = 0; i < rows * obs_width; ++i) b.observations.push_back(2 * u(g));
+  for (int i = 0; i < rows * critic_width; ++i) b.critic_inputs.push_back(2 * u(g));
+  for (int i = 0; i < rows; ++i) {
+    unsigned allowed = 1u << kStay;
+    for (int k = 0; k < kActions; ++k)
+      if (u(g) > -0.3f) allowed |= 1u << k;
+    for (int k = 0; k < kActions; ++k) b.allowed.push_back(allowed >> k & 1u ? 1.0f : 0.0f);
+    int a;
+    do a = static_cast<int>(g() % kActions);
+    while (!(allowed >> a & 1u));
+    b.actions.push_back(a);
+    b.logprobs.push_back(std::log(0.2f) + 0.6f * u(g));  // ratios from about 0.5 to 2
+    b.advantages.push_back(2 * u(g));
+    b.active.push_back(u(g) > -0.6f ? 1.0f : 0.0f);
+    b.values.push_back(u(g));
+    b.returns.push_back(b.values.back() + 0.5f * u(g));
+  }
+  return b;
+}
+
+/// eq:total_loss in LibTorch from given logits and values (the torch backend's expression).
+torch::Tensor torch_loss(const Minibatch& b, const PpoSettings& s, const torch::Tensor& logits, const torch::Tensor& v,
+                         torch::ScalarType type) {
+  const int64_t R = b.rows;
+  auto t = [&](const std::vector<float>& x, std::vector<int64_t> shape) {
+    return torch::from_blob(const_cast<float*>(x.data()), shape).to(type);
+  };
+  const auto active = t(b.active, {R});
+  const auto logp_all = torch::log_softmax(masked_logits(logits, t(b.allowed, {R, kActions})), 1);
+  const auto actions = torch::tensor(b.actions, torch::kInt64);
+  const auto logp = logp_all.gather(1, actions.unsqueeze(1)).squeeze(1);
+  const auto entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
+  const auto policy = -masked_mean(clipped_surrogate(logp, t(b.logprobs, {R}), t(b.advantages, {R}), s.clip), active);
+  const auto value = clipped_value_loss(v.view({R}), t(b.values, {R}), t(b.returns, {R}), s.clip);
+  return policy + s.value_coef * value - s.entropy_coef * entropy;
+}
+
+}  // namespace
+
+// The fused forward and backward passes against autograd, in float32 and float64, on the shapes
+// the learners use (the paper's 11-real observation, the agent state, the set observation's
+// width, a batch of one, a hidden width that is no multiple of the kernel's block).
+TEST(PpoCore, FastMlpMatchesAutogradWithinFloat32Rounding) {
+  struct Shape {
+    int in, hidden, out, rows;
+  };
+  for (const Shape sh : {Shape{11, 64, 5, 1536}, Shape{37, 64, 1, 1536}, Shape{130, 64, 5, 7}, Shape{3, 20, 5, 1},
+                         Shape{11, 96, 1, 13}}) {
+    const std::string what = "in " + std::to_string(sh.in) + ", hidden " + std::to_string(sh.hidden) + ", out " +
+                             std::to_string(sh.out) + ", rows " + std::to_string(sh.rows);
+    torch::manual_seed(7);
+    MlpNet net(sh.in, sh.hidden, sh.out);
+    auto net64 = MlpNet(sh.in, sh.hidden, sh.out);
+    {
+      torch::NoGradGuard ng;
+      for (std::size_t i = 0; i < net->parameters().size(); ++i) net64->parameters()[i].copy_(net->parameters()[i]);
+    }
+    net64->to(torch::kDouble);
+    const auto x = torch::rand({sh.rows, sh.in}) * 4 - 2;
+    const auto dout = torch::randn({sh.rows, sh.out});
+    // LibTorch, float32 and float64.
+    const auto y32 = net(x);
+    (y32 * dout).sum().backward();
+    const auto y64 = net64(x.to(torch::kDouble));
+    (y64 * dout.to(torch::kDouble)).sum().backward();
+    // The fast path.
+    const auto fast = twin(net);
+    fast::Mlp::Cache cache;
+    const auto xs = as_vector(x);
+    std::vector<float> out(static_cast<std::size_t>(sh.rows) * fast.out_stride());
+    fast.forward(xs.data(), sh.rows, out.data(), &cache);
+    std::vector<float> dpad(out.size(), 0.0f), grad(fast.size(), 0.0f);
+    const auto dv = as_vector(dout);
+    for (int r = 0; r < sh.rows; ++r)
+      for (int k = 0; k < sh.out; ++k) dpad[static_cast<std::size_t>(r) * fast.out_stride() + k] = dv[static_cast<std::size_t>(r * sh.out + k)];
+    fast.backward(cache, dpad.data(), grad.data());
+    auto yf = torch::from_blob(out.data(), {sh.rows, fast.out_stride()}).narrow(1, 0, sh.out);
+    expect_within_rounding(yf, y32, y64, what + ": output");
+    const auto g = unpack(fast, grad);
+    for (std::size_t i = 0; i < 6; ++i)
+      expect_within_rounding(g[i], net->parameters()[i].grad(), net64->parameters()[i].grad(), what + ": gradient " + std::to_string(i));
+    // Padding stays zero: the packed gradient re-packs to itself.
+    std::array<const float*, 6> p{};
+    for (std::size_t i = 0; i < 6; ++i) p[i] = g[i].data_ptr<float>();
+    fast::Mlp repacked(sh.in, sh.hidden, sh.out);
+    repacked.set_torch_layout(p);
+    EXPECT_EQ(repacked.params(), grad) << what << ": gradient written into the padding";
+  }
+}
+
+// The loss's gradient with respect to the logits and values (written out by hand) against
+// autograd on the same expression in float64.
+TEST(PpoCore, LossGradientMatchesAutograd) {
+  const PpoSettings s{0.2, 0.5, 0.03, 10.0};
+  for (std::uint64_t seed : {1, 2, 3}) {
+    const auto b = random_minibatch(400, 1, 1, seed);
+    torch::manual_seed(seed);
+    const auto logits = (torch::randn({b.rows, kActions}) * 2).to(torch::kDouble).requires_grad_(true);
+    const auto values = torch::randn({b.rows, 1}).to(torch::kDouble).requires_grad_(true);
+    torch_loss(b, s, logits, values, torch::kDouble).backward();
+    const auto l32 = as_vector(logits), v32 = as_vector(values);
+    std::vector<float> dl(l32.size(), 0.0f), dv(v32.size(), 0.0f);
+    const auto u = ppo_loss(b, s, l32.data(), kActions, v32.data(), 1, dl.data(), dv.data());
+    const auto dl_t = torch::from_blob(dl.data(), {b.rows, kActions}), dv_t = torch::from_blob(dv.data(), {b.rows, 1});
+    const double gl = logits.grad().abs().max().item<double>(), gv = values.grad().abs().max().item<double>();
+    // ppo_loss works in float64 from the float32 inputs and rounds its output to float32.
+    EXPECT_LE(max_error(dl_t, logits.grad()), 1e-6 * gl + 1e-9) << "seed " << seed;
+    EXPECT_LE(max_error(dv_t, values.grad()), 1e-6 * gv + 1e-9) << "seed " << seed;
+    // The statistics are those of the same expression.
+    const auto total = u.policy_loss + s.value_coef * u.value_loss - s.entropy_coef * u.entropy;
+    EXPECT_NEAR(total, torch_loss(b, s, logits.detach(), values.detach(), torch::kDouble).item<double>(), 1e-6) << "seed " << seed;
+    EXPECT_GT(u.clipfrac, 0.05) << "the minibatch should exercise the clip";
+    EXPECT_LT(u.clipfrac, 0.95);
+  }
+}
+
+// One optimiser step of each backend from the same initial weights on the same minibatch: the
+// same losses, approximate KL, clip fraction and gradient norm, and after 10 steps the same losses.
+TEST(PpoCore, BackendsTakeTheSameSteps) {
+  const PpoSettings s{0.2, 0.5, 0.03, 0.1};  // a small clip norm, so the clipping is exercised
+  const auto b = random_minibatch(512, 11, 37, 5);
+  auto fast = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 9);
+  auto ref = make_ppo_networks("torch", 11, 37, 64, 3e-4, torch::kCPU, 9);
+  std::vector<float> lf(static_cast<std::size_t>(b.rows) * kActions), lr(lf.size());
+  fast->logits(b.observations.data(), b.rows, lf.data());
+  ref->logits(b.observations.data(), b.rows, lr.data());
+  for (std::size_t i = 0; i < lf.size(); ++i) ASSERT_NEAR(lf[i], lr[i], 1e-5) << "same initial weights";
+  for (int step = 0; step < 10; ++step) {
+    const auto uf = fast->step(b, s), ur = ref->step(b, s);
+    const double tol = step == 0 ? 1e-5 : 1e-3;  // after the first Adam step, near-zero gradients may differ in sign
+    EXPECT_NEAR(uf.policy_loss, ur.policy_loss, tol * (1 + std::abs(ur.policy_loss))) << "step " << step;
+    EXPECT_NEAR(uf.value_loss, ur.value_loss, tol * (1 + std::abs(ur.value_loss))) << "step " << step;
+    EXPECT_NEAR(uf.entropy, ur.entropy, tol * (1 + std::abs(ur.entropy))) << "step " << step;
+    EXPECT_NEAR(uf.approx_kl, ur.approx_kl, tol) << "step " << step;
+    EXPECT_NEAR(uf.clipfrac, ur.clipfrac, step == 0 ? 1e-6 : 0.01) << "step " << step;
+    EXPECT_NEAR(uf.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
+    if (step == 0) EXPECT_GT(ur.grad_norm, s.grad_clip) << "the clip should act";
+  }
+  EXPECT_THROW(make_ppo_networks("jax", 11, 37, 64, 3e-4, torch::kCPU, 9), InputError);
+}
+
+namespace {
+Config small_scene() {
+  Config cfg;
+  cfg.scenario.area_x_m = cfg.scenario.area_y_m = 120;
+  cfg.scenario.users = 6;
+  cfg.trajectory.starts = {{0, 0}, {120, 120}};
+  cfg.trajectory.destinations = {{120, 40}, {0, 80}};
+  cfg.trajectory.t_max = 12;
+  cfg.env.oracle = "zf";
+  return cfg;
+}
+}  // namespace
+
+TEST(PpoCore, CollectFillsEveryCellOfTheRollout) {
+  Config cfg = small_scene();
+  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, 6, 3));
+  const Encoder enc = encoder_of(cfg, false);
+  const CriticReader critic = CriticReader::of(cfg, enc);
+  auto run = [&](Rollout& r) {
+    VecEnv vec(cfg, oracle, 3);
+    auto nets = make_ppo_networks("fast", enc.width(vec.env(0)), critic.width(vec.env(0)), 16, 3e-4, torch::kCPU, 1);
+    Rng rng(11);
+    EpisodeStats stats;
+    collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats);
+    return stats;
+  };
+  const UavEnv probe(cfg, oracle);
+  Rollout r(30, 3, 2, enc.width(probe), critic.width(probe));
+  const auto stats = run(r);
+  EXPECT_GE(stats.episodes, 3) << "30 steps of T_max = 12 episodes end at least once per environment";
+  int done = 0;
+  for (int t = 0; t < r.T; ++t)
+    for (int e = 0; e < r.M; ++e) {
+      done += r.dones[static_cast<std::size_t>(t * r.M + e)] > 0;
+      EXPECT_TRUE(std::isfinite(r.rewards[static_cast<std::size_t>(t * r.M + e)]));
+      for (int n = 0; n < r.N; ++n) {
+        const auto i = r.at(t, e, n);
+        const auto a = r.actions[i];
+        ASSERT_GE(a, 0);
+        ASSERT_LT(a, kActions);
+        EXPECT_EQ(r.allowed[i * kActions + static_cast<std::size_t>(a)], 1.0f) << "t " << t << " e " << e << " n " << n;
+        if (r.active[i] == 0) {
+          EXPECT_EQ(a, kStay) << "an arrived UAV stays";
+          EXPECT_EQ(r.logprobs[i], 0.0f);
+        } else {
+          EXPECT_LE(r.logprobs[i], 0.0f);
+        }
+        EXPECT_TRUE(std::isfinite(r.values[i]));
+      }
+    }
+  EXPECT_EQ(done, stats.episodes);
+  // Same seed, same rollout, bit for bit.
+  Rollout again(30, 3, 2, r.obs_width, r.critic_width);
+  run(again);
+  EXPECT_EQ(again.observations, r.observations);
+  EXPECT_EQ(again.actions, r.actions);
+  EXPECT_EQ(again.logprobs, r.logprobs);
+  EXPECT_EQ(again.rewards, r.rewards);
+  EXPECT_EQ(again.next_values, r.next_values);
+}
+
+TEST(PpoCore, AdvantagesAreGaePerEnvironmentAndAgent) {
+  Rollout r(9, 3, 2, 1, 1);
+  std::mt19937_64 g(4);
+  std::uniform_real_distribution<float> u(-1, 1);
+  for (auto& x : r.rewards) x = u(g);
+  for (auto& x : r.dones) x = u(g) > 0.5f ? 1.0f : 0.0f;
+  for (auto& x : r.values) x = u(g);
+  for (auto& x : r.next_values) x = u(g);
+  compute_advantages(r, 0.9, 0.8);
+  for (int e = 0; e < r.M; ++e)
+    for (int n = 0; n < r.N; ++n) {
+      std::vector<double> rew, val;
+      std::vector<int> done;
+      for (int t = 0; t < r.T; ++t) {
+        rew.push_back(r.rewards[static_cast<std::size_t>(t * r.M + e)]);
+        done.push_back(r.dones[static_cast<std::size_t>(t * r.M + e)] > 0);
+        val.push_back(r.values[r.at(t, e, n)]);
+      }
+      val.push_back(r.next_values[static_cast<std::size_t>(e * r.N + n)]);
+      const auto a = gae(rew, val, done, 0.9, 0.8);
+      for (int t = 0; t < r.T; ++t) {
+        EXPECT_NEAR(r.advantages[r.at(t, e, n)], a[static_cast<std::size_t>(t)], 1e-6);
+        EXPECT_NEAR(r.returns[r.at(t, e, n)], a[static_cast<std::size_t>(t)] + val[static_cast<std::size_t>(t)], 1e-6);
+      }
+    }
+}
+
+TEST(PpoCore, ExplainedVarianceOverActiveAgents) {
+  Rollout r(4, 1, 1, 1, 1);
+  r.returns = {1, 2, 3, 100};
+  r.active = {1, 1, 1, 0};  // the inactive row is ignored
+  r.values = {1, 2, 3, -50};
+  EXPECT_NEAR(explained_variance(r), 1.0, 1e-12);
+  r.values = {0, 0, 0, 0};
+  EXPECT_NEAR(explained_variance(r), 0.0, 1e-12);
+  r.values = {2, 2, 2, 0};  // residuals 1 - 2, 0, 1: Var = 2/3 = Var[returns]
+  EXPECT_NEAR(explained_variance(r), 0.0, 1e-12);
+  r.values = {1.5, 2, 2.5, 0};  // residuals -0.5, 0, 0.5: Var = 1/6, 1 - (1/6)/(2/3) = 0.75
+  EXPECT_NEAR(explained_variance(r), 0.75, 1e-12);
+  r.returns = {2, 2, 2, 0};
+  EXPECT_TRUE(std::isnan(explained_variance(r)));
+}
+
+// update() moves the policy towards the actions with positive advantages, on both backends.
+TEST(PpoCore, UpdateRaisesTheProbabilityOfAdvantageousActions) {
+  for (const char* backend : {"fast", "torch"}) {
+    Rollout r(64, 2, 2, 6, 6);
+    std::mt19937_64 g(8);
+    std::uniform_real_distribution<float> u(-1, 1);
+    for (auto& x : r.observations) x = u(g);
+    r.critic_inputs = r.observations;
+    std::fill(r.allowed.begin(), r.allowed.end(), 1.0f);
+    std::fill(r.active.begin(), r.active.end(), 1.0f);
+    auto nets = make_ppo_networks(backend, 6, 6, 32, 1e-3, torch::kCPU, 3);
+    std::vector<float> before(r.samples() * kActions);
+    nets->logits(r.observations.data(), static_cast<int>(r.samples()), before.data());
+    for (std::size_t i = 0; i < r.samples(); ++i) {
+      r.actions[i] = static_cast<std::int64_t>(g() % kActions);
+      const float* z = before.data() + i * kActions;
+      double sum = 0;
+      for (int k = 0; k < kActions; ++k) sum += std::exp(z[k]);
+      r.logprobs[i] = static_cast<float>(z[r.actions[i]] - std::log(sum));
+      r.advantages[i] = r.actions[i] == kRight ? 1.0f : -0.25f;
+      r.values[i] = 0;
+      r.returns[i] = r.advantages[i];
+    }
+    MarlConfig m;
+    m.epochs = 4;
+    m.minibatches = 4;
+    RunningStats vn;
+    Rng rng(2);
+    Minibatch scratch;
+    const auto stats = update(r, *nets, vn, m, rng, scratch);
+    EXPECT_GT(stats.approx_kl, 0.0) << backend;
+    EXPECT_LT(stats.policy_loss, 0.0) << backend;
+    std::vector<float> after(before.size());
+    nets->logits(r.observations.data(), static_cast<int>(r.samples()), after.data());
+    auto mean_p_east = [&](const std::vector<float>& z) {
+      double s = 0;
+      for (std::size_t i = 0; i < r.samples(); ++i) {
+        double sum = 0;
+        for (int k = 0; k < kActions; ++k) sum += std::exp(z[i * kActions + static_cast<std::size_t>(k)]);
+        s += std::exp(z[i * kActions + kRight]) / sum;
+      }
+      return s / static_cast<double>(r.samples());
+    };
+    EXPECT_GT(mean_p_east(after), mean_p_east(before) + 0.05) << backend;
+  }
+}

@@ -1,8 +1,9 @@
-// `skyloop train` (MAPPO, IPPO, VDN, QMIX) and `skyloop eval --policy DIR`.
+// `skyloop train` (the learners of skyloop/marl/learners.hpp) and `skyloop eval --policy DIR`.
 #include <fmt/format.h>
 #include <iostream>
 
 #include "common.hpp"
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/planning/registry.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
@@ -32,8 +33,8 @@ struct EvalOpts {
 
 void add_marl_commands(CLI::App& app, Action& action) {
   auto t = std::make_shared<TrainOpts>();
-  auto* train = app.add_subcommand("train", "train a multi-agent trajectory planner (MAPPO, IPPO, VDN, QMIX)");
-  train->add_option("--algo", t->algo, "mappo | ippo | vdn | qmix (sets marl.algo)");
+  auto* train = app.add_subcommand("train", "train a multi-agent trajectory planner (" + learner_names_text() + ")");
+  train->add_option("--algo", t->algo, learner_names_text() + " (sets marl.algo)");
   train->add_option("--seed", t->seed, "training seed (sets run.seed)");
   train->add_option("--steps", t->steps, "environment steps (sets marl.total_steps)");
   train->add_option("--out", t->out, "run directory: config.toml, metrics.csv, last.pt, policy.pt")->required();

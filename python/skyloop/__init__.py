@@ -16,10 +16,10 @@ from __future__ import annotations
 import os as _os
 
 from . import _skyloop
-from ._skyloop import ACTIONS, Beamformer, Cluster, InputError, Network, Snapshot, SystemModel, beamformers, derive_seed
+from ._skyloop import ACTIONS, LEARNERS, PLANNERS, Beamformer, Cluster, InputError, Network, Snapshot, SystemModel, beamformers, derive_seed
 
 __all__ = [
-    "ACTIONS", "Beamformer", "Cluster", "Config", "InputError", "Network", "Snapshot", "SystemModel", "VecEnv",
+    "ACTIONS", "LEARNERS", "PLANNERS", "Beamformer", "Cluster", "Config", "InputError", "Network", "Snapshot", "SystemModel", "VecEnv",
     "beamformer", "beamformers", "config", "derive_seed", "evaluate_layouts", "network_sum_rate", "plan", "rates", "sinr", "sum_rate",
     "user_powers",
 ]
@@ -239,8 +239,8 @@ def beamformer(spec: str, cfg=None) -> Beamformer:
 
 
 def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, planner_seed: int | None = None) -> dict:
-    """One episode of a planner on the trajectory scenario of ``cfg``: "random", "greedy", "seqgreedy", "optimal"
-    (the exact optimum of P2.2) or the path of a trained policy directory (``skyloop train``).
+    """One episode of a planner on the trajectory scenario of ``cfg``: a name of ``PLANNERS`` ("optimal" is the
+    exact optimum of P2.2) or the path of a trained policy directory (``skyloop train``).
     Users: K uniform users from ``users_seed`` (as ``skyloop plan --seed``), or an explicit [K, 2] array;
     the random planner's stream is the CLI's for that seed unless ``planner_seed`` is given.
     Returns positions [T, N, 2], actions [T-1, N], rates [T], objective, T, success, arrivals,

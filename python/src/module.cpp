@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <mutex>
 
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/planning/registry.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/config_io.hpp"
@@ -496,7 +497,7 @@ py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policie
     py::dict d;
     d["seed"] = cfg.run.seed, d["split"] = split, d["layout"] = r.layout, d["users_seed"] = r.users_seed;
     d["users"] = r.users, d["uavs"] = r.uavs, d["planner"] = r.planner, d["objective"] = r.objective;
-    d["optimum"] = r.optimum, d["fraction"] = r.fraction, d["T"] = r.T, d["home"] = r.home, d["complete"] = r.complete;
+    d["reference"] = r.reference, d["reference_objective"] = r.reference_objective, d["fraction"] = r.fraction, d["T"] = r.T, d["home"] = r.home, d["complete"] = r.complete;
     d["collisions"] = r.collisions, d["boundary_events"] = r.boundary, d["seconds"] = r.seconds;
     rl.append(d);
   }
@@ -504,7 +505,8 @@ py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policie
     py::dict d;
     d["seed"] = cfg.run.seed, d["split"] = split, d["planner"] = x.planner, d["layouts"] = x.layouts;
     d["complete_rate"] = x.complete, d["collisions"] = x.collisions, d["boundary_events"] = x.boundary;
-    d["mean_home"] = x.arrivals, d["mean_objective"] = x.objective, d["fraction_mean"] = x.fraction_mean;
+    d["mean_home"] = x.arrivals, d["mean_objective"] = x.objective, d["reference"] = x.reference;
+    d["fraction_mean"] = x.fraction_mean;
     d["fraction_p5"] = x.fraction_p5, d["fraction_worst"] = x.fraction_worst;
     sl.append(d);
   }
@@ -700,6 +702,8 @@ PYBIND11_MODULE(_skyloop, m) {
   m.def("plan", &plan, py::arg("config"), py::arg("planner"), py::arg("users_seed") = 3, py::arg("users") = py::none(),
         py::arg("planner_seed") = py::none());
   m.attr("ACTIONS") = py::tuple(py::cast(grid_actions().names));
+  m.attr("PLANNERS") = py::tuple(py::cast(builtin_planners().names()));
+  m.attr("LEARNERS") = py::tuple(py::cast(learner_names()));
 #ifdef SKYLOOP_HAS_TORCH
   m.attr("HAS_TORCH") = true;
 #else

@@ -139,3 +139,16 @@ def test_trained_policy_from_python(skyloop_bin, tmp_path):
     assert r.returncode == 0, r.stderr
     res = sl.plan(sl.config(env={"oracle": "zf"}), str(out), users_seed=3)
     assert res["planner"] and res["positions"].shape[1:] == (3, 2)
+
+
+def test_registries_are_the_cores_lists():
+    # One list each, read from the C++ registries: every planner runs, an unknown one is refused
+    # with the list.
+    assert sl.PLANNERS == ("random", "greedy", "seqgreedy", "bestknown", "optimal")
+    assert sl.LEARNERS == ("mappo", "ippo", "vdn", "qmix")
+    with pytest.raises(sl.InputError, match="allowed random, greedy, seqgreedy, bestknown, optimal"):
+        sl.plan(None, "astar")
+    cfg = sl.config(env={"oracle": "zf"})
+    objective = {p: sl.plan(cfg, p, users_seed=3)["objective"] for p in sl.PLANNERS}
+    assert objective["bestknown"] == pytest.approx(objective["optimal"], rel=1e-12)  # the DP fits: exact
+    assert max(objective.values()) <= objective["optimal"] * (1 + 1e-12)

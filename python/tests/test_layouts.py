@@ -19,8 +19,8 @@ def test_rows_summary_and_the_optimum_cache(tmp_path):
     assert [s["planner"] for s in summary] == ["greedy", "random", "optimal"]
     for r in rows:
         assert r["split"] == "test" and r["users_seed"] >= 2 ** 63 and r["seed"] == 1
-        assert r["fraction"] <= 1 + 1e-9 and r["optimum"] > 0
-        assert r["fraction"] == pytest.approx(r["objective"] / r["optimum"])
+        assert r["fraction"] <= 1 + 1e-9 and r["reference_objective"] > 0 and r["reference"] == "optimal"
+        assert r["fraction"] == pytest.approx(r["objective"] / r["reference_objective"])
     opt = summary[2]
     assert opt["complete_rate"] == 1 and opt["fraction_mean"] == pytest.approx(1) and opt["fraction_worst"] == pytest.approx(1)
     fr = [r["fraction"] for r in rows if r["planner"] == "random"]

@@ -8,8 +8,27 @@
 
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/marl/learners.hpp"
 
 namespace skyloop {
+
+std::vector<std::string> learner_names() {
+  std::vector<std::string> out;
+  for (const auto& l : learners()) out.push_back(l.name);
+  return out;
+}
+
+std::string learner_names_text() {
+  std::string out;
+  for (const auto& l : learners()) out += (out.empty() ? "" : ", ") + l.name;
+  return out;
+}
+
+const LearnerInfo& find_learner(const std::string& name) {
+  for (const auto& l : learners())
+    if (l.name == name) return l;
+  throw InputError("marl.algo = \"" + name + "\" is unknown: allowed " + learner_names_text());
+}
 
 std::string to_string(PowerScaling s) { return s == PowerScaling::Full ? "full" : "cap"; }
 
@@ -193,7 +212,7 @@ std::vector<Field> make_fields() {
                    "torch) or torch (LibTorch, the training path and the reference)",
                    {"fast", "torch"}, [](Config& c) -> std::string& { return c.nn.inference; }));
   // [marl]
-  f.push_back(text("marl.algo", "multi-agent learner", {"mappo", "ippo", "vdn", "qmix"},
+  f.push_back(text("marl.algo", "multi-agent learner", learner_names(),
                    [](Config& c) -> std::string& { return c.marl.algo; }));
   f.push_back(integer("marl.total_steps", "environment steps of a training run", 1, 1e12,
                       [](Config& c) -> std::int64_t& { return c.marl.total_steps; }));

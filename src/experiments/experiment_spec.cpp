@@ -5,6 +5,7 @@
 #include <sstream>
 #include <toml++/toml.h>
 
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/planning/registry.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
@@ -180,11 +181,11 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
     need(!s.seeds.empty(), "experiment.seeds", "a list of training seeds");
     if (s.kind == "marl_training") {
       need(!s.algos.empty(), "experiment.algos", "a list of mappo, ippo, vdn, qmix");
-      for (const auto& a : s.algos) check_in(source, "experiment.algos", a, {"mappo", "ippo", "vdn", "qmix"});
+      for (const auto& a : s.algos) check_in(source, "experiment.algos", a, learner_names());
     } else {
       need(!s.users.empty(), "experiment.users", "a list of user counts K");
       if (s.algos.empty()) s.algos = {"mappo"};
-      for (const auto& a : s.algos) check_in(source, "experiment.algos", a, {"mappo", "ippo", "vdn", "qmix"});
+      for (const auto& a : s.algos) check_in(source, "experiment.algos", a, learner_names());
     }
     for (const auto& p : s.planners) check_in(source, "experiment.planners", p, builtin_planners().names());
   }

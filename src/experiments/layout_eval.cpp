@@ -39,8 +39,9 @@ LayoutRow row_of(const EpisodeRecord& r, const std::string& planner, double seco
   return x;
 }
 
-/// The exact optimum of one layout, from the cache when it holds it.
-LayoutRow optimum_of(const Config& cfg, UavEnv& env, const std::string& cache_dir) {
+/// The reference of one layout (layout_reference), from the cache when it holds it.
+LayoutRow reference_of(const Config& cfg, UavEnv& env, const std::string& cache_dir) {
+  const std::string name = layout_reference(env);
   std::string path;
   if (!cache_dir.empty()) {
     // Everything the optimum depends on: the resolved scenario, channel, oracle and trajectory
@@ -53,11 +54,12 @@ LayoutRow optimum_of(const Config& cfg, UavEnv& env, const std::string& cache_di
     const auto& u = env.oracle().users();
     std::string text = to_toml(key);
     text.append(reinterpret_cast<const char*>(u.data()), sizeof(double) * static_cast<std::size_t>(u.size()));
+    if (name != "optimal") text += "|reference " + name;  // the optimum's keys as before
     path = (std::filesystem::path(cache_dir) / fmt::format("{:016x}.csv", hash_bytes(text.data(), text.size()))).string();
     if (std::filesystem::exists(path)) {
       const auto t = CsvTable::parse(read_file(path, "optimum cache"), path);
       LayoutRow r;
-      r.planner = "optimal";
+      r.planner = name;
       r.objective = t.number(0, "objective");
       r.T = static_cast<int>(t.number(0, "T"));
       r.uavs = env.uavs();
@@ -69,11 +71,11 @@ LayoutRow optimum_of(const Config& cfg, UavEnv& env, const std::string& cache_di
       return r;
     }
   }
-  OptimalPlanner planner(nullptr);
+  const auto planner = builtin_planners().create(name);
   const auto t0 = std::chrono::steady_clock::now();
-  const auto rec = run_episode(env, planner);
+  const auto rec = run_episode(env, *planner);
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  auto r = row_of(rec, "optimal", s);
+  auto r = row_of(rec, name, s);
   if (!path.empty())
     write_file_atomic(path, fmt::format("objective,T,arrivals,collisions,boundary,complete,seconds\n{},{},{},{},{},{},{}\n",
                                         format_double(r.objective), r.T, r.arrivals, r.collisions, r.boundary,
@@ -96,7 +98,7 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
                                         std::ostream* progress) {
   if (opt.layouts < 1) throw InputError("--layouts = " + std::to_string(opt.layouts) + " is out of range: allowed at least 1");
   for (const auto& p : opt.planners) {
-    if (p == "optimal") continue;
+    if (p == "optimal" || p == "bestknown") continue;  // the reference (always solved)
     if (!builtin_planners().contains(p))
       throw InputError("--planner '" + p + "' is unknown: allowed " + builtin_planners().names_text());
   }
@@ -132,7 +134,7 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   if (threads > 1) set_torch_threads(1);  // layouts in parallel; each policy on one thread
   std::vector<std::string> names;
   for (const auto& p : opt.planners)
-    if (p != "optimal") names.push_back(p);
+    if (p != "optimal" && p != "bestknown") names.push_back(p);
   const std::size_t per_layout = names.size() + labels.size() * (opt.unsafe ? 2 : 1) + 1;
   std::vector<LayoutRow> rows(static_cast<std::size_t>(opt.layouts) * per_layout);
   std::unique_ptr<Progress> bar;
@@ -161,12 +163,14 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
         timed(*policy, labels[k] + "/raw");
       }
     }
-    out.push_back(optimum_of(cfg, env, opt.cache_dir));
+    out.push_back(reference_of(cfg, env, opt.cache_dir));
     const double best = out.back().objective;
+    const std::string reference = out.back().planner;
     for (std::size_t k = 0; k < out.size(); ++k) {
       auto& r = out[k];
       r.layout = index, r.users_seed = seed, r.users = env.users(), r.uavs = env.uavs();
-      r.optimum = best;
+      r.reference = reference;
+      r.reference_objective = best;
       r.fraction = best > 0 ? r.objective / best : 0.0;
       rows[i * per_layout + k] = r;
     }
@@ -178,6 +182,8 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   if (bar) bar->finish();
   return rows;
 }
+
+std::string layout_reference(const UavEnv& env) { return fits_optimal(env) ? "optimal" : "bestknown"; }
 
 std::vector<std::uint64_t> training_layouts_of(const Config& run, int count) {
   // As make_training_envs and VecEnv: environment i's episode e has training_layout_seed(vec seed, i, e).
@@ -201,6 +207,7 @@ std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows)
     std::vector<double> f;
     s.layouts = static_cast<int>(v.size());
     for (const auto* r : v) {
+      if (s.reference.find(r->reference) == std::string::npos) s.reference += (s.reference.empty() ? "" : "+") + r->reference;
       s.complete += r->complete ? 1.0 : 0.0;
       s.collisions += r->collisions;
       s.boundary += r->boundary;
@@ -218,28 +225,32 @@ std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows)
 }
 
 std::string layout_rows_csv(const std::vector<LayoutRow>& rows, std::uint64_t seed, LayoutSplit split) {
-  std::string s = "seed,split,layout,users_seed,users,uavs,planner,objective,optimum,fraction,T,home,complete,collisions,"
-                  "boundary_events,seconds\n";
+  std::string s = "seed,split,layout,users_seed,users,uavs,planner,objective,reference,reference_objective,fraction,T,home,"
+                  "complete,collisions,boundary_events,seconds\n";
   for (const auto& r : rows)
-    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), r.layout, r.users_seed, r.users,
-                     r.uavs, r.planner, format_double(r.objective), format_double(r.optimum), format_double(r.fraction), r.T,
+    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), r.layout, r.users_seed, r.users,
+                     r.uavs, r.planner, format_double(r.objective), r.reference, format_double(r.reference_objective),
+                     format_double(r.fraction), r.T,
                      r.home, r.complete ? 1 : 0, r.collisions, r.boundary, format_double(r.seconds));
   return s;
 }
 
 std::string layout_summary_csv(const std::vector<LayoutSummary>& sum, std::uint64_t seed, LayoutSplit split) {
-  std::string s = "seed,split,planner,layouts,complete_rate,collisions,boundary_events,mean_home,mean_objective,"
+  std::string s = "seed,split,planner,layouts,complete_rate,collisions,boundary_events,mean_home,mean_objective,reference,"
                   "fraction_mean,fraction_p5,fraction_worst\n";
   for (const auto& x : sum)
-    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), x.planner, x.layouts,
+    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), x.planner, x.layouts,
                      format_double(x.complete), x.collisions, x.boundary, format_double(x.arrivals), format_double(x.objective),
-                     format_double(x.fraction_mean), format_double(x.fraction_p5), format_double(x.fraction_worst));
+                     x.reference, format_double(x.fraction_mean), format_double(x.fraction_p5), format_double(x.fraction_worst));
   return s;
 }
 
 std::string format_layout_summary(const std::vector<LayoutSummary>& sum) {
+  // Fractions are of each layout's reference: the exact optimum, or the best-known planner where
+  // the joint DP cannot go.
+  const std::string ref = sum.empty() ? std::string("optimal") : sum.back().reference;
   std::string s = fmt::format("{:<14} {:>8} {:>9} {:>10} {:>9} {:>10} {:>11} {:>9} {:>9}\n", "planner", "layouts", "complete",
-                              "collisions", "boundary", "objective", "% optimum", "p5 %", "worst %");
+                              "collisions", "boundary", "objective", ref == "optimal" ? "% optimum" : "% " + ref, "p5 %", "worst %");
   for (const auto& x : sum)
     s += fmt::format("{:<14} {:>8} {:>8.1f}% {:>10} {:>9} {:>10.3f} {:>11.2f} {:>9.2f} {:>9.2f}\n", x.planner, x.layouts,
                      100 * x.complete, x.collisions, x.boundary, x.objective, 100 * x.fraction_mean, 100 * x.fraction_p5,

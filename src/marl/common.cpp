@@ -10,6 +10,7 @@
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/layouts.hpp"
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/nn/learned.hpp"
 
 namespace skyloop::marl {
@@ -226,7 +227,7 @@ MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, cons
 }
 
 std::string learner_backend(const Config& cfg) {
-  return cfg.marl.algo == "vdn" || cfg.marl.algo == "qmix" ? "torch" : cfg.marl.backend;
+  return find_learner(cfg.marl.algo).core == LearnerInfo::Core::Ppo ? cfg.marl.backend : "torch";
 }
 
 torch::Device device_of(const Config& cfg) {

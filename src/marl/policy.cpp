@@ -3,6 +3,7 @@
 #include "common.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/marl/learners.hpp"
 
 namespace skyloop {
 
@@ -14,7 +15,10 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
 MarlTrainResult train_marl(const Config& cfg, const MarlTrainOptions& opt) {
   if (opt.out_dir.empty()) throw InputError("--out is empty: allowed a directory for the run");
   if (!opt.registry) throw std::invalid_argument("train_marl: MarlTrainOptions::registry is required");
-  if (cfg.marl.algo == "mappo" || cfg.marl.algo == "ippo") return marl::train_ppo(cfg, opt);
+  switch (find_learner(cfg.marl.algo).core) {
+    case LearnerInfo::Core::Ppo: return marl::train_ppo(cfg, opt);
+    case LearnerInfo::Core::ValueDecomposition: break;
+  }
   return marl::train_value_decomposition(cfg, opt);
 }
 
@@ -54,9 +58,11 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   if (encoder != "mlp" && encoder != "set")
     throw InputError("policy '" + path + "' names encoder '" + encoder + "': allowed mlp, set");
   impl->enc.set = encoder == "set";
-  const bool q_based = impl->algo == "vdn" || impl->algo == "qmix";
-  if (!q_based && impl->algo != "mappo" && impl->algo != "ippo")
-    throw InputError("policy '" + path + "' names algo '" + impl->algo + "': allowed mappo, ippo, vdn, qmix");
+  const LearnerInfo* learner = nullptr;
+  for (const auto& l : learners())
+    if (l.name == impl->algo) learner = &l;
+  if (!learner) throw InputError("policy '" + path + "' names algo '" + impl->algo + "': allowed " + learner_names_text());
+  const bool q_based = learner->acts_by_q();
   impl->q_based = q_based;
   impl->enc.context = q_based;
   // The Q-networks' agent context: a one-hot id (uavs reals; policies written before env.state),

@@ -13,6 +13,7 @@
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/progress.hpp"
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/nn/learned.hpp"
 
 namespace skyloop {
@@ -39,7 +40,7 @@ namespace marl {
 CriticReader CriticReader::of(const Config& cfg, const Encoder& encoder) {
   CriticReader r;
   r.encoder = encoder;
-  if (cfg.marl.algo == "ippo") r.input = Input::LocalObservation;
+  if (find_learner(cfg.marl.algo).local_critic) r.input = Input::LocalObservation;
   else r.input = cfg.marl.critic_state == "global" ? Input::GlobalState : Input::AgentState;
   return r;
 }

@@ -12,6 +12,7 @@
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/progress.hpp"
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/nn/learned.hpp"
 
@@ -56,7 +57,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   namespace fs = std::filesystem;
   using Clock = std::chrono::steady_clock;
   const auto& m = cfg.marl;
-  const bool qmix = m.algo == "qmix";
+  const bool qmix = find_learner(m.algo).mixer == LearnerInfo::Mixer::Qmix;
   Run run(cfg, opt);
   const auto& dir = run.dir;
   const auto& device = run.device;

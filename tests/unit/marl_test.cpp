@@ -11,6 +11,8 @@
 #include "skyloop/core/io.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/experiments/layout_eval.hpp"
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/marl/marl.hpp"
 
 using namespace skyloop;
@@ -217,7 +219,11 @@ std::string metrics_without_timing(const std::string& dir) {
 // Same seed, same numbers: every learner (PPO on both backends) twice from scratch gives the same
 // metrics (every column but the wall-clock rate) and the same greedy episode; --resume continues.
 TEST(Marl, EveryAlgorithmRunsSeededAndResumes) {
-  for (const std::string variant : {"mappo", "mappo/torch", "ippo", "vdn", "qmix"}) {
+  std::vector<std::string> variants;
+  for (const auto& l : learners()) variants.push_back(l.name);
+  variants.push_back("mappo/torch");
+  ASSERT_EQ(learner_names(), (std::vector<std::string>{"mappo", "ippo", "vdn", "qmix"}));
+  for (const std::string& variant : variants) {
     const std::string algo = variant.substr(0, variant.find('/'));
     Config cfg = small_scenario(algo, 4096);
     if (variant == "mappo/torch") cfg.marl.backend = "torch";
@@ -245,6 +251,21 @@ TEST(Marl, EveryAlgorithmRunsSeededAndResumes) {
     const auto rc = train_marl(more, a);
     EXPECT_GE(rc.env_steps, 8192) << variant;
   }
+}
+
+TEST(Marl, UnknownLearnersAreRefusedWithTheRegisteredNames) {
+  Config cfg = small_scenario("mappo", 1024);
+  cfg.marl.algo = "sac";
+  MarlTrainOptions opt;
+  opt.out_dir = fresh("unknown");
+  opt.registry = &zf_registry();
+  try {
+    train_marl(cfg, opt);
+    FAIL() << "trained an unknown learner";
+  } catch (const InputError& e) {
+    EXPECT_STREQ(e.what(), "marl.algo = \"sac\" is unknown: allowed mappo, ippo, vdn, qmix");
+  }
+  EXPECT_THROW(resolve_config(std::nullopt, {"marl.algo=sac"}), InputError);
 }
 
 TEST(Marl, BadPoliciesAreRejected) {

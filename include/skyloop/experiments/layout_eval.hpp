@@ -2,8 +2,10 @@
 // Trajectory planners judged on many user layouts (skyloop/env/layouts.hpp): `skyloop eval
 // --layouts N`, skyloop.evaluate_layouts in Python, and the generalisation experiment.
 //
-// Every layout is scored against its own exact optimum (solve_optimal), cached on disk per
-// (resolved scenario, users), so a second evaluation of the same layouts solves nothing.
+// Every layout is scored against the best reference available for it: its exact optimum
+// (solve_optimal) where the joint DP fits (fits_optimal), else the best-known planner
+// (solve_best_known), named in every row and cached on disk per (resolved scenario, users,
+// reference), so a second evaluation of the same layouts solves nothing.
 #include <cstdint>
 #include <iosfwd>
 #include <string>
@@ -11,6 +13,7 @@
 
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/env/layouts.hpp"
+#include "skyloop/env/uav_env.hpp"
 
 namespace skyloop {
 
@@ -19,7 +22,7 @@ struct LayoutEvalOptions {
   std::uint64_t first = 0;
   LayoutSplit split = LayoutSplit::Test;
   std::vector<std::uint64_t> users_seeds;  // when not empty: these layouts instead (e.g. those a run trained on)
-  std::vector<std::string> planners;    // random | greedy | seqgreedy (the optimum is always solved)
+  std::vector<std::string> planners;    // names of skyloop/planning/registry.hpp (the reference is always solved)
   std::vector<std::string> policies;    // directories (or policy.pt files) of `skyloop train`
   std::vector<std::string> policy_names;  // their labels (default: the algorithm, then "-2", "-3" if repeated)
   bool unsafe = false;                  // also run every policy without mask and shield ("<label>/raw")
@@ -31,7 +34,8 @@ struct LayoutRow {
   std::string planner;
   std::uint64_t layout = 0, users_seed = 0;
   int users = 0, uavs = 0;
-  double objective = 0, optimum = 0, fraction = 0;  // fraction = objective / optimum of this layout
+  std::string reference;                // "optimal" or "bestknown": what `fraction` divides by
+  double objective = 0, reference_objective = 0, fraction = 0;  // fraction = objective / reference_objective
   int T = 0, home = 0, arrivals = 0, collisions = 0, boundary = 0;
   bool complete = false;                // every UAV home by T_max, no collision, no boundary event
   double seconds = 0;
@@ -39,6 +43,7 @@ struct LayoutRow {
 
 struct LayoutSummary {
   std::string planner;
+  std::string reference;                // the layouts' reference ("optimal", "bestknown", or both joined by '+')
   int layouts = 0;
   double complete = 0;                  // share of missions complete
   int collisions = 0, boundary = 0;     // totals over the layouts
@@ -51,7 +56,10 @@ struct LayoutSummary {
 /// of environment i, in the order the environments started them (i fastest).
 std::vector<std::uint64_t> training_layouts_of(const Config& run, int count);
 
-/// Rows in layout order, each layout's planners in the order given, policies next, the optimum last.
+/// The reference planner for a scenario: "optimal" where the joint DP fits, else "bestknown".
+std::string layout_reference(const UavEnv& env);
+
+/// Rows in layout order, each layout's planners in the order given, policies next, the reference last.
 std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptions& opt, const BeamformerRegistry& registry,
                                         std::ostream* progress = nullptr);
 /// One summary per planner, in the rows' order. The 5th percentile interpolates linearly.

@@ -6,6 +6,7 @@
 #include <mutex>
 #include <fmt/format.h>
 
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
@@ -100,7 +101,7 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 // VDN / QMIX 0.45e-4; the set encoder with validation layouts adds 1.9e-4 and the shared spectrum's
 // interference-aware oracle 1.7e-4; the per-step cost grows as N^1.3 (measured at N = 16).
 double marl_cost(const Config& cfg) {
-  const double base = cfg.marl.algo == "vdn" || cfg.marl.algo == "qmix" ? 0.45e-4 : 1.3e-4;
+  const double base = find_learner(cfg.marl.algo).core == LearnerInfo::Core::ValueDecomposition ? 0.45e-4 : 1.3e-4;
   const double per_step = base + (cfg.marl.encoder == "set" ? 1.9e-4 : 0.0) + (cfg.channel.spectrum == "shared" ? 1.7e-4 : 0.0);
   return per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
 }

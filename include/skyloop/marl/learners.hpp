@@ -1,0 +1,43 @@
+#pragma once
+// The multi-agent learners by name (marl.algo): one table that the config's allowed values, the
+// CLI's help, the experiment files, `reproduce`, training and policy loading all read. Each learner
+// runs on one of two cores (src/marl): the PPO core (MAPPO, IPPO) or the value-decomposition core
+// (VDN, QMIX); a learner that varies a core is one entry here. Torch-free.
+#include <string>
+#include <vector>
+
+namespace skyloop {
+
+struct LearnerInfo {
+  enum class Core { Ppo, ValueDecomposition };
+  enum class Mixer { None, Sum, Qmix };  // value decomposition: how the agents' Q values combine
+  std::string name, description;
+  Core core;
+  bool local_critic = false;  // PPO: the critic reads the agent's own observation (IPPO)
+  Mixer mixer = Mixer::None;
+  /// The network a trained policy acts with: the actor's logits (PPO) or the agent Q-network.
+  bool acts_by_q() const { return core == Core::ValueDecomposition; }
+};
+
+/// Every learner, in display order.
+inline const std::vector<LearnerInfo>& learners() {
+  static const std::vector<LearnerInfo> table = {
+      {"mappo", "PPO with a centralised critic on the global or agent-specific state (the paper's learner)",
+       LearnerInfo::Core::Ppo, false, LearnerInfo::Mixer::None},
+      {"ippo", "PPO with each agent's critic on its own observation", LearnerInfo::Core::Ppo, true, LearnerInfo::Mixer::None},
+      {"vdn", "value decomposition: the team Q is the sum of the agents' Q", LearnerInfo::Core::ValueDecomposition, false,
+       LearnerInfo::Mixer::Sum},
+      {"qmix", "value decomposition: a monotonic mixing network conditioned on the state",
+       LearnerInfo::Core::ValueDecomposition, false, LearnerInfo::Mixer::Qmix},
+  };
+  return table;
+}
+
+/// The names, in display order.
+std::vector<std::string> learner_names();
+/// "mappo, ippo, vdn, qmix".
+std::string learner_names_text();
+/// The learner called `name`; throws InputError "marl.algo = "x" is unknown: allowed mappo, ...".
+const LearnerInfo& find_learner(const std::string& name);
+
+}  // namespace skyloop

@@ -229,15 +229,27 @@ int UavEnv::users() const { return static_cast<int>(oracle_->users().rows()); }
 
 namespace {
 /// Adds w * exp(-(dx - c_i)^2 / (2 s^2)) * exp(-(dy - c_j)^2 / (2 s^2)) at every point (c_i, c_j)
-/// of a G x G grid of spacing `step` centred on 0 (separable: 2 G exponentials per point).
+/// of a G x G grid of spacing `step` centred on 0 (separable). Each axis's G factors come from
+/// three exponentials and a recurrence (f_{i+1} = f_i r_i, r_{i+1} = r_i q). A point whose every
+/// factor along one axis is below e^-24 (4e-11) adds nothing: its kernel is skipped.
 void add_kernel(float* map, int G, double step, double width, double dx, double dy, double w) {
   double fx[16], fy[16];
   const double half = (G - 1) / 2.0, inv = 1.0 / (2 * width * width);
-  for (int i = 0; i < G; ++i) {
-    const double c = (i - half) * step;
-    fx[i] = std::exp(-(dx - c) * (dx - c) * inv);
-    fy[i] = std::exp(-(dy - c) * (dy - c) * inv);
-  }
+  const double reach = half * step;
+  const double gx = std::max(0.0, std::abs(dx) - reach), gy = std::max(0.0, std::abs(dy) - reach);
+  if (gx * gx * inv > 24.0 || gy * gy * inv > 24.0) return;
+  const double q = std::exp(-2 * step * step * inv);
+  auto axis = [&](double d, double* f) {
+    const double c0 = -half * step;
+    f[0] = std::exp(-(d - c0) * (d - c0) * inv);
+    double r = std::exp((2 * (d - c0) * step - step * step) * inv);  // f_1 / f_0
+    for (int i = 1; i < G; ++i) {
+      f[i] = f[i - 1] * r;
+      r *= q;
+    }
+  };
+  axis(dx, fx);
+  axis(dy, fy);
   for (int j = 0; j < G; ++j)
     for (int i = 0; i < G; ++i) map[j * G + i] += static_cast<float>(w * fx[i] * fy[j]);
 }

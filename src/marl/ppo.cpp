@@ -64,9 +64,10 @@ int CriticReader::width(const UavEnv& e) const {
   return UavEnv::observation_size();
 }
 
-void CriticReader::write(const UavEnv& e, int n, float* out) const {
+void CriticReader::write(const UavEnv& e, int n, float* out, const float* observation) const {
   if (encoder.set) {
-    encoder.write(e, n, out);
+    if (observation) std::copy_n(observation, encoder.width(e), out);
+    else encoder.write(e, n, out);
     if (input != Input::LocalObservation) e.write_compact_state(out + encoder.width(e));
     return;
   }
@@ -405,7 +406,7 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
       for (int n = 0; n < N; ++n) {
         const auto i = static_cast<std::size_t>(e * N + n);
         encoder.write(vec.env(e), n, obs + i * static_cast<std::size_t>(r.obs_width));
-        critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width));
+        critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width), obs + i * static_cast<std::size_t>(r.obs_width));
         r.active[r.at(t, e, n)] = static_cast<float>(vec.env(e).mask(n));
         r.logprobs[r.at(t, e, n)] = 0.0f;  // agents that STAY without sampling (arrived) keep these
         std::fill_n(r.allowed.data() + r.at(t, e, n) * kActions, kActions, 1.0f);

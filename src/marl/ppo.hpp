@@ -30,7 +30,9 @@ struct CriticReader {
   static CriticReader of(const Config& cfg, const Encoder& encoder);
   const char* name() const;  // global | agent | local (the policy header's critic_input)
   int width(const UavEnv& env) const;
-  void write(const UavEnv& env, int n, float* out) const;
+  /// `observation`, when given, is agent n's row of the actor's input (the same encoder) just
+  /// written: the set observation is copied from it rather than computed again.
+  void write(const UavEnv& env, int n, float* out, const float* observation = nullptr) const;
 };
 
 /// One rollout: T steps of M environments with N agents. Per-agent arrays are [T, M, N, ...]

@@ -34,6 +34,9 @@ import ppo  # noqa: E402  examples/ppo.py
 
 
 def skyloop_binary() -> str:
+    given = os.environ.get("SKYLOOP_BIN")
+    if given:
+        return given
     for c in (HERE.parent / "build" / "skyloop", pathlib.Path("/usr/local/bin/skyloop")):
         if c.exists():
             return str(c)

@@ -387,7 +387,7 @@ class PyVecEnv {
         const std::size_t row = static_cast<std::size_t>(i) * static_cast<std::size_t>(N) + static_cast<std::size_t>(n);
         e.write_obs(n, po + row * O);
         e.write_agent_state(n, pa + row * A);
-        const unsigned allowed = allowed_moves(e, n, SafetyOptions{cfg_.marl.action_mask, false});
+        const unsigned allowed = allowed_moves(e, n, SafetyOptions{cfg_.marl.action_mask, false, cfg_.marl.slack_margin});
         for (std::size_t a = 0; a < K; ++a) pm[row * K + a] = (allowed >> a & 1u) ? 1 : 0;
       }
     }

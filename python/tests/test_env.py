@@ -148,7 +148,9 @@ def test_registries_are_the_cores_lists():
     assert sl.LEARNERS == ("mappo", "ippo", "vdn", "qmix")
     with pytest.raises(sl.InputError, match="allowed random, greedy, seqgreedy, bestknown, optimal"):
         sl.plan(None, "astar")
-    cfg = sl.config(env={"oracle": "zf"})
+    cfg = sl.config(env={"oracle": "zf"}, scenario={"area_x_m": 120.0, "area_y_m": 120.0, "users": 6},
+                    trajectory={"starts": [[0.0, 0.0], [120.0, 120.0]], "destinations": [[120.0, 40.0], [0.0, 80.0]],
+                                "t_max": 12})
     objective = {p: sl.plan(cfg, p, users_seed=3)["objective"] for p in sl.PLANNERS}
     assert objective["bestknown"] == pytest.approx(objective["optimal"], rel=1e-12)  # the DP fits: exact
     assert max(objective.values()) <= objective["optimal"] * (1 + 1e-12)

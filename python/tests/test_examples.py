@@ -1,7 +1,18 @@
 """The examples run and do what they say: the PPO learns, the custom precoder is compared fairly."""
+import os
+import pathlib
+import subprocess
+import sys
+
 import numpy as np
 
 import skyloop as sl
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+
+
+def env_with_module():
+    return dict(os.environ)
 
 
 def test_custom_precoder_example():
@@ -33,3 +44,19 @@ def test_ppo_example_learns_to_bring_every_uav_home():
             assert rec["collisions"] == 0 and rec["boundary"] == 0, rec
             opt = sl.plan(cfg, "optimal", users=rec["users"])
             assert 0 < rec["objective"] <= opt["objective"] * (1 + 1e-12)
+
+
+def test_ppo_speed_bench_runs_both_learners(tmp_path):
+    """bench/ppo_speed.py at its smallest (one update each): both learners run the same number of
+    steps and the CSV holds the seed and a rate for each."""
+    import csv
+    r = subprocess.run([sys.executable, str(ROOT / "bench" / "ppo_speed.py"), "--steps", "2048", "--out", str(tmp_path)],
+                       capture_output=True, text=True, timeout=600, env=env_with_module())
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.DictReader(open(tmp_path / "ppo_speed.csv")))
+    assert [row["learner"] for row in rows] == ["pytorch (examples/ppo.py)", "skyloop train"]
+    assert all(int(row["env_steps"]) == 2048 and float(row["steps_per_s"]) > 0 and row["seed"] == "1" for row in rows)
+    assert "x the environment steps per second" in r.stdout
+    bad = subprocess.run([sys.executable, str(ROOT / "bench" / "ppo_speed.py"), "--steps", "10"], capture_output=True,
+                         text=True, timeout=60, env=env_with_module())
+    assert bad.returncode != 0 and bad.stderr.strip().count("\n") == 0 and "--steps = 10" in bad.stderr

@@ -259,6 +259,10 @@ std::vector<Field> make_fields() {
                    "agent network input: mlp = the paper's 11-real observation; set = permutation-invariant encoder over "
                    "user and neighbour displacements (any K and N)",
                    {"mlp", "set"}, [](Config& c) -> std::string& { return c.marl.encoder; }));
+  f.push_back(integer("marl.slack_margin",
+                      "slots of slack the reachability mask keeps in reserve; the collision shield may spend them to let a UAV "
+                      "wait or step aside (0 = none)",
+                      0, 1000, [](Config& c) -> int& { return c.marl.slack_margin; }));
   f.push_back(text("marl.backend",
                    "PPO learners' network library: fast = fused float32 passes on the CPU (the default); torch = LibTorch's "
                    "autograd (the reference; needed for nn.device = cuda)",

@@ -36,7 +36,10 @@ std::string MarlPolicy::name() const { return impl_->algo; }
 const std::string& MarlPolicy::config_toml() const { return impl_->config; }
 bool MarlPolicy::action_mask() const { return impl_->safety.mask; }
 bool MarlPolicy::shield() const { return impl_->safety.shield; }
-void MarlPolicy::set_safety(bool action_mask, bool shield) { impl_->safety = SafetyOptions{action_mask, shield}; }
+void MarlPolicy::set_safety(bool action_mask, bool shield) {
+  impl_->safety.mask = action_mask;
+  impl_->safety.shield = shield;
+}
 
 std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   std::string path = where;

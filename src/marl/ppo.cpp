@@ -11,6 +11,7 @@
 #include "fast_mlp.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/progress.hpp"
 #include "skyloop/marl/learners.hpp"
@@ -108,16 +109,19 @@ void UpdateStats::add(const UpdateStats& o, double w) {
   grad_norm += w * o.grad_norm;
 }
 
-UpdateStats ppo_loss(const Minibatch& b, const PpoSettings& s, const float* logits, int logit_stride, const float* values,
-                     int value_stride, float* dlogits, float* dvalues) {
+namespace {
+
+/// ppo_loss over the rows [first, last) of the minibatch, with the whole minibatch's normalisers
+/// (its active agents and its rows): the rows' share of the loss and of its gradient. The
+/// pointers address row `first`.
+UpdateStats ppo_loss_rows(const Minibatch& b, const PpoSettings& s, int first, int last, double per_active,
+                          const float* logits, int logit_stride, const float* values, int value_stride, float* dlogits,
+                          float* dvalues) {
   const int R = b.rows;
   UpdateStats u;
   // Actor: the clipped surrogate and the entropy over the allowed moves.
-  double active = 0;
-  for (int i = 0; i < R; ++i) active += b.active[static_cast<std::size_t>(i)];
-  const double per_active = 1.0 / std::max(active, 1.0);
-  for (int i = 0; i < R; ++i) {
-    const float* z = logits + static_cast<std::size_t>(i) * logit_stride;
+  for (int i = first; i < last; ++i) {
+    const float* z = logits + static_cast<std::size_t>(i - first) * logit_stride;
     const float* allowed = b.allowed.data() + static_cast<std::size_t>(i) * kActions;
     double mx = -1e300;
     for (int k = 0; k < kActions; ++k)
@@ -149,13 +153,13 @@ UpdateStats ppo_loss(const Minibatch& b, const PpoSettings& s, const float* logi
     u.clipfrac += w * (std::abs(ratio - 1) > s.clip ? 1.0 : 0.0);
     // d/dz_k: -w dsurr ratio (1[k = a] - p_k) from the surrogate, -c2 w (-p_k (log p_k + H)) from the entropy.
     const double dlogp = -w * dsurr * ratio;
-    float* dz = dlogits + static_cast<std::size_t>(i) * logit_stride;
+    float* dz = dlogits + static_cast<std::size_t>(i - first) * logit_stride;
     for (int k = 0; k < kActions; ++k)
       dz[k] = static_cast<float>(dlogp * ((k == a ? 1.0 : 0.0) - p[k]) + s.entropy_coef * w * p[k] * (logp[k] + entropy));
   }
   // Critic: the clipped value loss, a plain mean over the rows.
-  for (int i = 0; i < R; ++i) {
-    const double v = values[static_cast<std::size_t>(i) * value_stride], v_old = b.values[static_cast<std::size_t>(i)];
+  for (int i = first; i < last; ++i) {
+    const double v = values[static_cast<std::size_t>(i - first) * value_stride], v_old = b.values[static_cast<std::size_t>(i)];
     const double ret = b.returns[static_cast<std::size_t>(i)];
     const double delta = v - v_old;
     const double vc = v_old + std::min(std::max(delta, -s.clip), s.clip);
@@ -164,9 +168,22 @@ UpdateStats ppo_loss(const Minibatch& b, const PpoSettings& s, const float* logi
     const double in_range = delta >= -s.clip && delta <= s.clip ? 1.0 : 0.0;
     const double d1 = 2 * (v - ret), d2 = 2 * (vc - ret) * in_range;
     const double dv = l1 > l2 ? d1 : l1 < l2 ? d2 : 0.5 * (d1 + d2);
-    dvalues[static_cast<std::size_t>(i) * value_stride] = static_cast<float>(s.value_coef * dv / R);
+    dvalues[static_cast<std::size_t>(i - first) * value_stride] = static_cast<float>(s.value_coef * dv / R);
   }
   return u;
+}
+
+double inverse_active(const Minibatch& b) {
+  double active = 0;
+  for (int i = 0; i < b.rows; ++i) active += b.active[static_cast<std::size_t>(i)];
+  return 1.0 / std::max(active, 1.0);
+}
+
+}  // namespace
+
+UpdateStats ppo_loss(const Minibatch& b, const PpoSettings& s, const float* logits, int logit_stride, const float* values,
+                     int value_stride, float* dlogits, float* dvalues) {
+  return ppo_loss_rows(b, s, 0, b.rows, inverse_active(b), logits, logit_stride, values, value_stride, dlogits, dvalues);
 }
 
 // ---- backends ------------------------------------------------------------------------------------
@@ -259,12 +276,13 @@ class TorchPpo final : public PpoNetworks {
 /// The default: fused float32 passes (fast_mlp.hpp), the loss's gradient written out.
 class FastPpo final : public PpoNetworks {
  public:
-  FastPpo(Nets nets, double learning_rate)
+  FastPpo(Nets nets, double learning_rate, int threads)
       : torch_(std::move(nets)),
         actor_(static_cast<int>(torch_.actor->l1->options.in_features()), static_cast<int>(torch_.actor->l1->options.out_features()), kActions),
         critic_(static_cast<int>(torch_.critic->l1->options.in_features()), static_cast<int>(torch_.critic->l1->options.out_features()), 1) {
     from_torch();
     actor_adam_.learning_rate = critic_adam_.learning_rate = learning_rate;
+    threads_ = std::max(1, std::min<int>(static_cast<int>(kChunks), resolve_threads(threads)));
   }
 
   void logits(const float* obs, int rows, float* out) override { forward(actor_, obs, rows, kActions, out); }
@@ -272,17 +290,39 @@ class FastPpo final : public PpoNetworks {
 
   UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
     const int R = b.rows, as = actor_.out_stride(), vs = critic_.out_stride();
-    const std::size_t na = actor_.size();
-    grad_.assign(na + critic_.size(), 0.0f);
+    const std::size_t na = actor_.size(), np = na + critic_.size();
     logits_.resize(static_cast<std::size_t>(R) * as);
     values_.resize(static_cast<std::size_t>(R) * vs);
     dlogits_.assign(logits_.size(), 0.0f);
     dvalues_.assign(values_.size(), 0.0f);
-    actor_.forward(b.observations.data(), R, logits_.data(), &actor_cache_);
-    critic_.forward(b.critic_inputs.data(), R, values_.data(), &critic_cache_);
-    UpdateStats u = ppo_loss(b, s, logits_.data(), as, values_.data(), vs, dlogits_.data(), dvalues_.data());
-    actor_.backward(actor_cache_, dlogits_.data(), grad_.data());
-    critic_.backward(critic_cache_, dvalues_.data(), grad_.data() + na);
+    const double per_active = inverse_active(b);
+    // The minibatch in kChunks fixed halves, each forward, loss and backward into its own gradient
+    // (on its own thread when run.threads allows), summed in chunk order: the same numbers for
+    // any thread count.
+    UpdateStats parts[kChunks];
+    parallel_for(kChunks, threads_, [&](std::size_t c) {
+      const int first = static_cast<int>(static_cast<long>(R) * static_cast<long>(c) / kChunks);
+      const int last = static_cast<int>(static_cast<long>(R) * static_cast<long>(c + 1) / kChunks);
+      auto& g = chunk_grad_[c];
+      g.assign(np, 0.0f);
+      if (last <= first) return;
+      float* lg = logits_.data() + static_cast<std::size_t>(first) * as;
+      float* vl = values_.data() + static_cast<std::size_t>(first) * vs;
+      float* dl = dlogits_.data() + static_cast<std::size_t>(first) * as;
+      float* dv = dvalues_.data() + static_cast<std::size_t>(first) * vs;
+      actor_.forward(b.observations.data() + static_cast<std::size_t>(first) * b.obs_width, last - first, lg, &actor_cache_[c]);
+      critic_.forward(b.critic_inputs.data() + static_cast<std::size_t>(first) * b.critic_width, last - first, vl,
+                      &critic_cache_[c]);
+      parts[c] = ppo_loss_rows(b, s, first, last, per_active, lg, as, vl, vs, dl, dv);
+      actor_.backward(actor_cache_[c], dl, g.data());
+      critic_.backward(critic_cache_[c], dv, g.data() + na);
+    });
+    UpdateStats u;
+    grad_.assign(np, 0.0f);
+    for (std::size_t c = 0; c < kChunks; ++c) {
+      u.add(parts[c], 1.0);
+      for (std::size_t i = 0; i < np; ++i) grad_[i] += chunk_grad_[c][i];
+    }
     // Global norm, clipping (LibTorch's clip_grad_norm_ rule), Adam.
     u.grad_norm = fast::norm(grad_);
     if (s.grad_clip > 0) {
@@ -372,23 +412,27 @@ class FastPpo final : public PpoNetworks {
                 scratch_.data() + static_cast<std::size_t>(i) * net.out_stride() + width, out + static_cast<std::size_t>(i) * width);
   }
 
+  static constexpr std::size_t kChunks = 2;
   Nets torch_;  // the archive's form of the weights (written on save, read on load)
   fast::Mlp actor_, critic_;
   fast::Adam actor_adam_, critic_adam_;
-  fast::Mlp::Cache actor_cache_, critic_cache_, infer_cache_;
+  int threads_ = 1;
+  fast::Mlp::Cache actor_cache_[kChunks], critic_cache_[kChunks], infer_cache_;
+  std::vector<float> chunk_grad_[kChunks];
   std::vector<float> grad_, logits_, values_, dlogits_, dvalues_, scratch_;
 };
 
 }  // namespace
 
 std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
-                                               double learning_rate, const torch::Device& device, std::uint64_t seed) {
+                                               double learning_rate, const torch::Device& device, std::uint64_t seed,
+                                               int threads) {
   auto nets = initial_nets(obs_width, critic_width, hidden, seed);
   if (backend == "torch") return std::make_unique<TorchPpo>(std::move(nets), learning_rate, device);
   if (backend != "fast") throw InputError("marl.backend = \"" + backend + "\" is not allowed: allowed one of fast, torch");
   if (device.is_cuda())
     throw InputError("marl.backend = \"fast\" runs on the CPU: with nn.device = \"cuda\" set marl.backend = \"torch\"");
-  return std::make_unique<FastPpo>(std::move(nets), learning_rate);
+  return std::make_unique<FastPpo>(std::move(nets), learning_rate, threads);
 }
 
 // ---- the three phases ----------------------------------------------------------------------------
@@ -556,7 +600,8 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   const CriticReader critic = CriticReader::of(cfg, encoder);
   const SafetyOptions safety = safety_of(cfg);
   const int N = vec.env(0).uavs(), M = vec.size(), obs_width = encoder.width(vec.env(0)), critic_width = critic.width(vec.env(0));
-  auto nets = make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed);
+  auto nets =
+      make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed, cfg.run.threads);
   RunningStats value_norm;
 
   std::int64_t steps = 0, updates = 0;

@@ -101,9 +101,12 @@ class PpoNetworks : public Learned {
 
 /// Actor obs_width -> hidden -> hidden -> kActions and critic critic_width -> ... -> 1, both
 /// initialised from LibTorch's default initialisation under `seed` (so both backends start from
-/// the same weights). backend: "fast" | "torch".
+/// the same weights). backend: "fast" | "torch". `threads` (run.threads; 0 = every core): the fast
+/// backend computes each minibatch in two fixed halves, on up to two threads, with the same
+/// numbers for any thread count; LibTorch's threads are set by the run.
 std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
-                                               double learning_rate, const torch::Device& device, std::uint64_t seed);
+                                               double learning_rate, const torch::Device& device, std::uint64_t seed,
+                                               int threads = 1);
 
 /// Fills the rollout with T steps of every environment: each active UAV samples from its policy
 /// among the moves its safety settings allow (sequential_safe_actions); arrived UAVs STAY.

@@ -35,8 +35,8 @@ Placed arrived_uavs(const UavEnv& env) {
   return p;
 }
 
-/// allowed minus the moves landing within D_min of a placed UAV, unless that leaves nothing.
-unsigned shielded(const UavEnv& env, int n, unsigned allowed, const Placed& placed) {
+/// The moves of `allowed` landing at least D_min from every placed UAV.
+unsigned clear_moves(const UavEnv& env, int n, unsigned allowed, const Placed& placed) {
   unsigned safe = 0;
   for (int a = 0; a < kActions; ++a) {
     if (!(allowed >> a & 1u)) continue;
@@ -44,27 +44,38 @@ unsigned shielded(const UavEnv& env, int n, unsigned allowed, const Placed& plac
     landing(env, n, a, x, y);
     if (placed.clear(x, y, env.d_min())) safe |= 1u << a;
   }
-  return safe ? safe : allowed;
+  return safe;
+}
+
+/// allowed minus the moves landing within D_min of a placed UAV; if that leaves nothing and the
+/// mask keeps a margin, the clear moves of the margin-0 mask; else allowed.
+unsigned shielded(const UavEnv& env, int n, unsigned allowed, const Placed& placed, const SafetyOptions& safety) {
+  if (const unsigned safe = clear_moves(env, n, allowed, placed)) return safe;
+  if (safety.mask && safety.margin > 0)
+    if (const unsigned wider = clear_moves(env, n, reachable_moves(env, n, 0), placed)) return wider;
+  return allowed;
 }
 
 }  // namespace
 
-unsigned reachable_moves(const UavEnv& env, int n) {
+unsigned reachable_moves(const UavEnv& env, int n, int margin) {
   if (env.arrived(n)) return 1u << kStay;
   unsigned m = 0, inside = 0;
   const auto& p = env.positions();
+  const int left_after = env.t_max() - (env.t() + 1);
   for (int a = 0; a < kActions; ++a) {
     double x, y;
     if (!env.move(p(n, 0), p(n, 1), a, x, y)) continue;
     inside |= 1u << a;
-    if (env.feasible(n, a)) m |= 1u << a;
+    if (env.feasible(n, a) && env.min_moves(n, x, y) <= left_after - margin) m |= 1u << a;
   }
+  if (!m && margin > 0) return reachable_moves(env, n, 0);
   return m ? m : inside;
 }
 
 unsigned allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety) {
   if (env.arrived(n)) return 1u << kStay;
-  return safety.mask ? reachable_moves(env, n) : kAllActions;
+  return safety.mask ? reachable_moves(env, n, safety.margin) : kAllActions;
 }
 
 std::vector<int> shield_order(const UavEnv& env) {
@@ -87,7 +98,7 @@ std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions&
   Placed placed = arrived_uavs(env);
   for (const int n : shield_order(env)) {
     unsigned allowed = allowed_moves(env, n, safety);
-    if (safety.shield) allowed = shielded(env, n, allowed, placed);
+    if (safety.shield) allowed = shielded(env, n, allowed, placed, safety);
     const int a = choose(n, allowed);
     actions[static_cast<std::size_t>(n)] = a;
     if (allowed_out) (*allowed_out)[static_cast<std::size_t>(n)] = allowed;
@@ -143,17 +154,24 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
   if (!safety.shield) return sequential();
   const auto order = shield_order(env);
   std::vector<int> actions(static_cast<std::size_t>(env.uavs()), kStay);
-  Search s{env, order, {}, actions, arrived_uavs(env)};
-  for (const int n : order) {
-    std::vector<int> c;
-    const unsigned allowed = allowed_moves(env, n, safety);
-    for (int a = 0; a < kActions; ++a)
-      if (allowed >> a & 1u) c.push_back(a);
-    const auto& sc = scores[static_cast<std::size_t>(n)];
-    std::stable_sort(c.begin(), c.end(), [&](int a, int b) { return sc[static_cast<std::size_t>(a)] > sc[static_cast<std::size_t>(b)]; });
-    s.candidates.push_back(std::move(c));
+  // First within the margin; if no collision-free joint move keeps it, spend the margin.
+  std::vector<int> margins{safety.margin};
+  if (safety.mask && safety.margin > 0) margins.push_back(0);
+  for (const int margin : margins) {
+    SafetyOptions at = safety;
+    at.margin = margin;
+    Search s{env, order, {}, actions, arrived_uavs(env)};
+    for (const int n : order) {
+      std::vector<int> c;
+      const unsigned allowed = allowed_moves(env, n, at);
+      for (int a = 0; a < kActions; ++a)
+        if (allowed >> a & 1u) c.push_back(a);
+      const auto& sc = scores[static_cast<std::size_t>(n)];
+      std::stable_sort(c.begin(), c.end(), [&](int a, int b) { return sc[static_cast<std::size_t>(a)] > sc[static_cast<std::size_t>(b)]; });
+      s.candidates.push_back(std::move(c));
+    }
+    if (s.dfs(0)) return actions;
   }
-  if (s.dfs(0)) return actions;
   return sequential();
 }
 

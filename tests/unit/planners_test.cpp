@@ -102,11 +102,11 @@ TEST(Planners, BestKnownAgainstTheExactOptimum) {
     }
 }
 
-// Beyond the DP (16 UAVs, 400 m, 300 users): every UAV home without a collision, at least the
+// Beyond the DP (10 UAVs, 300 m, 150 users): every UAV home without a collision, at least the
 // sequential greedy's objective.
 TEST(Planners, BestKnownScalesBeyondTheDp) {
-  Config cfg = scene({"scenario.uavs=16", "scenario.users=300", "scenario.area_x_m=400", "scenario.area_y_m=400",
-                      "trajectory.layout=generated", "trajectory.t_max=30", "env.oracle=zfsel"});
+  Config cfg = scene({"scenario.uavs=10", "scenario.users=150", "scenario.area_x_m=300", "scenario.area_y_m=300",
+                      "trajectory.layout=generated", "trajectory.t_max=24", "env.oracle=zfsel"});
   UavEnv env(cfg, oracle_of(cfg, 4));
   EXPECT_FALSE(fits_optimal(env));
   BestKnownPlanner best;

@@ -211,6 +211,25 @@ TEST(PpoCore, BackendsTakeTheSameSteps) {
   EXPECT_THROW(make_ppo_networks("jax", 11, 37, 64, 3e-4, torch::kCPU, 9), InputError);
 }
 
+// The fast backend splits every minibatch into two fixed halves (one per thread when allowed):
+// the same numbers, bit for bit, on one thread or two.
+TEST(PpoCore, FastBackendIsTheSameOnAnyThreadCount) {
+  const PpoSettings s{0.2, 0.5, 0.03, 0.1};
+  const auto b = random_minibatch(333, 11, 37, 6);  // an odd row count: unequal halves
+  auto one = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 4, 1);
+  auto two = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 4, 2);
+  for (int step = 0; step < 5; ++step) {
+    const auto u1 = one->step(b, s), u2 = two->step(b, s);
+    EXPECT_EQ(u1.policy_loss, u2.policy_loss) << "step " << step;
+    EXPECT_EQ(u1.value_loss, u2.value_loss) << "step " << step;
+    EXPECT_EQ(u1.grad_norm, u2.grad_norm) << "step " << step;
+  }
+  std::vector<float> l1(static_cast<std::size_t>(b.rows) * kActions), l2(l1.size());
+  one->logits(b.observations.data(), b.rows, l1.data());
+  two->logits(b.observations.data(), b.rows, l2.data());
+  EXPECT_EQ(l1, l2);
+}
+
 namespace {
 Config small_scene() {
   Config cfg;

@@ -9,6 +9,10 @@
 //  - collision shield: the UAVs choose one after another, least slack first (ties by index); a
 //    move that brings a UAV within D_min of a UAV already placed (arrived UAVs are placed first)
 //    is masked whenever one of its other allowed moves avoids that.
+//  - slack margin (marl.slack_margin = m): the mask keeps m slots of slack in reserve (a UAV
+//    plans to be home by T_max - m); the shield may spend them, widening a UAV's moves to the
+//    plain reachability mask when none of its margin-keeping moves avoids a collision. Two UAVs
+//    with no slack left on one line cannot pass each other; with a margin one of them can wait.
 //
 // Training samples through sequential_safe_actions (each UAV's allowed set is its action mask in
 // the PPO / Q-learning update); execution uses shielded_argmax, which searches the joint action
@@ -24,16 +28,18 @@ namespace skyloop {
 struct SafetyOptions {
   bool mask = true;    // reachability mask
   bool shield = true;  // collision shield
+  int margin = 0;      // slots of slack the mask keeps for the shield (marl.slack_margin)
 };
 
 constexpr unsigned kAllActions = (1u << kActions) - 1;
 
-/// Bit a set if UAV n may take action a under the reachability mask. Never empty: if no move keeps
-/// the destination reachable (a state the mask itself never leads to), the moves that stay in the
-/// area; an arrived UAV: STAY only.
-unsigned reachable_moves(const UavEnv& env, int n);
-/// Moves of UAV n allowed before the shield: reachable_moves with the mask, else every action
-/// (STAY only once arrived).
+/// Bit a set if UAV n may take action a under the reachability mask: a keeps it in the area and its
+/// destination reachable within the slots left less `margin` (with no such move, the margin-0
+/// set). Never empty: if no move keeps the destination reachable (a state the mask itself never
+/// leads to), the moves that stay in the area; an arrived UAV: STAY only.
+unsigned reachable_moves(const UavEnv& env, int n, int margin = 0);
+/// Moves of UAV n allowed before the shield: reachable_moves (with safety.margin) with the mask,
+/// else every action (STAY only once arrived).
 unsigned allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety);
 /// The order in which not-yet-arrived UAVs choose: least slack (moves left minus moves needed)
 /// first, ties by index.

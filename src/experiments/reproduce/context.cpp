@@ -97,12 +97,16 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 
 // Rough seconds on one core (the farm's order, --plan, the ETA; never a result), calibrated from
 // the timings.csv of a quick-profile run on the 2-core machine (2026-11-23; BENCHMARKS.md,
-// "Reproduce: estimates"): MAPPO / IPPO 1.3e-4 s per environment step at N = 3 (the GNN oracle),
-// VDN / QMIX 0.45e-4; the set encoder with validation layouts adds 1.9e-4 and the shared spectrum's
-// interference-aware oracle 1.7e-4; the per-step cost grows as N^1.3 (measured at N = 16).
+// "Reproduce: estimates") and the fast PPO backend's runs (2026-11-24): MAPPO / IPPO 2.5e-5 s per
+// environment step at N = 3 (the GNN oracle; 1.3e-4 on marl.backend = torch), VDN / QMIX 0.45e-4;
+// the set encoder with validation layouts adds 7e-5 and the shared spectrum's interference-aware
+// oracle 1.7e-4; the per-step cost grows as N^1.3 (measured at N = 16).
 double marl_cost(const Config& cfg) {
-  const double base = find_learner(cfg.marl.algo).core == LearnerInfo::Core::ValueDecomposition ? 0.45e-4 : 1.3e-4;
-  const double per_step = base + (cfg.marl.encoder == "set" ? 1.9e-4 : 0.0) + (cfg.channel.spectrum == "shared" ? 1.7e-4 : 0.0);
+  const auto& learner = find_learner(cfg.marl.algo);
+  const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? 0.45e-4
+                      : cfg.marl.backend == "torch"                          ? 1.3e-4
+                                                                             : 2.5e-5;
+  const double per_step = base + (cfg.marl.encoder == "set" ? 7e-5 : 0.0) + (cfg.channel.spectrum == "shared" ? 1.7e-4 : 0.0);
   return per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
 }
 /// The exact optimum of one layout: about 0.35 s per user on the paper's grid (1.77e6 joint states),

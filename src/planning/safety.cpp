@@ -17,6 +17,13 @@ void landing(const UavEnv& env, int n, int a, double& x, double& y) {
   if (!env.move(p(n, 0), p(n, 1), a, x, y)) x = p(n, 0), y = p(n, 1);
 }
 
+/// UAV n's slack after action a: slots left after the move less the moves it still needs.
+int slack_after(const UavEnv& env, int n, int a) {
+  double x, y;
+  landing(env, n, a, x, y);
+  return env.t_max() - (env.t() + 1) - env.min_moves(n, x, y);
+}
+
 /// Placed UAVs' end positions for the shield.
 struct Placed {
   std::vector<double> x, y;
@@ -63,11 +70,15 @@ unsigned reachable_moves(const UavEnv& env, int n, int margin) {
   unsigned m = 0, inside = 0;
   const auto& p = env.positions();
   const int left_after = env.t_max() - (env.t() + 1);
+  // The slack a move must leave: the margin, or all the UAV still has if the shield spent some
+  // (a move towards the destination keeps the slack; STAY and moves away spend one or two).
+  const int slack_now = left_after + 1 - env.min_moves(n, p(n, 0), p(n, 1));
+  const int keep = std::max(0, std::min(margin, slack_now));
   for (int a = 0; a < kActions; ++a) {
     double x, y;
     if (!env.move(p(n, 0), p(n, 1), a, x, y)) continue;
     inside |= 1u << a;
-    if (env.feasible(n, a) && env.min_moves(n, x, y) <= left_after - margin) m |= 1u << a;
+    if (env.feasible(n, a) && left_after - env.min_moves(n, x, y) >= keep) m |= 1u << a;
   }
   if (!m && margin > 0) return reachable_moves(env, n, 0);
   return m ? m : inside;
@@ -154,24 +165,29 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
   if (!safety.shield) return sequential();
   const auto order = shield_order(env);
   std::vector<int> actions(static_cast<std::size_t>(env.uavs()), kStay);
-  // First within the margin; if no collision-free joint move keeps it, spend the margin.
-  std::vector<int> margins{safety.margin};
-  if (safety.mask && safety.margin > 0) margins.push_back(0);
-  for (const int margin : margins) {
-    SafetyOptions at = safety;
-    at.margin = margin;
-    Search s{env, order, {}, actions, arrived_uavs(env)};
-    for (const int n : order) {
+  // Each UAV's moves best first, those that keep the slack margin before those that spend it: the
+  // first collision-free joint move spends margin only where a collision demands it.
+  Search s{env, order, {}, actions, arrived_uavs(env)};
+  SafetyOptions plain = safety;
+  plain.margin = 0;
+  for (const int n : order) {
+    const auto& sc = scores[static_cast<std::size_t>(n)];
+    auto best_first = [&](unsigned set) {
       std::vector<int> c;
-      const unsigned allowed = allowed_moves(env, n, at);
       for (int a = 0; a < kActions; ++a)
-        if (allowed >> a & 1u) c.push_back(a);
-      const auto& sc = scores[static_cast<std::size_t>(n)];
+        if (set >> a & 1u) c.push_back(a);
       std::stable_sort(c.begin(), c.end(), [&](int a, int b) { return sc[static_cast<std::size_t>(a)] > sc[static_cast<std::size_t>(b)]; });
-      s.candidates.push_back(std::move(c));
-    }
-    if (s.dfs(0)) return actions;
+      return c;
+    };
+    const unsigned keep = allowed_moves(env, n, safety);
+    auto c = best_first(keep);
+    // Moves that spend slack: the least spent first (STAY spends one slot, a move away two).
+    auto spend = best_first(allowed_moves(env, n, plain) & ~keep);
+    std::stable_sort(spend.begin(), spend.end(), [&](int a, int b) { return slack_after(env, n, a) > slack_after(env, n, b); });
+    c.insert(c.end(), spend.begin(), spend.end());
+    s.candidates.push_back(std::move(c));
   }
+  if (s.dfs(0)) return actions;
   return sequential();
 }
 

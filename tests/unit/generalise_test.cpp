@@ -287,3 +287,33 @@ TEST(Safety, ASlackMarginLetsTheShieldAvoidHeadOnTraps) {
   EXPECT_GT(without, 0) << "the scenes should hold head-on traps";
   EXPECT_LT(with_margin, without);
 }
+
+// Two UAVs flying past each other on adjacent rows (20 m apart, D_min 25 m), 2 slots of slack
+// each, under random scores: without a margin the scores spend the slack and the two meet with
+// none left (a collision no move avoids); with a margin of 2 the shield still has it to spend,
+// and no episode collides.
+TEST(Safety, ASlackMarginAvoidsHeadOnMeetings) {
+  Config cfg;
+  cfg.scenario.area_x_m = cfg.scenario.area_y_m = 200;
+  cfg.trajectory.starts = {{0, 100}, {200, 120}};
+  cfg.trajectory.destinations = {{200, 100}, {0, 120}};
+  cfg.trajectory.t_max = 13;  // 10 moves each: 11 slots, plus 2 of slack
+  UavEnv env = make_env(cfg, layout_users(cfg, 1));
+  int collided[2] = {0, 0};
+  for (const int margin : {0, 2})
+    for (std::uint64_t episode = 0; episode < 50; ++episode) {
+      Rng rng(episode);
+      env.reset();
+      while (!env.done()) {
+        std::vector<std::array<float, kActions>> scores(2);
+        for (auto& s : scores)
+          for (auto& x : s) x = static_cast<float>(rng.normal());
+        const auto a = shielded_argmax(env, SafetyOptions{true, true, margin}, scores);
+        collided[margin ? 1 : 0] += env.collisions(env.next_positions(a)) > 0;
+        env.step(a);
+      }
+      EXPECT_TRUE(env.positions().isApprox(env.destinations())) << "margin " << margin << ", episode " << episode;
+    }
+  EXPECT_GT(collided[0], 0) << "without a margin the two should sometimes meet with no slack left";
+  EXPECT_EQ(collided[1], 0);
+}

@@ -10,8 +10,9 @@
 //    move that brings a UAV within D_min of a UAV already placed (arrived UAVs are placed first)
 //    is masked whenever one of its other allowed moves avoids that.
 //  - slack margin (marl.slack_margin = m): the mask keeps m slots of slack in reserve (a UAV
-//    plans to be home by T_max - m); the shield may spend them, widening a UAV's moves to the
-//    plain reachability mask when none of its margin-keeping moves avoids a collision. Two UAVs
+//    plans to be home by T_max - m, and once the shield has spent some, keeps what is left);
+//    the shield may spend it, widening a UAV's moves to the plain reachability mask when none of
+//    its margin-keeping moves avoids a collision. Two UAVs
 //    with no slack left on one line cannot pass each other; with a margin one of them can wait.
 //
 // Training samples through sequential_safe_actions (each UAV's allowed set is its action mask in
@@ -34,8 +35,9 @@ struct SafetyOptions {
 constexpr unsigned kAllActions = (1u << kActions) - 1;
 
 /// Bit a set if UAV n may take action a under the reachability mask: a keeps it in the area and its
-/// destination reachable within the slots left less `margin` (with no such move, the margin-0
-/// set). Never empty: if no move keeps the destination reachable (a state the mask itself never
+/// destination reachable, with a slack (slots left after the move less the moves still needed)
+/// of at least `margin`, or of all the slack it has if that is less (with no such move, the
+/// margin-0 set). Never empty: if no move keeps the destination reachable (a state the mask itself never
 /// leads to), the moves that stay in the area; an arrived UAV: STAY only.
 unsigned reachable_moves(const UavEnv& env, int n, int margin = 0);
 /// Moves of UAV n allowed before the shield: reachable_moves (with safety.margin) with the mask,

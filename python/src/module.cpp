@@ -447,13 +447,11 @@ py::dict episode_dict(const EpisodeRecord& r) {
 
 py::dict plan(const Config& cfg, const std::string& planner, std::uint64_t users_seed, std::optional<py::array> users_xy,
               std::optional<std::uint64_t> planner_seed) {
-  auto bf = builtin_beamformers().create(cfg.env.oracle, cfg);
-  const Positions users = users_xy ? positions_from(Array<double>::ensure(*users_xy), cfg, "users")
-                                   : make_users(cfg, cfg.scenario.users, users_seed);
-  // The random planner's stream: as `skyloop plan --seed S` (derive_seed(S, "RAND")) unless given.
+  // The planner first (a wrong name is the caller's first error), then the scenario.
   std::unique_ptr<Planner> p;
   if (builtin_planners().contains(planner)) {
     PlannerArgs args;
+    // The random planner's stream: as `skyloop plan --seed S` (derive_seed(S, "RAND")) unless given.
     args.seed = planner_seed ? *planner_seed : derive_seed(users_seed, 0x52414e44ULL);
     p = builtin_planners().create(planner, args);
   }
@@ -463,6 +461,9 @@ py::dict plan(const Config& cfg, const std::string& planner, std::uint64_t users
 #endif
   if (!p)
     throw InputError("planner '" + planner + "' is unknown: allowed " + builtin_planners().names_text() + ", or a trained policy directory");
+  auto bf = builtin_beamformers().create(cfg.env.oracle, cfg);
+  const Positions users = users_xy ? positions_from(Array<double>::ensure(*users_xy), cfg, "users")
+                                   : make_users(cfg, cfg.scenario.users, users_seed);
   EpisodeRecord rec;
   {
     py::gil_scoped_release nogil;

@@ -241,10 +241,6 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
 
 void BestKnownPlanner::reset(UavEnv& env) { plan_ = solve_best_known(env, progress_, max_rounds_, force_iterated_); }
 
-std::vector<int> BestKnownPlanner::act(UavEnv& env) {
-  const auto k = static_cast<std::size_t>(env.t() - 1);
-  if (k >= plan_.actions.size()) return std::vector<int>(static_cast<std::size_t>(env.uavs()), kStay);
-  return plan_.actions[k];
-}
+std::vector<int> BestKnownPlanner::act(UavEnv& env) { return replay(plan_.actions, env); }
 
 }  // namespace skyloop

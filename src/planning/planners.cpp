@@ -398,11 +398,13 @@ void OptimalPlanner::reset(UavEnv& env) {
   }
 }
 
-std::vector<int> OptimalPlanner::act(UavEnv& env) {
+std::vector<int> replay(const std::vector<std::vector<int>>& actions, const UavEnv& env) {
   const auto k = static_cast<std::size_t>(env.t() - 1);
-  if (k >= plan_.actions.size()) return std::vector<int>(static_cast<std::size_t>(env.uavs()), kStay);
-  return plan_.actions[k];
+  if (k >= actions.size()) return std::vector<int>(static_cast<std::size_t>(env.uavs()), kStay);
+  return actions[k];
 }
+
+std::vector<int> OptimalPlanner::act(UavEnv& env) { return replay(plan_.actions, env); }
 
 double brute_force_optimum(UavEnv& env) {
   env.reset();

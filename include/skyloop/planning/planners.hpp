@@ -86,6 +86,10 @@ struct OptimalPlan {
 /// too large (G^N > 5e6), or no feasible joint trajectory exists.
 OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress = nullptr);
 
+/// The joint action of the environment's current slot in a plan of slots 1..T-1 (every UAV STAYs
+/// past its end): how OptimalPlanner and BestKnownPlanner fly their plans.
+std::vector<int> replay(const std::vector<std::vector<int>>& actions, const UavEnv& env);
+
 /// Replays solve_optimal's plan.
 class OptimalPlanner final : public Planner {
  public:

@@ -50,13 +50,16 @@ def test_ppo_speed_bench_runs_both_learners(tmp_path):
     """bench/ppo_speed.py at its smallest (one update each): both learners run the same number of
     steps and the CSV holds the seed and a rate for each."""
     import csv
-    r = subprocess.run([sys.executable, str(ROOT / "bench" / "ppo_speed.py"), "--steps", "2048", "--out", str(tmp_path)],
+    r = subprocess.run([sys.executable, str(ROOT / "bench" / "ppo_speed.py"), "--steps", "2048", "--threads", "1", "--out", str(tmp_path)],
                        capture_output=True, text=True, timeout=600, env=env_with_module())
     assert r.returncode == 0, r.stderr
     rows = list(csv.DictReader(open(tmp_path / "ppo_speed.csv")))
     assert [row["learner"] for row in rows] == ["pytorch (examples/ppo.py)", "skyloop train"]
-    assert all(int(row["env_steps"]) == 2048 and float(row["steps_per_s"]) > 0 and row["seed"] == "1" for row in rows)
+    assert all(int(row["env_steps"]) == 2048 and float(row["steps_per_s"]) > 0 and row["seed"] == "1" and row["threads"] == "1" for row in rows)
     assert "x the environment steps per second" in r.stdout
     bad = subprocess.run([sys.executable, str(ROOT / "bench" / "ppo_speed.py"), "--steps", "10"], capture_output=True,
                          text=True, timeout=60, env=env_with_module())
     assert bad.returncode != 0 and bad.stderr.strip().count("\n") == 0 and "--steps = 10" in bad.stderr
+    bad = subprocess.run([sys.executable, str(ROOT / "bench" / "ppo_speed.py"), "--threads", "-1"], capture_output=True,
+                         text=True, timeout=60, env=env_with_module())
+    assert bad.returncode != 0 and bad.stderr.strip().count("\n") == 0 and "--threads = -1" in bad.stderr

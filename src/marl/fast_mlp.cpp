@@ -14,17 +14,6 @@ namespace gemm = skyloop::nn::fast;
 
 namespace {
 
-/// bias_grad[c] += sum_r d[r, c] for c < cols.
-void column_sums(const float* d, int rows, int cols, int ld, float* bias_grad) {
-  for (int r = 0; r < rows; ++r)
-    for (int c = 0; c < cols; ++c) bias_grad[c] += d[static_cast<std::size_t>(r) * ld + c];
-}
-
-/// dh[i] *= 1 - h[i]^2 (tanh's derivative from its output).
-void tanh_backward(const float* h, float* dh, std::size_t n) {
-  for (std::size_t i = 0; i < n; ++i) dh[i] *= 1.0f - h[i] * h[i];
-}
-
 template <typename T>
 void grow(std::vector<T>& v, std::size_t n) {
   if (v.size() < n) v.resize(n);
@@ -113,18 +102,18 @@ void Mlp::backward(Cache& c, const float* dout, float* grad) const {
   grow(c.dh, hn);
   // Layer 3: dW3^T += h2^T dout, db3 += sum dout, dh2 = dout W3.
   gemm::matmul_at(c.h2.data(), hidden_pad_, hidden_, dout, rows, out_pad_, grad + w3_, out_pad_);
-  column_sums(dout, rows, out_, out_pad_, grad + b3_);
+  gemm::column_sums(dout, rows, out_pad_, out_pad_, grad + b3_);
   gemm::matmul(dout, out_pad_, rows, w3_rows_.data(), out_, hidden_pad_, nullptr, c.dh.data(), hidden_pad_, false);
-  tanh_backward(c.h2.data(), c.dh.data(), hn);
+  gemm::tanh_backward(c.h2.data(), c.dh.data(), static_cast<long>(hn));
   // Layer 2 (dh holds dz2).
   gemm::matmul_at(c.h1.data(), hidden_pad_, hidden_, c.dh.data(), rows, hidden_pad_, grad + w2_, hidden_pad_);
-  column_sums(c.dh.data(), rows, hidden_, hidden_pad_, grad + b2_);
+  gemm::column_sums(c.dh.data(), rows, hidden_pad_, hidden_pad_, grad + b2_);
   // dh1 = dz2 W2 goes into h2's buffer (h2 is no longer needed), then dz1.
   gemm::matmul(c.dh.data(), hidden_pad_, rows, w2_rows_.data(), hidden_, hidden_pad_, nullptr, c.h2.data(), hidden_pad_, false);
-  tanh_backward(c.h1.data(), c.h2.data(), hn);
+  gemm::tanh_backward(c.h1.data(), c.h2.data(), static_cast<long>(hn));
   // Layer 1.
   gemm::matmul_at(c.x, in_, in_, c.h2.data(), rows, hidden_pad_, grad + w1_, hidden_pad_);
-  column_sums(c.h2.data(), rows, hidden_, hidden_pad_, grad + b1_);
+  gemm::column_sums(c.h2.data(), rows, hidden_pad_, hidden_pad_, grad + b1_);
 }
 
 void Adam::step(float* params, const float* grad, std::size_t n) {
@@ -134,19 +123,10 @@ void Adam::step(float* params, const float* grad, std::size_t n) {
   const double bc2 = 1.0 - std::pow(beta2, static_cast<double>(steps));
   const float step_size = static_cast<float>(learning_rate / bc1);
   const float root_bc2 = static_cast<float>(std::sqrt(bc2));
-  const float b1 = static_cast<float>(beta1), b2 = static_cast<float>(beta2), e = static_cast<float>(eps);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float g = grad[i];
-    m[i] = b1 * m[i] + (1.0f - b1) * g;
-    v[i] = b2 * v[i] + (1.0f - b2) * g * g;
-    params[i] -= step_size * m[i] / (std::sqrt(v[i]) / root_bc2 + e);
-  }
+  gemm::adam_step(params, grad, m.data(), v.data(), static_cast<long>(n), static_cast<float>(beta1), static_cast<float>(beta2),
+                  step_size, root_bc2, static_cast<float>(eps));
 }
 
-double norm(const std::vector<float>& g) {
-  double s = 0;
-  for (const float x : g) s += static_cast<double>(x) * x;
-  return std::sqrt(s);
-}
+double norm(const std::vector<float>& g) { return std::sqrt(gemm::sum_squares(g.data(), static_cast<long>(g.size()))); }
 
 }  // namespace skyloop::marl::fast

@@ -541,7 +541,8 @@ double explained_variance(const Rollout& r) {
   return vy > 0 ? 1.0 - vd / vy : NAN;
 }
 
-UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng, Minibatch& b) {
+UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng, Minibatch& b,
+                   int threads) {
   const std::size_t S = r.samples();
   // Advantages normalised over the active agents; value targets in normalised units.
   double w = 0, mean = 0, var = 0;
@@ -570,18 +571,20 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
     std::iota(order.begin(), order.end(), std::size_t{0});
     for (std::size_t i = S; i > 1; --i) std::swap(order[i - 1], order[rng.below(i)]);
     for (std::size_t first = 0; first + static_cast<std::size_t>(rows) <= S; first += static_cast<std::size_t>(rows)) {
-      for (int k = 0; k < rows; ++k) {
-        const std::size_t i = order[first + static_cast<std::size_t>(k)], kk = static_cast<std::size_t>(k);
-        std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
-        std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
-        std::copy_n(r.allowed.data() + i * kActions, kActions, b.allowed.data() + kk * kActions);
-        b.actions[kk] = r.actions[i];
-        b.logprobs[kk] = r.logprobs[i];
-        b.active[kk] = r.active[i];
-        b.advantages[kk] = static_cast<float>((r.advantages[i] - mean) * scale);
-        b.returns[kk] = norm(r.returns[i]);
-        b.values[kk] = norm(r.values[i]);
-      }
+      parallel_for(2, threads, [&](std::size_t half) {
+        for (int k = half == 0 ? 0 : rows / 2, end = half == 0 ? rows / 2 : rows; k < end; ++k) {
+          const std::size_t i = order[first + static_cast<std::size_t>(k)], kk = static_cast<std::size_t>(k);
+          std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
+          std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
+          std::copy_n(r.allowed.data() + i * kActions, kActions, b.allowed.data() + kk * kActions);
+          b.actions[kk] = r.actions[i];
+          b.logprobs[kk] = r.logprobs[i];
+          b.active[kk] = r.active[i];
+          b.advantages[kk] = static_cast<float>((r.advantages[i] - mean) * scale);
+          b.returns[kk] = norm(r.returns[i]);
+          b.values[kk] = norm(r.values[i]);
+        }
+      });
       all.push_back(nets.step(b, settings));
       ++steps;
     }
@@ -640,7 +643,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     steps += per_update;
     compute_advantages(rollout, m.gamma, m.gae_lambda);
     const double explained = explained_variance(rollout);
-    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch);
+    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch, cfg.run.threads);
     ++updates;
     const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - run.start).count();
     if (stats.episodes > 0 || steps >= m.total_steps) {

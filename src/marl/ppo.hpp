@@ -123,8 +123,9 @@ double explained_variance(const Rollout& rollout);
 
 /// marl.epochs passes over the rollout in marl.minibatches shuffled minibatches (order from
 /// `rng`); normalises the advantages over active agents and (marl.value_norm) updates
-/// `value_norm` with the returns first. Returns the mean statistics over all steps.
+/// `value_norm` with the returns first. Returns the mean statistics over all steps. `threads`
+/// (run.threads) gathers each minibatch in two halves in parallel (the same numbers either way).
 UpdateStats update(const Rollout& rollout, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng,
-                   Minibatch& scratch);
+                   Minibatch& scratch, int threads = 1);
 
 }  // namespace skyloop::marl

@@ -36,12 +36,23 @@ namespace {
 
 using Kernel = void (*)(const float*, int, int, const float*, int, int, const float*, float*, int, bool);
 using Elementwise = void (*)(float*, long);
+using Sums = void (*)(const float*, int, int, int, float*);
+using TanhGrad = void (*)(const float*, float*, long);
+using AdamStep = void (*)(float*, const float*, float*, float*, long, float, float, float, float, float);
+using SumSquares = double (*)(const float*, long);
 
 struct Choice {
   Kernel fn, fn_at;
   Elementwise tanh;
+  Sums sums;
+  TanhGrad tanh_grad;
+  AdamStep adam;
+  SumSquares sum_squares;
   const char* isa;
 };
+
+#define SKYLOOP_GEMM_CHOICE(ns, name) \
+  Choice { ns::gemm, ns::gemm_at, ns::tanh_inplace, ns::column_sums, ns::tanh_backward, ns::adam_step, ns::sum_squares, name }
 
 Choice choose() {
   const char* env = std::getenv("ATEN_CPU_CAPABILITY");
@@ -50,11 +61,11 @@ Choice choose() {
   __builtin_cpu_init();
   const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
   const bool avx512 = avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
-  if (cap == "default") return {generic::gemm, generic::gemm_at, generic::tanh_inplace, "default"};
-  if (avx512 && cap != "avx2") return {avx512::gemm, avx512::gemm_at, avx512::tanh_inplace, "avx512"};
-  if (avx2) return {avx2::gemm, avx2::gemm_at, avx2::tanh_inplace, "avx2"};
+  if (cap == "default") return SKYLOOP_GEMM_CHOICE(generic, "default");
+  if (avx512 && cap != "avx2") return SKYLOOP_GEMM_CHOICE(avx512, "avx512");
+  if (avx2) return SKYLOOP_GEMM_CHOICE(avx2, "avx2");
 #endif
-  return {generic::gemm, generic::gemm_at, generic::tanh_inplace, "default"};
+  return SKYLOOP_GEMM_CHOICE(generic, "default");
 }
 
 const Choice& chosen() {
@@ -98,6 +109,20 @@ void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int
 }
 
 void tanh_inplace(float* x, long n) { chosen().tanh(x, n); }
+
+void column_sums(const float* D, int rows, int cols_pad, int ld, float* sums) {
+  if (cols_pad % kColBlock != 0 || ld < cols_pad) throw std::logic_error("fast::column_sums: unpadded buffers");
+  chosen().sums(D, rows, cols_pad, ld, sums);
+}
+
+void tanh_backward(const float* h, float* dh, long n) { chosen().tanh_grad(h, dh, n); }
+
+void adam_step(float* params, const float* grad, float* m, float* v, long n, float beta1, float beta2, float step_size,
+               float root_bc2, float eps) {
+  chosen().adam(params, grad, m, v, n, beta1, beta2, step_size, root_bc2, eps);
+}
+
+double sum_squares(const float* x, long n) { return chosen().sum_squares(x, n); }
 
 std::string kernel_isa() { return chosen().isa; }
 

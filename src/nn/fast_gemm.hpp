@@ -9,7 +9,7 @@
 
 namespace skyloop::nn::fast {
 
-constexpr int kColBlock = 32;   // weights pad their output width to a multiple of this
+constexpr int kColBlock = 16;   // weights pad their output width to a multiple of this (a 16-float AVX-512 vector)
 
 inline int pad_cols(int cols) { return (cols + kColBlock - 1) / kColBlock * kColBlock; }
 
@@ -41,6 +41,22 @@ void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int
 
 /// x[i] = tanh(x[i]) for i < n, vectorised (absolute error within a few float32 ulps of 1).
 void tanh_inplace(float* x, long n);
+
+/// sums[c] += sum_r D[r, c] for c < cols_pad (a multiple of kColBlock; D of row stride ld), each
+/// column summed over the rows in order: a bias's gradient.
+void column_sums(const float* D, int rows, int cols_pad, int ld, float* sums);
+
+/// dh[i] *= 1 - h[i]^2 for i < n: the gradient through tanh, from its output h.
+void tanh_backward(const float* h, float* dh, long n);
+
+/// One Adam step over n parameters: m = b1 m + (1 - b1) g, v = b2 v + (1 - b2) g^2,
+/// p -= step_size m / (sqrt(v) / root_bc2 + eps), with step_size = lr / (1 - b1^t) and
+/// root_bc2 = sqrt(1 - b2^t).
+void adam_step(float* params, const float* grad, float* m, float* v, long n, float beta1, float beta2, float step_size,
+               float root_bc2, float eps);
+
+/// sum x[i]^2, accumulated in double (in a fixed order for each kernel).
+double sum_squares(const float* x, long n);
 
 /// The kernel in use: "avx512", "avx2" or "default".
 std::string kernel_isa();

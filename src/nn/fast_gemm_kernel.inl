@@ -12,49 +12,63 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline vf load(const f
   return *reinterpret_cast<const vf*>(p);
 }
 
-/// An MR x 2V block of C, kept in 2 MR vector registers while k sweeps the inner dimension (MR
-/// rows, not padded: a block of 2 rows still gives 4 independent accumulation chains).
-template <int MR, bool TA = false>
+/// An MR x (NV V) block of C, kept in NV MR vector registers while k sweeps the inner dimension
+/// (MR rows, not padded: a block of 2 rows still gives 4 independent accumulation chains; NV = 1
+/// only for a last block of V columns, the learners' narrow output layers). Each element of C is
+/// summed over k in order, whatever the blocking.
+template <int MR, int NV, bool TA = false>
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void block(const float* A, int lda, const float* w,
                                                                             int in, int out_pad, const float* bias,
                                                                             float* C, int ldc, bool accumulate) {
-  vf s[MR][2];
-  for (int r = 0; r < MR; ++r) {
-    if (accumulate) {
-      s[r][0] = load(C + r * ldc), s[r][1] = load(C + r * ldc + V);
-    } else if (bias) {
-      s[r][0] = load(bias), s[r][1] = load(bias + V);
-    } else {
-      s[r][0] = vf{}, s[r][1] = vf{};
+  vf s[MR][NV];
+  for (int r = 0; r < MR; ++r)
+    for (int v = 0; v < NV; ++v) {
+      if (accumulate) {
+        s[r][v] = load(C + r * ldc + v * V);
+      } else if (bias) {
+        s[r][v] = load(bias + v * V);
+      } else {
+        s[r][v] = vf{};
+      }
     }
-  }
   for (int k = 0; k < in; ++k, w += out_pad) {
-    const vf w0 = load(w), w1 = load(w + V);
+    vf wv[NV];
+    for (int v = 0; v < NV; ++v) wv[v] = load(w + v * V);
     for (int r = 0; r < MR; ++r) {
       const float a = TA ? A[static_cast<long>(k) * lda + r] : A[r * lda + k];
-      s[r][0] += a * w0, s[r][1] += a * w1;
+      for (int v = 0; v < NV; ++v) s[r][v] += a * wv[v];
     }
   }
-  for (int r = 0; r < MR; ++r) *reinterpret_cast<vf*>(C + r * ldc) = s[r][0], *reinterpret_cast<vf*>(C + r * ldc + V) = s[r][1];
+  for (int r = 0; r < MR; ++r)
+    for (int v = 0; v < NV; ++v) *reinterpret_cast<vf*>(C + r * ldc + v * V) = s[r][v];
+}
+
+/// Every row of C over one panel of NV V columns starting at column j.
+template <int NV, bool TA>
+SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void panel(const float* A, int lda, int rows, const float* wt,
+                                                                            int in, int out_pad, const float* b, float* C,
+                                                                            int ldc, bool accumulate) {
+  int i = 0;
+  for (; i + 6 <= rows; i += 6) block<6, NV, TA>(A + (TA ? static_cast<long>(i) : static_cast<long>(i) * lda), lda, wt, in, out_pad, b, C + static_cast<long>(i) * ldc, ldc, accumulate);
+  const float* a = A + (TA ? static_cast<long>(i) : static_cast<long>(i) * lda);
+  float* c = C + static_cast<long>(i) * ldc;
+  switch (rows - i) {
+    case 5: block<5, NV, TA>(a, lda, wt, in, out_pad, b, c, ldc, accumulate); break;
+    case 4: block<4, NV, TA>(a, lda, wt, in, out_pad, b, c, ldc, accumulate); break;
+    case 3: block<3, NV, TA>(a, lda, wt, in, out_pad, b, c, ldc, accumulate); break;
+    case 2: block<2, NV, TA>(a, lda, wt, in, out_pad, b, c, ldc, accumulate); break;
+    case 1: block<1, NV, TA>(a, lda, wt, in, out_pad, b, c, ldc, accumulate); break;
+    default: break;
+  }
 }
 
 template <bool TA>
 SKYLOOP_GEMM_TARGET static void gemm_any(const float* A, int lda, int rows, const float* wt, int in, int out_pad,
-                                     const float* bias, float* C, int ldc, bool accumulate) {
+                                         const float* bias, float* C, int ldc, bool accumulate) {
   for (int j = 0; j < out_pad; j += 2 * V) {
     const float* b = bias ? bias + j : nullptr;
-    int i = 0;
-    for (; i + 6 <= rows; i += 6) block<6, TA>(A + (TA ? static_cast<long>(i) : static_cast<long>(i) * lda), lda, wt + j, in, out_pad, b, C + static_cast<long>(i) * ldc + j, ldc, accumulate);
-    const float* a = A + (TA ? static_cast<long>(i) : static_cast<long>(i) * lda);
-    float* c = C + static_cast<long>(i) * ldc + j;
-    switch (rows - i) {
-      case 5: block<5, TA>(a, lda, wt + j, in, out_pad, b, c, ldc, accumulate); break;
-      case 4: block<4, TA>(a, lda, wt + j, in, out_pad, b, c, ldc, accumulate); break;
-      case 3: block<3, TA>(a, lda, wt + j, in, out_pad, b, c, ldc, accumulate); break;
-      case 2: block<2, TA>(a, lda, wt + j, in, out_pad, b, c, ldc, accumulate); break;
-      case 1: block<1, TA>(a, lda, wt + j, in, out_pad, b, c, ldc, accumulate); break;
-      default: break;
-    }
+    if (out_pad - j >= 2 * V) panel<2, TA>(A, lda, rows, wt + j, in, out_pad, b, C + j, ldc, accumulate);
+    else panel<1, TA>(A, lda, rows, wt + j, in, out_pad, b, C + j, ldc, accumulate);
   }
 }
 
@@ -64,10 +78,18 @@ SKYLOOP_GEMM_TARGET static void gemm(const float* A, int lda, int rows, const fl
   gemm_any<false>(A, lda, rows, wt, in, out_pad, bias, C, ldc, accumulate);
 }
 
-/// C = A^T B (+ bias) with A [in x rows] of row stride lda (the weight gradient X^T dY).
+/// C (+)= A^T B with A [in x rows] of row stride lda (the weight gradient X^T dY, where in is the
+/// batch). The batch is swept in chunks whose panel of B and rows of A stay in the L1 cache while
+/// every block of C passes over them; each element still sums over k in order.
 SKYLOOP_GEMM_TARGET static void gemm_at(const float* A, int lda, int rows, const float* wt, int in, int out_pad,
                                         const float* bias, float* C, int ldc, bool accumulate) {
-  gemm_any<true>(A, lda, rows, wt, in, out_pad, bias, C, ldc, accumulate);
+  constexpr int kChunk = 128;
+  if (in <= kChunk) return gemm_any<true>(A, lda, rows, wt, in, out_pad, bias, C, ldc, accumulate);
+  for (int k = 0; k < in; k += kChunk) {
+    const int n = in - k < kChunk ? in - k : kChunk;
+    gemm_any<true>(A + static_cast<long>(k) * lda, lda, rows, wt + static_cast<long>(k) * out_pad, n, out_pad,
+                   k == 0 ? bias : nullptr, C, ldc, k == 0 ? accumulate : true);
+  }
 }
 
 }  // namespace SKYLOOP_GEMM_NS
@@ -77,6 +99,13 @@ namespace SKYLOOP_GEMM_NS {
 typedef int vi __attribute__((vector_size(SKYLOOP_GEMM_V * sizeof(int)), aligned(sizeof(int))));
 
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline vf splat(float x) { return vf{} + x; }
+
+/// The same bits read as the other type (no aliasing of one object through two types).
+template <typename To, typename From>
+SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline To bits_as(const From& x) {
+  static_assert(sizeof(To) == sizeof(From), "bits_as: sizes differ");
+  return __builtin_bit_cast(To, x);
+}
 
 /// exp(y) for y in [-87, 0]: y = n ln2 + r (Cody-Waite, |r| <= ln2 / 2), e^r by its Taylor
 /// polynomial to r^7 (relative error below 2^-24 on that interval), 2^n built in the exponent bits.
@@ -93,16 +122,16 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline vf exp_nonposit
   p = p * r + splat(1.0f);
   p = p * r + splat(1.0f);
   const vi bits = (__builtin_convertvector(n, vi) + 127) << 23;
-  return p * reinterpret_cast<const vf&>(bits);
+  return p * bits_as<vf>(bits);
 }
 
 /// tanh of V floats: the odd Taylor series to x^13 below |x| = 0.4 (truncation < 1e-8
 /// relative), (1 - e) / (1 + e) with e = exp(-2|x|) above it (no cancellation there).
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline vf tanh_v(vf x) {
   const vi sign_mask = vi{} + static_cast<int>(0x80000000u);
-  const vi xi = reinterpret_cast<const vi&>(x);
+  const vi xi = bits_as<vi>(x);
   const vi ai = xi & ~sign_mask;
-  const vf a = reinterpret_cast<const vf&>(ai);
+  const vf a = bits_as<vf>(ai);
   const vf a2 = a * a;
   vf s = splat(21844.0f / 6081075.0f);
   s = s * a2 + splat(-1382.0f / 155925.0f);
@@ -116,8 +145,8 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline vf tanh_v(vf x)
   const vf e = exp_nonpositive(y);
   const vf big = (splat(1.0f) - e) / (splat(1.0f) + e);
   const vf r = a < splat(0.4f) ? small : big;
-  const vi out = reinterpret_cast<const vi&>(r) | (xi & sign_mask);
-  return reinterpret_cast<const vf&>(out);
+  const vi out = bits_as<vi>(r) | (xi & sign_mask);
+  return bits_as<vf>(out);
 }
 
 SKYLOOP_GEMM_TARGET static void tanh_inplace(float* x, long n) {
@@ -134,6 +163,74 @@ SKYLOOP_GEMM_TARGET static void tanh_inplace(float* x, long n) {
     v = tanh_v(v);
     __builtin_memcpy(x + i, &v, sizeof(float) * static_cast<unsigned long>(n - i));
   }
+}
+
+/// sums[c] += sum_r D[r, c] for c < cols_pad (a multiple of V), rows summed in order.
+SKYLOOP_GEMM_TARGET static void column_sums(const float* D, int rows, int cols_pad, int ld, float* sums) {
+  for (int c = 0; c < cols_pad; c += V) {
+    vf s = load(sums + c);
+    for (int r = 0; r < rows; ++r) s += load(D + static_cast<long>(r) * ld + c);
+    *reinterpret_cast<vf*>(sums + c) = s;
+  }
+}
+
+/// dh[i] *= 1 - h[i]^2 (tanh's derivative from its output) for i < n.
+SKYLOOP_GEMM_TARGET static void tanh_backward(const float* h, float* dh, long n) {
+  long i = 0;
+  for (; i + V <= n; i += V) {
+    vf x, d;
+    __builtin_memcpy(&x, h + i, sizeof(vf));
+    __builtin_memcpy(&d, dh + i, sizeof(vf));
+    d *= splat(1.0f) - x * x;
+    __builtin_memcpy(dh + i, &d, sizeof(vf));
+  }
+  for (; i < n; ++i) dh[i] *= 1.0f - h[i] * h[i];
+}
+
+/// One Adam step over n floats (fast_mlp.hpp's Adam: the bias corrections folded into step_size
+/// and root_bc2 by the caller).
+SKYLOOP_GEMM_TARGET static void adam_step(float* p, const float* g, float* m, float* v, long n, float b1, float b2,
+                                          float step_size, float root_bc2, float eps) {
+  long i = 0;
+  const vf vb1 = splat(b1), vb2 = splat(b2), c1 = splat(1.0f - b1), c2 = splat(1.0f - b2), vs = splat(step_size),
+           vr = splat(root_bc2), ve = splat(eps);
+  for (; i + V <= n; i += V) {
+    vf pv, gv, mv, vv;
+    __builtin_memcpy(&pv, p + i, sizeof(vf));
+    __builtin_memcpy(&gv, g + i, sizeof(vf));
+    __builtin_memcpy(&mv, m + i, sizeof(vf));
+    __builtin_memcpy(&vv, v + i, sizeof(vf));
+    mv = vb1 * mv + c1 * gv;
+    vv = vb2 * vv + c2 * gv * gv;
+    vf root;
+    for (int k = 0; k < V; ++k) root[k] = __builtin_sqrtf(vv[k]);
+    pv -= vs * mv / (root / vr + ve);
+    __builtin_memcpy(p + i, &pv, sizeof(vf));
+    __builtin_memcpy(m + i, &mv, sizeof(vf));
+    __builtin_memcpy(v + i, &vv, sizeof(vf));
+  }
+  for (; i < n; ++i) {
+    m[i] = b1 * m[i] + (1.0f - b1) * g[i];
+    v[i] = b2 * v[i] + (1.0f - b2) * g[i] * g[i];
+    p[i] -= step_size * m[i] / (__builtin_sqrtf(v[i]) / root_bc2 + eps);
+  }
+}
+
+/// sum x[i]^2 in double, V partial sums (then added in order).
+SKYLOOP_GEMM_TARGET static double sum_squares(const float* x, long n) {
+  typedef double vd __attribute__((vector_size(SKYLOOP_GEMM_V * sizeof(double)), aligned(sizeof(double))));
+  vd s{};
+  long i = 0;
+  for (; i + V <= n; i += V) {
+    vf xv;
+    __builtin_memcpy(&xv, x + i, sizeof(vf));
+    const vd d = __builtin_convertvector(xv, vd);
+    s += d * d;
+  }
+  double total = 0;
+  for (int k = 0; k < V; ++k) total += s[k];
+  for (; i < n; ++i) total += static_cast<double>(x[i]) * x[i];
+  return total;
 }
 
 }  // namespace SKYLOOP_GEMM_NS

@@ -34,6 +34,7 @@ int on_every_rank(Transport* transport, const std::function<int()>& body) {
     if (!transport || transport->size() == 1) throw;
     std::cerr << "skyloop: failed on rank " << rank << ": " << e.what() << "\n" << std::flush;
     transport->abort(1);
+    return 1;  // abort() does not return
   }
 }
 

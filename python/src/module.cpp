@@ -70,6 +70,15 @@ Positions positions_from(const Array<double>& a, const Config& cfg, const std::s
 
 // ---- environment ----------------------------------------------------------------------------
 
+py::dict link_dict(const ChannelModel& model, double ux, double uy, double x, double y) {
+  py::dict d;
+  for (const auto& [name, value] : link_fields(model.link(ux, uy, x, y))) {
+    if (name == "los") d[name.c_str()] = value != 0.0;
+    else d[name.c_str()] = value;
+  }
+  return d;
+}
+
 py::dict array_spec_dict(const ArraySpec& a, int agents) {
   py::list fields;
   for (const auto& f : a.fields) {
@@ -614,7 +623,12 @@ PYBIND11_MODULE(_skyloop, m) {
       .def("clusters", py::overload_cast<const Snapshot&>(&SystemModel::clusters, py::const_), py::arg("snapshot"))
       .def("network", py::overload_cast<const Snapshot&>(&SystemModel::network, py::const_), py::arg("snapshot"),
            "the whole network of a snapshot under channel.spectrum")
-      .def("channel", &SystemModel::channel, py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"));
+      .def("channel", &SystemModel::channel, py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"), py::arg("slot") = 0,
+           "h of the link from a UAV at (ux, uy) to the user at (x, y) in fast slot `slot` (0 <= slot < fast_slots)")
+      .def_property_readonly("fast_slots", &SystemModel::fast_slots)
+      .def("link", [](const SystemModel& self, double ux, double uy, double x, double y) { return link_dict(self.channel_model(), ux, uy, x, y); },
+           py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"),
+           "the link's large-scale state: p_los, los, path_loss_db, shadowing_db, k_factor_db, gain, distance_m, elevation_deg");
 
   py::class_<Beamformer, std::shared_ptr<Beamformer>>(m, "Beamformer", "A registered beamformer, by its spec string.")
       .def_property_readonly("name", &Beamformer::name)

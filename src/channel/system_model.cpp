@@ -13,6 +13,7 @@ SystemModel::SystemModel(const Config& cfg)
     : antennas_(cfg.channel.antennas),
       spacing_(cfg.channel.antenna_spacing_wavelengths),
       altitude_(cfg.scenario.altitude_m),
+      user_height_(cfg.scenario.user_height_m),
       beta0_(db_to_linear(cfg.channel.beta0_db)),
       d0_(cfg.channel.d0_m),
       coverage_(cfg.channel.coverage_radius_m),
@@ -21,11 +22,12 @@ SystemModel::SystemModel(const Config& cfg)
       area_x_(cfg.scenario.area_x_m),
       area_y_(cfg.scenario.area_y_m),
       spectrum_(parse_spectrum(cfg.channel.spectrum)),
+      channel_(std::make_shared<ChannelModel>(cfg)),
       scenario_(cfg.scenario) {}
 
 double SystemModel::distance(double ux, double uy, double x, double y) const {
-  const double dx = ux - x, dy = uy - y;
-  return std::sqrt(dx * dx + dy * dy + altitude_ * altitude_);
+  const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
+  return std::sqrt(dx * dx + dy * dy + dz * dz);
 }
 
 double SystemModel::path_loss(double d) const {
@@ -33,16 +35,10 @@ double SystemModel::path_loss(double d) const {
   return beta0_ * r * r;
 }
 
-VectorXcd SystemModel::steering(double cos_theta) const {
-  VectorXcd a(antennas_);
-  const double phase = 2.0 * M_PI * spacing_ * cos_theta;
-  for (int l = 0; l < antennas_; ++l) a[l] = std::polar(1.0, phase * l);
-  return a;
-}
+VectorXcd SystemModel::steering(double cos_theta) const { return channel_->steering(cos_theta); }
 
-VectorXcd SystemModel::channel(double ux, double uy, double x, double y) const {
-  const double d = distance(ux, uy, x, y);
-  return std::sqrt(path_loss(d)) * steering(altitude_ / d);
+VectorXcd SystemModel::channel(double ux, double uy, double x, double y, int slot) const {
+  return channel_->channel(ux, uy, x, y, slot);
 }
 
 Association SystemModel::associate(const Snapshot& s) const { return associate(s.uavs, s.users); }
@@ -67,7 +63,7 @@ void SystemModel::associate(const Positions& uavs, const Positions& users, Assoc
       a.users[static_cast<std::size_t>(best)].push_back(k);
     }
   };
-  const double reach2 = coverage_ * coverage_ - altitude_ * altitude_;  // horizontal reach squared
+  const double reach2 = coverage_ * coverage_ - (altitude_ - user_height_) * (altitude_ - user_height_);  // horizontal reach squared
   if (n_uav <= kAssociationGridFrom || reach2 <= 0) {
     for (int k = 0; k < n_user; ++k) {
       int best = -1;
@@ -127,7 +123,7 @@ void SystemModel::associate(const Positions& uavs, const Positions& users, Assoc
 }
 
 Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions& users_xy,
-                                  const std::vector<int>& users, int uavs) const {
+                                  const std::vector<int>& users, int uavs, int slot) const {
   Cluster c;
   c.uav = uav;
   c.users = users;
@@ -139,7 +135,7 @@ Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions
   }
   c.G.resize(static_cast<Eigen::Index>(users.size()), antennas_);
   for (std::size_t i = 0; i < users.size(); ++i)
-    c.G.row(static_cast<Eigen::Index>(i)) = channel(ux, uy, users_xy(users[i], 0), users_xy(users[i], 1)).adjoint();
+    c.G.row(static_cast<Eigen::Index>(i)) = channel(ux, uy, users_xy(users[i], 0), users_xy(users[i], 1), slot).adjoint();
   return c;
 }
 
@@ -152,14 +148,14 @@ std::vector<Cluster> SystemModel::clusters(const Snapshot& s, const Association&
 }
 
 Network SystemModel::network(const Positions& uavs, const Positions& users_xy,
-                             const std::vector<std::vector<int>>& members) const {
+                             const std::vector<std::vector<int>>& members, int slot) const {
   Network net;
   net.spectrum = spectrum_;
   net.uavs = static_cast<int>(uavs.rows());
   net.offset.push_back(0);
   for (int n = 0; n < net.uavs; ++n) {
     if (members[static_cast<std::size_t>(n)].empty()) continue;
-    net.clusters.push_back(make_cluster(n, uavs(n, 0), uavs(n, 1), users_xy, members[static_cast<std::size_t>(n)], net.uavs));
+    net.clusters.push_back(make_cluster(n, uavs(n, 0), uavs(n, 1), users_xy, members[static_cast<std::size_t>(n)], net.uavs, slot));
     for (int k : members[static_cast<std::size_t>(n)]) net.served.push_back(k);
     net.offset.push_back(static_cast<int>(net.served.size()));
   }
@@ -168,7 +164,7 @@ Network SystemModel::network(const Positions& uavs, const Positions& users_xy,
     MatrixXcd H(ks, antennas_);
     for (Eigen::Index r = 0; r < ks; ++r) {
       const int k = net.served[static_cast<std::size_t>(r)];
-      H.row(r) = channel(uavs(c.uav, 0), uavs(c.uav, 1), users_xy(k, 0), users_xy(k, 1)).adjoint();
+      H.row(r) = channel(uavs(c.uav, 0), uavs(c.uav, 1), users_xy(k, 0), users_xy(k, 1), slot).adjoint();
     }
     net.cross.push_back(std::move(H));
   }

@@ -8,6 +8,7 @@
 
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/channel/path_loss.hpp"
 #include "skyloop/marl/learners.hpp"
 
 namespace skyloop {
@@ -115,6 +116,8 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.scenario.hotspot_radius_m; }));
   f.push_back(real("scenario.hotspot_fraction", "share of users in hotspots (the rest uniform)", 0, 1,
                    [](Config& c) -> double& { return c.scenario.hotspot_fraction; }));
+  f.push_back(real("scenario.user_height_m", "users' antenna height above ground (m; below the UAV altitude)", 0, 1e4,
+                   [](Config& c) -> double& { return c.scenario.user_height_m; }));
   // [channel]
   f.push_back(integer("channel.antennas", "ULA antennas per UAV, L", 1, 64,
                       [](Config& c) -> int& { return c.channel.antennas; }));
@@ -134,6 +137,39 @@ std::vector<Field> make_fields() {
                    "orthogonal: each UAV its own full band (the paper); orthogonal-split: N bands of 1/N; shared: one band, "
                    "inter-cluster interference",
                    {"orthogonal", "orthogonal-split", "shared"}, [](Config& c) -> std::string& { return c.channel.spectrum; }));
+  {
+    std::vector<std::string> models, environments;
+    for (const auto& m : kPathLossModels) models.emplace_back(m.name);
+    for (const auto& e : kAlHouraniEnvironments) environments.emplace_back(e.name);
+    f.push_back(text("channel.pathloss", "air-to-ground path loss and LoS model (README, channel models)", models,
+                     [](Config& c) -> std::string& { return c.channel.pathloss; }));
+    f.push_back(text("channel.environment", "al-hourani's environment (its S-curve and excess losses)", environments,
+                     [](Config& c) -> std::string& { return c.channel.environment; }));
+  }
+  f.push_back(real("channel.carrier_ghz", "carrier frequency f_c (GHz; 3GPP and al-hourani)", 0.5, 100,
+                   [](Config& c) -> double& { return c.channel.carrier_ghz; }));
+  {
+    Field b{"channel.shadowing", Type::Boolean, "draw log-normal shadowing with the path-loss model's spread", 0, 0, {}, {}, {}};
+    b.get = [](const Config& c) { return FieldValue(c.channel.shadowing); };
+    b.set = [](Config& c, const FieldValue& v) { c.channel.shadowing = std::get<bool>(v); };
+    f.push_back(std::move(b));
+  }
+  f.push_back(text("channel.fading", "small-scale fading: none (the paper) or rician (Rayleigh on NLoS links)", {"none", "rician"},
+                   [](Config& c) -> std::string& { return c.channel.fading; }));
+  f.push_back(text("channel.rician_k", "Rician K: fixed = rician_k_db; elevation = k_min_db at 0 deg rising linearly in dB to k_max_db at 90 deg",
+                   {"fixed", "elevation"}, [](Config& c) -> std::string& { return c.channel.rician_k; }));
+  f.push_back(real("channel.rician_k_db", "Rician K-factor of a LoS link (dB)", -50, 100,
+                   [](Config& c) -> double& { return c.channel.rician_k_db; }));
+  f.push_back(real("channel.rician_k_min_db", "Rician K at elevation 0 (dB)", -50, 100,
+                   [](Config& c) -> double& { return c.channel.rician_k_min_db; }));
+  f.push_back(real("channel.rician_k_max_db", "Rician K at elevation 90 deg (dB)", -50, 100,
+                   [](Config& c) -> double& { return c.channel.rician_k_max_db; }));
+  f.push_back(integer("channel.fast_slots", "small-scale realisations per trajectory slot (the beamformer designs each; R[t] is their mean)",
+                      1, 256, [](Config& c) -> int& { return c.channel.fast_slots; }));
+  f.push_back(real("channel.correlation_m", "decorrelation distance of the LoS-state and shadowing maps (m)", 0.1, 1e5,
+                   [](Config& c) -> double& { return c.channel.correlation_m; }));
+  f.push_back(integer("channel.seed", "seed of the city: the LoS, shadowing and fading maps", 0, 4611686018427387904.0,
+                      [](Config& c) -> std::uint64_t& { return c.channel.seed; }));
   // [beamforming]
   {
     Field s{"beamforming.power_scaling", Type::Text,
@@ -521,6 +557,21 @@ void validate(const Config& c) {
   if (kmin != kmax && c.env.state == "paper")
     throw InputError("env.users_min = " + std::to_string(kmin) + " and env.users_max = " + std::to_string(kmax) +
                      " give layouts of different sizes, but env.state = \"paper\" has 4N + 2K reals: allowed env.state = \"compact\"");
+  if (!(c.scenario.user_height_m < c.scenario.altitude_m))
+    throw InputError("scenario.user_height_m = " + format_double(c.scenario.user_height_m) + " is not below scenario.altitude_m = " +
+                     format_double(c.scenario.altitude_m) + ": allowed user_height_m < altitude_m");
+  if (const PathLossInfo* pl = find_path_loss(c.channel.pathloss)) {
+    const double h = c.scenario.altitude_m;
+    if (!(h > pl->min_height_m && h <= pl->max_height_m))
+      throw InputError("scenario.altitude_m = " + format_double(h) + " is outside channel.pathloss = \"" + c.channel.pathloss +
+                       "\"'s range: allowed " + format_double(pl->min_height_m) + " < altitude_m <= " + format_double(pl->max_height_m));
+    const double diagonal = std::hypot(c.scenario.area_x_m, c.scenario.area_y_m);
+    if (pl->max_horizontal_m > 0 && diagonal > pl->max_horizontal_m)
+      throw InputError("scenario.area_x_m = " + format_double(c.scenario.area_x_m) + " and area_y_m = " + format_double(c.scenario.area_y_m) +
+                       " give UAV-user distances up to " + format_double(diagonal) + " m, beyond channel.pathloss = \"" +
+                       c.channel.pathloss + "\"'s range: allowed an area whose diagonal is at most " +
+                       format_double(pl->max_horizontal_m) + " m");
+  }
   if (c.channel.coverage_radius_m < c.scenario.altitude_m)
     throw InputError("channel.coverage_radius_m = " + format_double(c.channel.coverage_radius_m) +
                      " is below scenario.altitude_m = " + format_double(c.scenario.altitude_m) +

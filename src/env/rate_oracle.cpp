@@ -64,13 +64,19 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
   std::vector<std::vector<std::vector<int>>> members(m);
   // Misses per beamformer. Per-cluster (orthogonal): (oracle, key) and its cluster. Joint
   // (shared): (oracle, joint key) and its network.
+  // A miss holds its fast slots' clusters (or networks) at [first, first + slots); its rate is
+  // their mean (channel.fast_slots; one slot without small-scale fading).
   struct Miss {
     RateOracle* oracle;
     Key key;
+    std::size_t first = 0;
+    int slots = 1;
   };
   struct JointMiss {
     RateOracle* oracle;
     std::vector<double> key;
+    std::size_t first = 0;
+    int slots = 1;
   };
   std::vector<const Beamformer*> groups;
   std::vector<std::vector<Miss>> misses;
@@ -102,8 +108,9 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
       ++o.stats_.misses;
       mine.emplace(jkeys[s], 1);
       const std::size_t g = group_of(o.beamformer_.get());
-      joint_misses[g].push_back({&o, jkeys[s]});
-      networks[g].push_back(o.model_.network(*uavs[s], o.users_, members[s]));
+      const int slots = o.model_.fast_slots();
+      joint_misses[g].push_back({&o, jkeys[s], networks[g].size(), slots});
+      for (int slot = 0; slot < slots; ++slot) networks[g].push_back(o.model_.network(*uavs[s], o.users_, members[s], slot));
       continue;
     }
     for (std::size_t i = 0; i < keys[s].size(); ++i) {
@@ -117,28 +124,41 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
       ++o.stats_.misses;
       mine.emplace(key, 1);
       const std::size_t g = group_of(o.beamformer_.get());
-      misses[g].push_back({&o, key});
-      clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[s][i],
-                                                  static_cast<int>(uavs[s]->rows())));
+      const int slots = o.model_.fast_slots();
+      misses[g].push_back({&o, key, clusters[g].size(), slots});
+      for (int slot = 0; slot < slots; ++slot)
+        clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[s][i],
+                                                    static_cast<int>(uavs[s]->rows()), slot));
     }
   }
   for (std::size_t g = 0; g < groups.size(); ++g) {
     if (!clusters[g].empty()) {
       const auto W = groups[g]->design_batch(clusters[g]);
-      for (std::size_t c = 0; c < clusters[g].size(); ++c) {
-        check_beamformer_output(*groups[g], clusters[g][c], W[c]);
-        misses[g][c].oracle->cache_.emplace(misses[g][c].key, sum_rate(clusters[g][c], W[c]));
+      for (const Miss& miss : misses[g]) {
+        double rate = 0;
+        for (int slot = 0; slot < miss.slots; ++slot) {
+          const std::size_t c = miss.first + static_cast<std::size_t>(slot);
+          check_beamformer_output(*groups[g], clusters[g][c], W[c]);
+          rate += sum_rate(clusters[g][c], W[c]);
+        }
+        miss.oracle->cache_.emplace(miss.key, miss.slots == 1 ? rate : rate / miss.slots);
       }
     }
     if (!networks[g].empty()) {
       const auto W = groups[g]->design_networks(networks[g]);
-      for (std::size_t n = 0; n < networks[g].size(); ++n) {
-        const Network& net = networks[g][n];
-        check_network_output(*groups[g], net, W[n]);
-        const auto rates = network_cluster_rates(net, W[n]);
-        std::vector<double> per_uav(static_cast<std::size_t>(net.uavs), 0.0);
-        for (std::size_t c = 0; c < net.clusters.size(); ++c) per_uav[static_cast<std::size_t>(net.clusters[c].uav)] = rates[c];
-        joint_misses[g][n].oracle->joint_cache_.emplace(joint_misses[g][n].key, std::move(per_uav));
+      for (const JointMiss& miss : joint_misses[g]) {
+        std::vector<double> per_uav;
+        for (int slot = 0; slot < miss.slots; ++slot) {
+          const std::size_t n = miss.first + static_cast<std::size_t>(slot);
+          const Network& net = networks[g][n];
+          check_network_output(*groups[g], net, W[n]);
+          const auto rates = network_cluster_rates(net, W[n]);
+          per_uav.resize(static_cast<std::size_t>(net.uavs), 0.0);
+          for (std::size_t c = 0; c < net.clusters.size(); ++c) per_uav[static_cast<std::size_t>(net.clusters[c].uav)] += rates[c];
+        }
+        if (miss.slots > 1)
+          for (double& r : per_uav) r /= miss.slots;
+        miss.oracle->joint_cache_.emplace(miss.key, std::move(per_uav));
       }
     }
   }

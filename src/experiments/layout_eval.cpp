@@ -199,7 +199,11 @@ std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows)
   std::vector<LayoutSummary> out;
   std::map<std::string, std::vector<const LayoutRow*>> by;
   for (const auto& r : rows) {
-    if (!by.count(r.planner)) out.push_back(LayoutSummary{r.planner});
+    if (!by.count(r.planner)) {
+      LayoutSummary first;
+      first.planner = r.planner;
+      out.push_back(first);
+    }
     by[r.planner].push_back(&r);
   }
   for (auto& s : out) {

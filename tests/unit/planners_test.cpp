@@ -91,7 +91,9 @@ TEST(Planners, BestKnownAgainstTheExactOptimum) {
       EXPECT_EQ(iterated.collisions, 0);
       EXPECT_LE(iterated.objective, optimum * (1 + 1e-12)) << uavs << " UAVs, layout " << layout;
       EXPECT_GE(iterated.objective, iterated.start_objective) << "best responses never lose";
-      if (uavs == 1) EXPECT_NEAR(iterated.objective, optimum, 1e-12 * optimum) << "one UAV: the best response is the optimum";
+      if (uavs == 1) {
+        EXPECT_NEAR(iterated.objective, optimum, 1e-12 * optimum) << "one UAV: the best response is the optimum";
+      }
       // Replayed in the environment, the plan scores what it says.
       BestKnownPlanner p(nullptr, 20, true);
       const auto rec = run_episode(env, p);

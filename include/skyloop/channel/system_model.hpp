@@ -1,7 +1,8 @@
 #pragma once
-// The paper's system model (Section III): LoS channel (eq:channel_model, eq:steering_vector),
-// nearest-UAV association within R_c (eq:cluster_association), and the clusters that the
-// beamformers see.
+// The paper's system model (Section III): its channel (eq:channel_model, eq:steering_vector; the
+// default of the channel-model seam, channel/channel_model.hpp, which also gives the 3GPP and
+// Al-Hourani air-to-ground models and Rician fading), nearest-UAV association within R_c
+// (eq:cluster_association), and the clusters that the beamformers see.
 //
 // Conventions
 //   UAV n at (x_n, y_n, H), user k at (x_k, y_k, 0); d_{n,k} the 3-D distance.
@@ -13,8 +14,10 @@
 //   A cluster's channel matrix G is [K_n x L] complex with row k = h_k^H, so the received
 //   signal of the cluster is y = G W s + z and (G W)(k, j) = h_k^H w_j.
 #include <cstdint>
+#include <memory>
 #include <vector>
 
+#include "skyloop/channel/channel_model.hpp"
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/core/types.hpp"
@@ -66,14 +69,18 @@ class SystemModel {
   double coverage() const { return coverage_; }
   Spectrum spectrum() const { return spectrum_; }
 
-  /// 3-D distance between a UAV at altitude H above (ux, uy) and a ground user at (x, y).
+  /// 3-D distance between a UAV at altitude H above (ux, uy) and a user at (x, y, h_u).
   double distance(double ux, double uy, double x, double y) const;
-  /// beta0 * (d0 / d)^2.
+  /// beta0 * (d0 / d)^2 (the paper's model; other models: channel_model().link()).
   double path_loss(double d) const;
-  /// Steering vector for cos(theta) = H / d: [L] complex.
+  /// Steering vector for cos(theta) = (H - h_u) / d: [L] complex.
   VectorXcd steering(double cos_theta) const;
-  /// h_{n,k} = sqrt(beta) a(theta): [L] complex.
-  VectorXcd channel(double ux, double uy, double x, double y) const;
+  /// h_{n,k} in fast slot `slot` (the paper: sqrt(beta) a(theta)): [L] complex.
+  VectorXcd channel(double ux, double uy, double x, double y, int slot = 0) const;
+  /// The channel model every link is asked of.
+  const ChannelModel& channel_model() const { return *channel_; }
+  /// Small-scale realisations per trajectory slot (1 without fading).
+  int fast_slots() const { return channel_->fast_slots(); }
 
   /// Nearest UAV by 3-D distance (lowest index on ties), served only if that distance <= R_c.
   Association associate(const Snapshot& s) const;
@@ -91,20 +98,22 @@ class SystemModel {
   /// Cluster of UAV n at (ux, uy) serving the given users (of `users_xy`), in a network of
   /// `uavs` UAVs (the orthogonal-split band is 1/uavs).
   Cluster make_cluster(int uav, double ux, double uy, const Positions& users_xy, const std::vector<int>& users,
-                       int uavs = 1) const;
+                       int uavs = 1, int slot = 0) const;
   /// The whole network of a snapshot: clusters, cross channels and spectrum (channel/network.hpp).
   Network network(const Snapshot& s) const;
   Network network(const Snapshot& s, const Association& a) const;
-  /// The network of UAVs at `uavs` over users `users_xy` with the given association.
-  Network network(const Positions& uavs, const Positions& users_xy, const std::vector<std::vector<int>>& members) const;
+  /// The network of UAVs at `uavs` over users `users_xy` with the given association, in fast slot `slot`.
+  Network network(const Positions& uavs, const Positions& users_xy, const std::vector<std::vector<int>>& members,
+                  int slot = 0) const;
 
   /// N UAVs and K users uniform in the area; a pure function of `seed`.
   Snapshot random_snapshot(int uavs, int users, std::uint64_t seed) const;
 
  private:
   int antennas_;
-  double spacing_, altitude_, beta0_, d0_, coverage_, p_max_, noise_, area_x_, area_y_;
+  double spacing_, altitude_, user_height_, beta0_, d0_, coverage_, p_max_, noise_, area_x_, area_y_;
   Spectrum spectrum_;
+  std::shared_ptr<const ChannelModel> channel_;
   ScenarioConfig scenario_;  // area and user layout of random snapshots
 };
 

@@ -48,6 +48,7 @@ struct ScenarioConfig {       // [scenario]
   int hotspots = 4;                     // hotspot centres, uniform in the area
   double hotspot_radius_m = 40.0;       // std of a hotspot user's offset from its centre (each axis)
   double hotspot_fraction = 0.8;        // share of users in hotspots; the rest uniform
+  double user_height_m = 0.0;           // users' antenna height above ground (the paper: 0)
 };
 
 struct ChannelConfig {                     // [channel]
@@ -59,6 +60,19 @@ struct ChannelConfig {                     // [channel]
   double d0_m = 1.0;                       // reference distance d_0
   double coverage_radius_m = 150.0;        // R_c, on the 3-D UAV-user distance
   std::string spectrum = "orthogonal";     // "orthogonal" (the paper) | "orthogonal-split" | "shared"
+  // The air-to-ground channel (channel/channel_model.hpp; the models in channel/path_loss.hpp).
+  std::string pathloss = "free-space";     // "free-space" (the paper) | "3gpp-uma-av" | "3gpp-umi-av" | "3gpp-rma-av" | "al-hourani"
+  std::string environment = "urban";       // al-hourani: "suburban" | "urban" | "dense-urban" | "highrise-urban"
+  double carrier_ghz = 2.0;                // carrier frequency f_c (3GPP and al-hourani)
+  bool shadowing = true;                   // draw log-normal shadowing with the model's spread
+  std::string fading = "none";             // "none" (the paper) | "rician"
+  std::string rician_k = "fixed";          // "fixed" (rician_k_db) | "elevation" (k_min_db at 0 deg to k_max_db at 90 deg)
+  double rician_k_db = 10.0;               // K of a LoS link under rician_k = "fixed"
+  double rician_k_min_db = 5.0;            // K at elevation 0 under rician_k = "elevation"
+  double rician_k_max_db = 15.0;           // K at elevation 90 deg under rician_k = "elevation"
+  int fast_slots = 1;                      // small-scale realisations per trajectory slot; R[t] is their mean
+  double correlation_m = 50.0;             // decorrelation distance of the LoS-state and shadowing maps
+  std::uint64_t seed = 1;                  // the city: seeds the LoS, shadowing and fading maps
 
   double p_max_w() const { return dbm_to_watt(p_max_dbm); }
   double noise_w() const { return dbm_to_watt(noise_dbm); }

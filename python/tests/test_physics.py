@@ -198,3 +198,34 @@ def test_snapshot_json_reports_interference(skyloop_bin, source_dir):
         assert s["sinr"] == pytest.approx(s["signal_w"] / (s["intra_interference_w"] + s["inter_interference_w"] + s["noise_w"]),
                                           rel=1e-12)
         assert s["rate"] < o["rate"] or s["sinr"] == 0.0  # same beams, more interference
+
+
+def test_link_state_and_fast_slots_equal_the_cli(skyloop_bin, source_dir):
+    """SystemModel.link / channel under a 3GPP channel with Rician fading give what `snapshot --json`
+    reports for the same links (one writer of the field names: channel_model.cpp)."""
+    scenario = os.path.join(source_dir, "configs", "scenarios", "two_uavs.toml")
+    sets = ["channel.pathloss=3gpp-uma-av", "channel.fading=rician", "channel.fast_slots=4"]
+    r = run_cli("snapshot", "--json", "--method", "zfsel", "--scenario", scenario, *sum((["--set", s] for s in sets), []))
+    assert r.returncode == 0, r.stderr
+    j = json.loads(r.stdout)
+    cfg = sl.config(channel={"pathloss": "3gpp-uma-av", "fading": "rician", "fast_slots": 4})
+    model = sl.SystemModel(cfg)
+    assert model.fast_slots == 4
+    uavs = [c for c in j["clusters"]]
+    for u in j["users"]:
+        for link in u["links"]:
+            uav = uavs[link["uav"]]
+            mine = model.link(uav["x"], uav["y"], u["x"], u["y"])
+            assert set(mine) == {k for k in link if k not in ("uav", "channel")}
+            for k, v in mine.items():
+                if isinstance(v, float) and np.isinf(v):
+                    assert link[k] == ("inf" if v > 0 else "-inf")
+                else:
+                    assert link[k] == v, k
+            h = model.channel(uav["x"], uav["y"], u["x"], u["y"], 0)
+            assert np.allclose(h, [complex(re, im) for re, im in link["channel"]], rtol=0, atol=0)
+    # Another fast slot is another realisation of the same link; slot 4 does not exist.
+    u, c = j["users"][0], uavs[0]
+    assert not np.array_equal(model.channel(c["x"], c["y"], u["x"], u["y"], 1), model.channel(c["x"], c["y"], u["x"], u["y"], 0))
+    with pytest.raises(sl.InputError, match="slot = 4 is out of range"):
+        model.channel(c["x"], c["y"], u["x"], u["y"], 4)

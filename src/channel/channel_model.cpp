@@ -255,6 +255,9 @@ VectorXcd ChannelModel::steering(double cos_theta) const {
 }
 
 VectorXcd ChannelModel::channel(double ux, double uy, double x, double y, int slot) const {
+  if (slot < 0 || slot >= fast_slots())
+    throw InputError("slot = " + std::to_string(slot) + " is out of range: allowed 0 <= slot < fast_slots = " +
+                     std::to_string(fast_slots()) + " (channel.fast_slots; 1 without fading)");
   if (paper()) {
     // The paper's h = sqrt(beta) a(theta), computed exactly as before the seam existed.
     const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
@@ -262,7 +265,6 @@ VectorXcd ChannelModel::channel(double ux, double uy, double x, double y, int sl
     const double r = d0_ / d;
     return std::sqrt(beta0_ * r * r) * steering(dz / d);
   }
-  if (slot < 0 || slot >= fast_slots()) throw std::logic_error("ChannelModel::channel: fast slot out of range");
   const LinkState s = link(ux, uy, x, y);
   const VectorXcd a = steering((altitude_ - user_height_) / s.geometry.distance_m);
   if (!rician_) return std::sqrt(s.gain) * a;

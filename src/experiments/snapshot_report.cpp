@@ -29,10 +29,14 @@ SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Bea
     u.y = s.users(k, 1);
     u.serving_uav = a.serving[static_cast<std::size_t>(k)];
     double nearest = INFINITY;
-    for (Eigen::Index n = 0; n < s.uavs.rows(); ++n)
-      nearest = std::min(nearest, model.distance(s.uavs(n, 0), s.uavs(n, 1), u.x, u.y));
-    u.distance_m = nearest;  // the serving UAV is the nearest one
-    u.path_loss_db = linear_to_db(model.path_loss(nearest));
+    for (Eigen::Index n = 0; n < s.uavs.rows(); ++n) {
+      u.links.push_back(model.channel_model().link(s.uavs(n, 0), s.uavs(n, 1), u.x, u.y));
+      if (u.links.back().geometry.distance_m < nearest) {  // the serving UAV is the nearest one
+        nearest = u.links.back().geometry.distance_m;
+        u.path_loss_db = u.links.back().path_loss_db;
+      }
+    }
+    u.distance_m = nearest;
   }
   for (Eigen::Index k = 0; k < s.users.rows(); ++k)
     for (Eigen::Index n = 0; n < s.uavs.rows(); ++n)
@@ -83,7 +87,8 @@ std::string snapshot_json(const SnapshotReport& r, const Config& cfg) {
   j["settings"] = {{"antennas", cfg.channel.antennas},       {"altitude_m", cfg.scenario.altitude_m},
                    {"p_max_dbm", cfg.channel.p_max_dbm},     {"noise_dbm", cfg.channel.noise_dbm},
                    {"coverage_radius_m", cfg.channel.coverage_radius_m},
-                   {"power_scaling", to_string(cfg.beamforming.power_scaling)}, {"spectrum", cfg.channel.spectrum}};
+                   {"power_scaling", to_string(cfg.beamforming.power_scaling)}, {"spectrum", cfg.channel.spectrum},
+                   {"pathloss", cfg.channel.pathloss}, {"fading", cfg.channel.fading}, {"fast_slots", cfg.channel.fast_slots}};
   j["users"] = json::array();
   for (const auto& u : r.users) {
     json ju = {{"index", u.index}, {"x", u.x}, {"y", u.y}, {"distance_m", u.distance_m}, {"path_loss_db", u.path_loss_db}};
@@ -100,6 +105,18 @@ std::string snapshot_json(const SnapshotReport& r, const Config& cfg) {
     json cross = json::array();
     for (const auto& h : u.cross) cross.push_back(cvec(h));
     ju["cross_channels"] = cross;  // h_{m,k} from every UAV m, in UAV order
+    json links = json::array();
+    for (std::size_t m = 0; m < u.links.size(); ++m) {
+      json jl = {{"uav", m}};
+      for (const auto& [name, value] : link_fields(u.links[m])) {
+        if (name == "los") jl[name] = value != 0.0;
+        else if (std::isinf(value)) jl[name] = value > 0 ? "inf" : "-inf";  // K without fading / of a Rayleigh link
+        else jl[name] = value;
+      }
+      jl["channel"] = cvec(u.cross[m]);
+      links.push_back(std::move(jl));
+    }
+    ju["links"] = links;  // the large-scale state of the link from every UAV, beside its channel
     j["users"].push_back(ju);
   }
   j["clusters"] = json::array();

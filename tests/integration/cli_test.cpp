@@ -154,7 +154,40 @@ TEST(Cli, SnapshotSingleUserBelowMatchesHandValue) {
   const auto j = nlohmann::json::parse(r.out);
   // d = H = 100 m: beta = 1e-6, ||h||^2 = L beta = 4e-6, P = 1 W, noise 1e-12 W -> SNR 4e6.
   EXPECT_NEAR(j["total_sum_rate"].get<double>(), std::log2(1 + 4e6), 1e-6);
-  EXPECT_NEAR(j["users"][0]["path_loss_db"].get<double>(), -60.0, 1e-9);
+  EXPECT_NEAR(j["users"][0]["path_loss_db"].get<double>(), 60.0, 1e-9);
+}
+
+TEST(Cli, SnapshotReportsEveryLinksLargeScaleStateUnderA3gppChannel) {
+  const std::string dir = tmpdir("links");
+  std::ofstream(dir + "/s.toml") << "uavs = [[50, 50], [150, 150]]\nusers = [[60, 40], [140, 170], [100, 100]]\n";
+  const auto r = run("snapshot --scenario " + dir + "/s.toml --method zfsel --json --set channel.pathloss=3gpp-uma-av "
+                     "--set channel.fading=rician --set channel.rician_k_db=10");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["settings"]["pathloss"], "3gpp-uma-av");
+  for (const auto& u : j["users"]) {
+    ASSERT_EQ(u["links"].size(), 2u);
+    for (const auto& l : u["links"]) {
+      const double p = l["p_los"].get<double>();
+      EXPECT_GT(p, 0.0);
+      EXPECT_LE(p, 1.0);
+      // The path loss of the drawn state: UMa-AV LoS 28 + 22 log10 d + 20 log10 2 at d = distance_m.
+      const double d = l["distance_m"].get<double>();
+      if (l["los"].get<bool>()) {
+        EXPECT_NEAR(l["path_loss_db"].get<double>(), 28 + 22 * std::log10(d) + 20 * std::log10(2.0), 1e-9);
+        EXPECT_NEAR(l["k_factor_db"].get<double>(), 10.0, 1e-12);
+      } else {
+        EXPECT_EQ(l["k_factor_db"], "-inf");
+      }
+      EXPECT_TRUE(l["shadowing_db"].is_number());
+      EXPECT_EQ(l["channel"].size(), 4u);
+    }
+  }
+  // Outside the model's heights: one line, exit 2.
+  const auto bad = run("snapshot --scenario " + dir + "/s.toml --set channel.pathloss=3gpp-uma-av --set scenario.altitude_m=20");
+  EXPECT_EQ(bad.code, 2);
+  EXPECT_NE(bad.err.find("scenario.altitude_m = 20"), std::string::npos) << bad.err;
+  EXPECT_EQ(lines(bad.err), 1);
 }
 
 TEST(Cli, SnapshotRejectsBadScenario) {

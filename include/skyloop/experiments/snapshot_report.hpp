@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "skyloop/beamforming/beamformer.hpp"
+#include "skyloop/channel/channel_model.hpp"
 #include "skyloop/channel/network.hpp"
 
 namespace skyloop {
@@ -19,7 +20,8 @@ struct UserReport {
   double x = 0, y = 0;
   int serving_uav = -1;          // -1: no UAV within R_c
   double distance_m = 0;         // to the serving UAV (or the nearest if unserved)
-  double path_loss_db = 0;       // 10 log10 beta
+  double path_loss_db = 0;       // mean path loss of the link to that UAV (dB, positive; -10 log10 beta without shadowing)
+  std::vector<LinkState> links;  // the large-scale state of the link from every UAV m = 0..N-1
   VectorXcd channel;             // h_{n,k} [L], empty if unserved
   VectorXcd beamformer;          // w_k [L], empty if unserved
   double sinr = 0, rate = 0;     // 0 if unserved

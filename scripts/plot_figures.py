@@ -106,12 +106,34 @@ def fnum(x, digits=2):
 
 # --- one function per experiment kind: (figures, tables) ------------------------------------------
 
+def same_x(a, b):
+    """One sweep value written two ways (50 and 50.0; or a name)."""
+    try:
+        return float(a) == float(b)
+    except (TypeError, ValueError):
+        return str(a) == str(b)
+
+
+def sweep_axis(rows):
+    """The sweep's x values: numbers (sorted, drawn at their value) or names such as a channel model
+    (in the experiment's order, drawn at 0, 1, 2, ... and labelled)."""
+    names = []
+    for r in rows:
+        if r["x"] not in names:
+            names.append(r["x"])
+    try:
+        return {x: float(x) for x in sorted(names, key=float)}, True
+    except ValueError:
+        return {x: float(i) for i, x in enumerate(names)}, False
+
+
 def beamform_sweep(run, exp):
     rows = read_csv(os.path.join(run, exp["files"][0]))
     latency = exp["name"] == "latency"
+    at, numeric = sweep_axis(rows)
     by = defaultdict(dict)
     for r in rows:
-        by[r["method"]][float(r["x"])] = r
+        by[r["method"]][at[r["x"]]] = r
     fig, ax = plt.subplots(figsize=(6, 4.2))
     for method, pts in by.items():
         xs = sorted(pts)
@@ -123,6 +145,9 @@ def beamform_sweep(run, exp):
             ys = [float(pts[x]["mean"]) for x in xs]
             es = [float(pts[x]["sem"]) for x in xs]
             ax.errorbar(xs, ys, yerr=es, marker=mk, ls=ls, color=col, label=lab, capsize=2)
+    if not numeric:
+        ax.set_xticks(list(at.values()))
+        ax.set_xticklabels(list(at), rotation=20, fontsize=7)
     # Another experiment's curve, drawn grey and dashed for reference ([[reference]]).
     notes = []
     for i, ref in enumerate(experiment_spec(run, exp).get("reference", [])):
@@ -130,8 +155,8 @@ def beamform_sweep(run, exp):
         if other is None or not os.path.exists(os.path.join(run, other["files"][0])):
             notes.append(f"reference '{ref['experiment']}' is not in this run")
             continue
-        pts = {float(r["x"]): float(r["mean"]) for r in read_csv(os.path.join(run, other["files"][0]))
-               if r["method"] == ref["method"]}
+        pts = {at[r["x"]]: float(r["mean"]) for r in read_csv(os.path.join(run, other["files"][0]))
+               if r["method"] == ref["method"] and r["x"] in at}
         xs = sorted(pts)
         ax.plot(xs, [pts[x] for x in xs], ls=("--", ":", "-.")[i % 3], color="#999999", marker="", lw=1.4,
                 label=ref.get("label", f"{ref['method']} ({ref['experiment']})"))
@@ -150,8 +175,8 @@ def beamform_sweep(run, exp):
         ax.legend(fontsize=7)
     figs = save(fig, run, exp["name"])
     # Table: methods x sweep values.
-    xs = sorted({float(r["x"]) for r in rows})
-    head = ["method"] + [fnum(x, 0) for x in xs]
+    xs = sorted(at.values())
+    head = ["method"] + ([fnum(x, 0) for x in xs] if numeric else list(at))
     body = []
     for method, pts in by.items():
         key = "median_latency_ms" if latency else "mean"
@@ -391,7 +416,7 @@ def reported(run, exp):
         try:
             if exp["kind"] == "beamform_sweep":
                 rows = read_csv(os.path.join(run, exp["files"][0]))
-                at = {r["method"]: r for r in rows if float(r["x"]) == float(item["x"])}
+                at = {r["method"]: r for r in rows if same_x(r["x"], item["x"])}
                 if item["method"] in at:
                     r = at[item["method"]]
                     if item.get("metric") == "latency":

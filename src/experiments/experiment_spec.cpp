@@ -108,7 +108,8 @@ void apply_table(ExperimentSpec& s, const toml::table& t, const Reader& r, const
     } else if (key == "sweep") s.sweep = r.text(full, node);
     else if (key == "values") {
       s.values.clear();
-      for (const auto& x : r.array(full, node, "numbers")) s.values.push_back(r.number(full, x));
+      for (const auto& x : r.array(full, node, "numbers or names"))
+        s.values.push_back(x.is_string() ? r.text(full, x) : format_double(r.number(full, x)));
     } else if (key == "methods") s.methods = r.texts(full, node);
     else if (key == "samples") s.samples = static_cast<int>(r.integer(full, node, 1, 1'000'000));
     else if (key == "seed") s.seed = static_cast<std::uint64_t>(r.integer(full, node, 0, INT64_MAX));
@@ -175,7 +176,7 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
     for (const auto& m : s.models) check_in(source, "experiment.models", m, labels);
   } else if (s.kind == "beamform_sweep") {
     need(!s.sweep.empty(), "experiment.sweep", "a config key such as channel.p_max_dbm");
-    need(!s.values.empty(), "experiment.values", "a list of numbers");
+    need(!s.values.empty(), "experiment.values", "a list of numbers or names");
     need(!s.methods.empty(), "experiment.methods", "a list of beamformer specs");
   } else {
     need(!s.seeds.empty(), "experiment.seeds", "a list of training seeds");

@@ -176,7 +176,7 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   ASSERT_EQ(r.code, 0) << r.err;
 
   const auto manifest = nlohmann::json::parse(slurp(out / "manifest.json"));
-  ASSERT_EQ(manifest["experiments"].size(), 21u);
+  ASSERT_EQ(manifest["experiments"].size(), 25u);
   for (const auto& e : manifest["experiments"]) {
     const std::string name = e["name"];
     EXPECT_TRUE(fs::exists(out / name / "config.toml")) << name;
@@ -194,7 +194,8 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   for (const std::string fig : {"power_sweep", "noise_sweep", "uav_sweep", "user_sweep", "latency", "marl_episode_reward",
                                 "marl_sum_rate", "planning_users", "trajectories", "shared_power_sweep", "split_power_sweep",
                                 "shared_uav_sweep", "shared_marl_episode_reward", "shared_marl_sum_rate", "shared_trajectories",
-                                "generalisation", "generalisation_wmmse", "generalisation_shared", "one_policy_trajectories"})
+                                "generalisation", "generalisation_wmmse", "generalisation_shared", "one_policy_trajectories",
+                                "channel_models", "channel_environments", "rician_k", "altitude_urban"})
     for (const std::string ext : {".png", ".pdf"}) EXPECT_GT(fs::file_size(out / "figures" / (fig + ext)), 1000u) << fig << ext;
 
   const std::string report = slurp(out / "report.html");

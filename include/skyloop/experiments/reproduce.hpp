@@ -28,7 +28,7 @@ struct ExperimentSpec {
 
   // beamform_sweep
   std::string sweep;                 // the swept config key
-  std::vector<double> values;
+  std::vector<std::string> values;   // the swept values as written (numbers in shortest form, or names such as "3gpp-uma-av")
   std::vector<std::string> methods;  // registry specs; learned labels resolve to the models stage
   int samples = 100;
   std::uint64_t seed = 1;            // snapshots (derive_seed(seed, i)); training seeds for MARL

@@ -59,9 +59,9 @@ Sweep plan(StageContext& ctx, const ExperimentSpec& s) {
     }
   }
   const auto samples = static_cast<std::size_t>(s.samples);
-  for (double x : s.values) {
+  for (const std::string& x : s.values) {
     Point p;
-    p.value = format_double(x);
+    p.value = x;
     p.cfg = ctx.base(s, {s.sweep + "=" + p.value});
     const std::string id = fmt::format("{}-{}", p.value, hex(hash_text(config_key(p.cfg), mh)).substr(0, 12));
     p.dir = fs::path(s.name) / "points" / id;

@@ -186,7 +186,20 @@ def beamform_sweep(run, exp):
     cap = f"{what}; {samples} snapshots per point, seed {rows[0]['seed'] if rows else ''}; x = {AXIS.get(x_name, x_name)}"
     if notes:
         cap += "; " + "; ".join(notes)
-    return figs, [(cap, head, body)]
+    tables = [(cap, head, body)]
+    if latency:
+        # How many decisions fit in one channel coherence time: the fast timescale's budget.
+        speed, carrier = 10.0, 2e9                    # m/s and Hz: a slow rotary-wing UAV at 2 GHz
+        doppler = speed * carrier / 299792458.0        # f_D = V f_c / c = 66.7 Hz
+        coherence_ms = 1e3 * 0.423 / doppler           # T_c = 0.423 / f_D (Rappaport's rule): 6.3 ms
+        per = [[style(method)[0]] + [f"{coherence_ms / float(pts[x]['median_latency_ms']):.3g}"
+                                     if x in pts and float(pts[x]["median_latency_ms"]) > 0 else "" for x in xs]
+               for method, pts in by.items()]
+        tables.append((f"decisions per coherence time: T_c = 0.423 / f_D = {coherence_ms:.2f} ms at V = {speed:g} m/s, "
+                       f"f_c = {carrier / 1e9:g} GHz (f_D = {doppler:.1f} Hz), divided by the median time per decision "
+                       f"(one core); below 1 the beamformer cannot follow the fading; x = {AXIS.get(x_name, x_name)}",
+                       head, per))
+    return figs, tables
 
 
 def curves(rows, metric):

@@ -127,4 +127,30 @@ static void BM_OptimalPaper(benchmark::State& state) {
 }
 BENCHMARK(BM_OptimalPaper)->Arg(0)->Arg(1)->ArgName("wmmse")->Unit(benchmark::kSecond)->Iterations(1);
 
+// The rate oracle's cost per new position (a cache miss: every cluster's channel drawn, the
+// beamformer run on it in each fast slot, the sum rate): the paper's channel, and 3GPP UMa-AV with
+// Rician fading at M = 1 and M = 8 fast slots. Args: oracle (0 gnn, 1 zfsel), channel (0 paper,
+// 1 3gpp-uma-av + rician), fast slots.
+static void BM_OracleNewPosition(benchmark::State& state) {
+  Config cfg;
+  const std::string name = state.range(0) == 0 ? "gnn" : "zfsel";
+  if (state.range(1) == 1) {
+    cfg.channel.pathloss = "3gpp-uma-av";
+    cfg.channel.fading = "rician";
+    cfg.channel.fast_slots = static_cast<int>(state.range(2));
+  }
+  set_torch_threads(1);
+  RateOracle oracle(cfg, builtin_beamformers().create(name, cfg), make_users(cfg, 12, 3));
+  Rng rng(7);
+  Positions uavs(3, 2);
+  for (auto _ : state) {
+    for (Eigen::Index n = 0; n < 3; ++n) uavs(n, 0) = rng.uniform(0, 200), uavs(n, 1) = rng.uniform(0, 200);
+    benchmark::DoNotOptimize(oracle.sum_rate(uavs));  // never seen: a miss for every UAV
+  }
+  state.SetLabel(name + (state.range(1) ? " 3gpp-uma-av+rician M=" + std::to_string(state.range(2)) : " paper"));
+}
+BENCHMARK(BM_OracleNewPosition)
+    ->Args({0, 0, 1})->Args({0, 1, 1})->Args({0, 1, 8})->Args({1, 0, 1})->Args({1, 1, 1})->Args({1, 1, 8})
+    ->ArgNames({"oracle", "channel", "slots"})->Unit(benchmark::kMicrosecond);
+
 BENCHMARK_MAIN();

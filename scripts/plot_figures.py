@@ -131,13 +131,19 @@ def beamform_sweep(run, exp):
     rows = read_csv(os.path.join(run, exp["files"][0]))
     latency = exp["name"] == "latency"
     at, numeric = sweep_axis(rows)
+    # One curve per method, or per (method, series value) when the experiment has a series: the
+    # series picks the colour, the method the marker and line.
+    series = [v for v in dict.fromkeys(r.get("series", "") for r in rows) if v]
+    palette = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#17becf", "#7f7f7f"]
     by = defaultdict(dict)
     for r in rows:
-        by[r["method"]][at[r["x"]]] = r
+        by[(r["method"], r.get("series", ""))][at[r["x"]]] = r
     fig, ax = plt.subplots(figsize=(6, 4.2))
-    for method, pts in by.items():
+    for (method, sv), pts in by.items():
         xs = sorted(pts)
         lab, col, mk, ls = style(method)
+        if sv:
+            lab, col = f"{lab.split(' (')[0]}, {sv}", palette[series.index(sv) % len(palette)]
         if latency:
             ys = [float(pts[x]["median_latency_ms"]) for x in xs]
             ax.plot(xs, ys, marker=mk, ls=ls, color=col, label=lab)
@@ -178,9 +184,10 @@ def beamform_sweep(run, exp):
     xs = sorted(at.values())
     head = ["method"] + ([fnum(x, 0) for x in xs] if numeric else list(at))
     body = []
-    for method, pts in by.items():
+    for (method, sv), pts in by.items():
         key = "median_latency_ms" if latency else "mean"
-        body.append([style(method)[0]] + [fnum(pts[x][key], 3 if latency else 2) if x in pts else "" for x in xs])
+        name = style(method)[0] + (f", {sv}" if sv else "")
+        body.append([name] + [fnum(pts[x][key], 3 if latency else 2) if x in pts else "" for x in xs])
     samples = rows[0]["samples"] if rows else "0"
     what = "median ms per decision" if latency else "mean network sum rate, bit/s/Hz"
     cap = f"{what}; {samples} snapshots per point, seed {rows[0]['seed'] if rows else ''}; x = {AXIS.get(x_name, x_name)}"
@@ -194,7 +201,7 @@ def beamform_sweep(run, exp):
         coherence_ms = 1e3 * 0.423 / doppler           # T_c = 0.423 / f_D (Rappaport's rule): 6.3 ms
         per = [[style(method)[0]] + [f"{coherence_ms / float(pts[x]['median_latency_ms']):.3g}"
                                      if x in pts and float(pts[x]["median_latency_ms"]) > 0 else "" for x in xs]
-               for method, pts in by.items()]
+               for (method, _), pts in by.items()]
         tables.append((f"decisions per coherence time: T_c = 0.423 / f_D = {coherence_ms:.2f} ms at V = {speed:g} m/s, "
                        f"f_c = {carrier / 1e9:g} GHz (f_D = {doppler:.1f} Hz), divided by the median time per decision "
                        f"(one core); below 1 the beamformer cannot follow the fading; x = {AXIS.get(x_name, x_name)}",

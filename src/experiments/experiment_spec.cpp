@@ -26,7 +26,7 @@ namespace {
 
 const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "set",   "models", "reuse_shipped",
                                         "sweep", "values", "methods", "samples", "seed", "algos", "seeds",
-                                        "steps", "users",  "planners", "one_policy"};
+                                        "steps", "users",  "planners", "one_policy", "series", "series_values"};
 
 std::string join(const std::vector<std::string>& v) {
   std::string s;
@@ -110,6 +110,11 @@ void apply_table(ExperimentSpec& s, const toml::table& t, const Reader& r, const
       s.values.clear();
       for (const auto& x : r.array(full, node, "numbers or names"))
         s.values.push_back(x.is_string() ? r.text(full, x) : format_double(r.number(full, x)));
+    } else if (key == "series") s.series = r.text(full, node);
+    else if (key == "series_values") {
+      s.series_values.clear();
+      for (const auto& x : r.array(full, node, "numbers or names"))
+        s.series_values.push_back(x.is_string() ? r.text(full, x) : format_double(r.number(full, x)));
     } else if (key == "methods") s.methods = r.texts(full, node);
     else if (key == "samples") s.samples = static_cast<int>(r.integer(full, node, 1, 1'000'000));
     else if (key == "seed") s.seed = static_cast<std::uint64_t>(r.integer(full, node, 0, INT64_MAX));
@@ -178,6 +183,8 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
     need(!s.sweep.empty(), "experiment.sweep", "a config key such as channel.p_max_dbm");
     need(!s.values.empty(), "experiment.values", "a list of numbers or names");
     need(!s.methods.empty(), "experiment.methods", "a list of beamformer specs");
+    need(s.series.empty() == s.series_values.empty(), "experiment.series and experiment.series_values",
+         "both (one curve per series value) or neither");
   } else {
     need(!s.seeds.empty(), "experiment.seeds", "a list of training seeds");
     if (s.kind == "marl_training") {

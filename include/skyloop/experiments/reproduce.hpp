@@ -30,6 +30,8 @@ struct ExperimentSpec {
   std::string sweep;                 // the swept config key
   std::vector<std::string> values;   // the swept values as written (numbers in shortest form, or names such as "3gpp-uma-av")
   std::vector<std::string> methods;  // registry specs; learned labels resolve to the models stage
+  std::string series;                // optional second config key: one curve per method and series value
+  std::vector<std::string> series_values;
   int samples = 100;
   std::uint64_t seed = 1;            // snapshots (derive_seed(seed, i)); training seeds for MARL
 

@@ -34,6 +34,7 @@ double method_cost(const Config& cfg, const std::string& method) {
 constexpr double kChunkSetup = 0.05;  // seconds: a chunk loads its models and builds its beamformers
 
 struct Point {
+  std::string series;              // the series value ("" without experiment.series)
   std::string value;               // the swept value as written in the CSVs
   Config cfg;
   fs::path dir;                    // <experiment>/points/<value>-<hash>
@@ -59,11 +60,16 @@ Sweep plan(StageContext& ctx, const ExperimentSpec& s) {
     }
   }
   const auto samples = static_cast<std::size_t>(s.samples);
+  const std::vector<std::string> series = s.series.empty() ? std::vector<std::string>{""} : s.series_values;
+  for (const std::string& sv : series)
   for (const std::string& x : s.values) {
     Point p;
+    p.series = sv;
     p.value = x;
-    p.cfg = ctx.base(s, {s.sweep + "=" + p.value});
-    const std::string id = fmt::format("{}-{}", p.value, hex(hash_text(config_key(p.cfg), mh)).substr(0, 12));
+    std::vector<std::string> sets{s.sweep + "=" + p.value};
+    if (!sv.empty()) sets.insert(sets.begin(), s.series + "=" + sv);
+    p.cfg = ctx.base(s, sets);
+    const std::string id = fmt::format("{}{}-{}", sv.empty() ? "" : sv + "-", p.value, hex(hash_text(config_key(p.cfg), mh)).substr(0, 12));
     p.dir = fs::path(s.name) / "points" / id;
     double per_snapshot = 0;
     for (const auto& m : s.methods) per_snapshot += method_cost(p.cfg, m);
@@ -73,7 +79,8 @@ Sweep plan(StageContext& ctx, const ExperimentSpec& s) {
       Piece c;
       c.id = (p.dir / file.filename()).generic_string();
       c.kind = "chunk";
-      c.label = fmt::format("{} {} = {} snapshots {}-{}", s.name, s.sweep, p.value, first, first + count - 1);
+      c.label = fmt::format("{} {}{} = {} snapshots {}-{}", s.name, sv.empty() ? "" : s.series + " = " + sv + ", ", s.sweep, p.value,
+                            first, first + count - 1);
       c.cost = kChunkSetup + (per_snapshot + 1e-6 * p.cfg.scenario.users) * static_cast<double>(count);
       c.done = [file] { return fs::exists(file); };
       c.run = [&ctx, cfg = p.cfg, specs = w.specs, labels = s.methods, file, first, count, seed = s.seed] {
@@ -108,7 +115,8 @@ std::vector<Piece> pieces(StageContext& ctx, const ExperimentSpec& s) {
 
 nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
   const Sweep w = plan(ctx, s);
-  std::string samples, summary = "seed,experiment,x_name,x,method,samples,mean,std,sem,median_latency_ms,mean_latency_ms\n";
+  std::string samples,
+      summary = "seed,experiment,x_name,x,method,samples,mean,std,sem,median_latency_ms,mean_latency_ms,series_name,series\n";
   AssemblyProgress progress(ctx, w.points.size());
   for (std::size_t i = 0; i < w.points.size(); ++i) {
     const Point& p = w.points[i];
@@ -124,11 +132,12 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
       rows.insert(rows.end(), part.begin(), part.end());
     }
     for (const auto& m : summarise(rows))
-      summary += fmt::format("{},{},{},{},{},{},{},{},{},{},{}\n", s.seed, s.name, s.sweep, p.value, m.method, m.samples,
+      summary += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", s.seed, s.name, s.sweep, p.value, m.method, m.samples,
                              format_double(m.mean), format_double(m.std),
                              format_double(m.samples > 1 ? m.std / std::sqrt(static_cast<double>(m.samples)) : 0.0),
-                             format_double(m.median_latency_ms), format_double(m.mean_latency_ms));
-    progress.done(s.sweep + " = " + p.value + (cached ? " (cached)" : ""), !cached);
+                             format_double(m.median_latency_ms), format_double(m.mean_latency_ms), s.series, p.series);
+    progress.done((p.series.empty() ? "" : s.series + " = " + p.series + ", ") + s.sweep + " = " + p.value + (cached ? " (cached)" : ""),
+                  !cached);
   }
   ctx.write(fs::path(s.name) / "samples.csv", samples);
   ctx.write(fs::path(s.name) / (s.name + ".csv"), summary);

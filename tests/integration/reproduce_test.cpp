@@ -123,6 +123,7 @@ TEST(Experiments, BadFilesGiveOneClearError) {
       {"[experiment]\nname = \"x\"\nkind = \"beamform_sweep\"\n[profile.quick]\n", "experiment.sweep is missing"},
       {ok + "samples = 0\n", "samples = 0 is invalid: allowed an integer in [1, 1000000]"},
       {"[experiment\n", "invalid TOML"},
+      {ok + "series = \"channel.environment\"\n", "experiment.series and experiment.series_values is missing"},
   };
   for (const auto& [text, want] : bad) {
     const std::string profile = text == ok ? "paper" : "quick";

@@ -208,6 +208,20 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   EXPECT_EQ(report.find("(missing)"), std::string::npos);
   EXPECT_NE(report.find("fig:power_sweep"), std::string::npos);
 
+  // A sweep over named channel models: every sample row names its point; the summary has a row
+  // per model and method; a series sweep has one curve per series value.
+  {
+    const std::string samples = slurp(out / "channel_models" / "samples.csv");
+    EXPECT_EQ(samples.rfind("x_name,x,series_name,series,seed,", 0), 0u) << samples.substr(0, 80);
+    EXPECT_NE(samples.find("channel.pathloss,3gpp-uma-av,,,"), std::string::npos);
+    EXPECT_NE(samples.find("channel.pathloss,free-space,,,"), std::string::npos);
+    std::map<std::string, std::map<std::string, double>> mean;  // x -> method -> mean
+    for (const auto& f : csv_rows(slurp(out / "channel_models" / "channel_models.csv"))) mean[f.at(3)][f.at(4)] = std::stod(f.at(6));
+    ASSERT_EQ(mean.size(), 2u);
+    for (const auto& [x, m] : mean) EXPECT_EQ(m.size(), 6u) << x;
+    const std::string altitude = slurp(out / "altitude" / "altitude.csv");
+    EXPECT_NE(altitude.find("channel.environment,highrise-urban"), std::string::npos);
+  }
   // The shared-spectrum sweep: coordinated WMMSE starts from per-cluster WMMSE and only climbs, so
   // its mean is at least per-cluster WMMSE's at every power.
   {

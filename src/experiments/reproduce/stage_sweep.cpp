@@ -126,8 +126,10 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
     std::vector<BeamformEvalRow> rows;
     for (const auto& c : p.chunks) {
       const std::string text = read_file((ctx.out / c.id).string());
-      if (samples.empty()) samples = csv_header(text) + "\n";
-      samples += csv_body(text);
+      // Each sample row says which point it belongs to (the swept key and the series may not be
+      // among beamform eval's columns, e.g. channel.pathloss).
+      if (samples.empty()) samples = "x_name,x,series_name,series," + csv_header(text) + "\n";
+      samples += csv_prefixed(text, s.sweep + "," + p.value + "," + s.series + "," + p.series + ",");
       const auto part = parse_beamform_eval_csv(text, c.id);
       rows.insert(rows.end(), part.begin(), part.end());
     }

@@ -239,7 +239,8 @@ LinkState ChannelModel::link(double ux, double uy, double x, double y) const {
     s.p_los = path_loss_->p_los(s.geometry);
     s.los = s.p_los >= 1.0 || 0.5 * std::erfc(-field(0, ux, uy, x, y) / std::sqrt(2.0)) < s.p_los;
     s.path_loss_db = path_loss_->path_loss_db(s.geometry, s.los);
-    if (shadowing_) s.shadowing_db = path_loss_->shadowing_std_db(s.geometry, s.los) * field(1, ux, uy, x, y);
+    const double spread = shadowing_ ? path_loss_->shadowing_std_db(s.geometry, s.los) : 0.0;
+    if (spread > 0) s.shadowing_db = spread * field(1, ux, uy, x, y);
     s.gain = db_to_linear(-(s.path_loss_db + s.shadowing_db));
   }
   const double inf = std::numeric_limits<double>::infinity();

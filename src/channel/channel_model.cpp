@@ -196,11 +196,16 @@ ChannelModel::ChannelModel(const Config& cfg)
     throw InputError("channel.fading = \"" + cfg.channel.fading + "\" is unknown: allowed none, rician");
 }
 
+double ChannelModel::distance(double ux, double uy, double x, double y) const {
+  const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
+  return std::sqrt(dx * dx + dy * dy + dz * dz);
+}
+
 LinkGeometry ChannelModel::geometry(double ux, double uy, double x, double y) const {
   const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
   LinkGeometry g;
   g.horizontal_m = std::sqrt(dx * dx + dy * dy);
-  g.distance_m = std::sqrt(dx * dx + dy * dy + dz * dz);
+  g.distance_m = distance(ux, uy, x, y);
   g.height_m = altitude_;
   g.elevation_deg = std::asin(std::min(1.0, dz / g.distance_m)) * 180.0 / kPi;
   return g;
@@ -232,8 +237,7 @@ LinkState ChannelModel::link(double ux, double uy, double x, double y) const {
   LinkState s;
   s.geometry = geometry(ux, uy, x, y);
   if (free_space_) {
-    const double r = d0_ / s.geometry.distance_m;
-    s.gain = beta0_ * r * r;  // the paper's beta, bit for bit
+    s.gain = free_space_gain(s.geometry.distance_m);  // the paper's beta, bit for bit
     s.path_loss_db = -linear_to_db(s.gain);
   } else {
     s.p_los = path_loss_->p_los(s.geometry);
@@ -261,13 +265,11 @@ VectorXcd ChannelModel::channel(double ux, double uy, double x, double y, int sl
                      std::to_string(fast_slots()) + " (channel.fast_slots; 1 without fading)");
   if (paper()) {
     // The paper's h = sqrt(beta) a(theta), computed exactly as before the seam existed.
-    const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
-    const double d = std::sqrt(dx * dx + dy * dy + dz * dz);
-    const double r = d0_ / d;
-    return std::sqrt(beta0_ * r * r) * steering(dz / d);
+    const double d = distance(ux, uy, x, y);
+    return std::sqrt(free_space_gain(d)) * steering(height_above_users() / d);
   }
   const LinkState s = link(ux, uy, x, y);
-  const VectorXcd a = steering((altitude_ - user_height_) / s.geometry.distance_m);
+  const VectorXcd a = steering(height_above_users() / s.geometry.distance_m);
   if (!rician_) return std::sqrt(s.gain) * a;
   const double k = s.los ? k_factor(s.geometry.elevation_deg) : 0.0;
   const double direct = std::sqrt(k / (k + 1.0)), scattered = std::sqrt(1.0 / (k + 1.0));

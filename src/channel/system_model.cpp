@@ -11,11 +11,7 @@ namespace skyloop {
 
 SystemModel::SystemModel(const Config& cfg)
     : antennas_(cfg.channel.antennas),
-      spacing_(cfg.channel.antenna_spacing_wavelengths),
       altitude_(cfg.scenario.altitude_m),
-      user_height_(cfg.scenario.user_height_m),
-      beta0_(db_to_linear(cfg.channel.beta0_db)),
-      d0_(cfg.channel.d0_m),
       coverage_(cfg.channel.coverage_radius_m),
       p_max_(cfg.channel.p_max_w()),
       noise_(cfg.channel.noise_w()),
@@ -26,14 +22,10 @@ SystemModel::SystemModel(const Config& cfg)
       scenario_(cfg.scenario) {}
 
 double SystemModel::distance(double ux, double uy, double x, double y) const {
-  const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
-  return std::sqrt(dx * dx + dy * dy + dz * dz);
+  return channel_->distance(ux, uy, x, y);
 }
 
-double SystemModel::path_loss(double d) const {
-  const double r = d0_ / d;
-  return beta0_ * r * r;
-}
+double SystemModel::path_loss(double d) const { return channel_->free_space_gain(d); }
 
 VectorXcd SystemModel::steering(double cos_theta) const { return channel_->steering(cos_theta); }
 
@@ -63,7 +55,8 @@ void SystemModel::associate(const Positions& uavs, const Positions& users, Assoc
       a.users[static_cast<std::size_t>(best)].push_back(k);
     }
   };
-  const double reach2 = coverage_ * coverage_ - (altitude_ - user_height_) * (altitude_ - user_height_);  // horizontal reach squared
+  const double dz = channel_->height_above_users();
+  const double reach2 = coverage_ * coverage_ - dz * dz;  // horizontal reach squared
   if (n_uav <= kAssociationGridFrom || reach2 <= 0) {
     for (int k = 0; k < n_user; ++k) {
       int best = -1;

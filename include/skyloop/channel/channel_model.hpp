@@ -81,6 +81,15 @@ class ChannelModel {
   int fast_slots() const { return rician_ ? fast_slots_ : 1; }
   int antennas() const { return antennas_; }
 
+  /// d_3D from a UAV at (ux, uy, H) to the user at (x, y, h_u) (the association's distance).
+  double distance(double ux, double uy, double x, double y) const;
+  /// H - h_u: the height of the UAVs above the users' antennas.
+  double height_above_users() const { return altitude_ - user_height_; }
+  /// The paper's beta0 (d0 / d)^2.
+  double free_space_gain(double d) const {
+    const double r = d0_ / d;
+    return beta0_ * r * r;
+  }
   LinkGeometry geometry(double ux, double uy, double x, double y) const;
   LinkState link(double ux, double uy, double x, double y) const;
   /// h of the link in fast slot `slot` (0 <= slot < fast_slots()): [L] complex.

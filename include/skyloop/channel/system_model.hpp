@@ -111,7 +111,7 @@ class SystemModel {
 
  private:
   int antennas_;
-  double spacing_, altitude_, user_height_, beta0_, d0_, coverage_, p_max_, noise_, area_x_, area_y_;
+  double altitude_, coverage_, p_max_, noise_, area_x_, area_y_;
   Spectrum spectrum_;
   std::shared_ptr<const ChannelModel> channel_;
   ScenarioConfig scenario_;  // area and user layout of random snapshots

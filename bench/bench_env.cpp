@@ -32,7 +32,7 @@ std::vector<std::vector<int>> random_actions() {
   Rng rng(1);
   std::vector<std::vector<int>> a(4096, std::vector<int>(3));
   for (auto& x : a)
-    for (auto& y : x) y = static_cast<int>(rng.below(kActions));
+    for (auto& y : x) y = static_cast<int>(rng.below(kGridActions));
   return a;
 }
 }  // namespace

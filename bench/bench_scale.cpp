@@ -94,7 +94,7 @@ static void env_steps(benchmark::State& state, bool cold) {
       t = 0;
       state.ResumeTiming();
     }
-    for (auto& x : a) x = static_cast<int>(rng.below(kActions));
+    for (auto& x : a) x = static_cast<int>(rng.below(kGridActions));
     benchmark::DoNotOptimize(env->step(a));
     ++t;
   }

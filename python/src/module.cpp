@@ -53,6 +53,7 @@ py::object field_value(const Config& cfg, const std::string& key) {
   if (auto i = std::get_if<std::int64_t>(&v)) return py::int_(*i);
   if (auto d = std::get_if<double>(&v)) return py::float_(*d);
   if (auto s = std::get_if<std::string>(&v)) return py::str(*s);
+  if (auto r = std::get_if<std::vector<double>>(&v)) return py::cast(*r);
   const auto& pts = std::get<std::vector<Point2>>(v);
   py::list out;
   for (const auto& p : pts) out.append(py::make_tuple(p.x, p.y));
@@ -396,7 +397,7 @@ class PyVecEnv {
         const std::size_t row = static_cast<std::size_t>(i) * static_cast<std::size_t>(N) + static_cast<std::size_t>(n);
         e.write_obs(n, po + row * O);
         e.write_agent_state(n, pa + row * A);
-        const unsigned allowed = allowed_moves(e, n, SafetyOptions{cfg_.marl.action_mask, false, cfg_.marl.slack_margin});
+        const ActionSet allowed = allowed_moves(e, n, SafetyOptions{cfg_.marl.action_mask, false, cfg_.marl.slack_margin});
         for (std::size_t a = 0; a < K; ++a) pm[row * K + a] = (allowed >> a & 1u) ? 1 : 0;
       }
     }

@@ -90,6 +90,14 @@ Field points(std::string key, std::string help, Ref ref) {
   return f;
 }
 
+template <class Ref>
+Field reals(std::string key, std::string help, double lo, double hi, Ref ref) {
+  Field f{std::move(key), Type::Reals, std::move(help), lo, hi, {}, {}, {}};
+  f.get = [ref](const Config& c) { return FieldValue(ref(const_cast<Config&>(c))); };
+  f.set = [ref](Config& c, const FieldValue& v) { ref(c) = std::get<std::vector<double>>(v); };
+  return f;
+}
+
 std::vector<Field> make_fields() {
   std::vector<Field> f;
   // [run]
@@ -170,6 +178,8 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.channel.correlation_m; }));
   f.push_back(integer("channel.seed", "seed of the city: the LoS, shadowing and fading maps", 0, 4611686018427387904.0,
                       [](Config& c) -> std::uint64_t& { return c.channel.seed; }));
+  f.push_back(real("channel.bandwidth_hz", "bandwidth B turning the sum rate (bit/s/Hz) into bits for bits per joule (Hz)", 1, 1e12,
+                   [](Config& c) -> double& { return c.channel.bandwidth_hz; }));
   // [beamforming]
   {
     Field s{"beamforming.power_scaling", Type::Text,
@@ -217,6 +227,34 @@ std::vector<Field> make_fields() {
                    {"given", "generated"}, [](Config& c) -> std::string& { return c.trajectory.layout; }));
   f.push_back(integer("trajectory.layout_seed", "seed of a generated layout", 0, 4611686018427387904.0,
                       [](Config& c) -> std::uint64_t& { return c.trajectory.layout_seed; }));
+  f.push_back(text("trajectory.mobility",
+                   "grid: the paper's five moves of D_fly; headings: 8 headings x trajectory.speeds_mps on the D_fly lattice "
+                   "(README, mobility models)",
+                   {"grid", "headings"}, [](Config& c) -> std::string& { return c.trajectory.mobility; }));
+  f.push_back(reals("trajectory.speeds_mps",
+                    "headings: speeds along the axes (m/s; 0 = hover; diagonals fly sqrt(2) x), each x slot_s a multiple of D_fly",
+                    0, 200, [](Config& c) -> std::vector<double>& { return c.trajectory.speeds_mps; }));
+  f.push_back(real("trajectory.slot_s", "slot duration delta_t (s); the grid model flies V = D_fly / delta_t", 0.01, 3600,
+                   [](Config& c) -> double& { return c.trajectory.slot_s; }));
+  // [energy]
+  f.push_back(text("energy.model", "propulsion power: rotary-wing (Zeng, Xu, Zhang, IEEE TWC 2019, eq. (12)) or none",
+                   {"rotary-wing", "none"}, [](Config& c) -> std::string& { return c.energy.model; }));
+  f.push_back(real("energy.p0_w", "blade profile power in hover P0 (W)", 0, 1e5, [](Config& c) -> double& { return c.energy.p0_w; }));
+  f.push_back(real("energy.pi_w", "induced power in hover Pi (W)", 0, 1e5, [](Config& c) -> double& { return c.energy.pi_w; }));
+  f.push_back(real("energy.u_tip_mps", "rotor blade tip speed U_tip (m/s)", 1, 1000, [](Config& c) -> double& { return c.energy.u_tip_mps; }));
+  f.push_back(real("energy.v0_mps", "mean rotor induced velocity in hover v0 (m/s)", 0.01, 100,
+                   [](Config& c) -> double& { return c.energy.v0_mps; }));
+  f.push_back(real("energy.d0", "fuselage drag ratio d0", 0, 100, [](Config& c) -> double& { return c.energy.d0; }));
+  f.push_back(real("energy.rho_kgm3", "air density rho (kg/m^3)", 0.01, 10, [](Config& c) -> double& { return c.energy.rho_kgm3; }));
+  f.push_back(real("energy.solidity", "rotor solidity s", 0, 1, [](Config& c) -> double& { return c.energy.solidity; }));
+  f.push_back(real("energy.rotor_area_m2", "rotor disc area A (m^2)", 0, 1000, [](Config& c) -> double& { return c.energy.rotor_area_m2; }));
+  f.push_back(text("energy.acceleration", "acceleration term: none (Zeng's steady-flight model) or kinetic (+ m (V[t]^2 - V[t-1]^2) / 2 when speeding up)",
+                   {"none", "kinetic"}, [](Config& c) -> std::string& { return c.energy.acceleration; }));
+  f.push_back(real("energy.mass_kg", "aircraft mass m for the kinetic term (kg)", 0, 1e5, [](Config& c) -> double& { return c.energy.mass_kg; }));
+  f.push_back(real("energy.budget_j", "propulsion energy budget per UAV over a mission (J; 0 = none)", 0, 1e12,
+                   [](Config& c) -> double& { return c.energy.budget_j; }));
+  f.push_back(real("energy.weight", "env.objective = weighted: w in R-bar - w P-bar, (bit/s/Hz) per W of fleet power", 0, 1e6,
+                   [](Config& c) -> double& { return c.energy.weight; }));
   // [nn]
   f.push_back(text("nn.model", "learned beamformer to train (ignn: the interference-aware network GNN)",
                    {"gnn", "deepsets", "mspointnet", "ignn"},
@@ -317,6 +355,10 @@ std::vector<Field> make_fields() {
                    "reward: paper = eq:total_reward; objective = R-bar[t+1] - R-bar[t] (sums to the P2.2 objective) "
                    "minus the boundary and collision penalties",
                    {"paper", "objective"}, [](Config& c) -> std::string& { return c.env.reward; }));
+  f.push_back(text("env.objective",
+                   "what a mission is scored by: sum-rate = P2.2's (1/T) sum R[t]; energy-efficiency = bits per joule (kbit/J); "
+                   "weighted = R-bar - energy.weight x mean fleet propulsion power (README, objectives)",
+                   {"sum-rate", "energy-efficiency", "weighted"}, [](Config& c) -> std::string& { return c.env.objective; }));
   f.push_back(real("env.w_fea", "weight of the reachability indicator Phi_n", 0, 1e6, [](Config& c) -> double& { return c.env.w_fea; }));
   {
     Field b{"env.resample_users", Type::Boolean, "draw new users at every reset", 0, 0, {}, {}, {}};
@@ -357,6 +399,7 @@ std::string Field::allowed() const {
       return s;
     }
     case Type::Points: return "a non-empty list of [x, y] pairs";
+    case Type::Reals: return "a non-empty list of numbers, each in [" + format_number(lo) + ", " + format_number(hi) + "]";
   }
   return {};
 }
@@ -411,6 +454,11 @@ std::string format_value(const FieldValue& v) {
         s += (i ? ", [" : "[") + (*this)(p[i].x) + ", " + (*this)(p[i].y) + "]";
       return s + "]";
     }
+    std::string operator()(const std::vector<double>& p) const {
+      std::string s = "[";
+      for (std::size_t i = 0; i < p.size(); ++i) s += (i ? ", " : "") + (*this)(p[i]);
+      return s + "]";
+    }
   };
   return std::visit(V{}, v);
 }
@@ -456,6 +504,16 @@ void set_field(Config& cfg, const Field& field, const FieldValue& value) {
       for (const auto& q : p)
         if (!std::isfinite(q.x) || !std::isfinite(q.y)) fail("has a non-finite coordinate");
       field.set(cfg, value);
+      return;
+    }
+    case Type::Reals: {
+      std::vector<double> r;
+      if (const auto* list = std::get_if<std::vector<double>>(&value)) r = *list;
+      else fail("has the wrong type");
+      if (r.empty()) fail("is empty");
+      for (const double x : r)
+        if (!std::isfinite(x) || x < field.lo || x > field.hi) fail("is out of range");
+      field.set(cfg, FieldValue(r));
       return;
     }
   }
@@ -510,6 +568,52 @@ void generate_layout(Config& c) {
   }
   c.trajectory.starts = std::move(starts);
   c.trajectory.destinations = std::move(dests);
+}
+
+long lattice_steps(double v, double slot_s, double pitch) {
+  const double k = v * slot_s / pitch;
+  const long r = std::lround(k);
+  return std::abs(k - static_cast<double>(r)) < 1e-6 ? r : -1;
+}
+
+void validate_mobility(const Config& c) {
+  const auto& t = c.trajectory;
+  if (t.mobility == "grid") {
+    if (c.energy.model != "none" && t.d_fly_m / t.slot_s >= c.energy.u_tip_mps)
+      throw InputError("trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m per trajectory.slot_s = " + format_double(t.slot_s) +
+                       " s flies " + format_double(t.d_fly_m / t.slot_s) + " m/s, at or above energy.u_tip_mps = " +
+                       format_double(c.energy.u_tip_mps) + ": allowed a ground speed below the tip speed (the power model's range)");
+    return;
+  }
+  if (t.mobility != "headings")
+    throw InputError("trajectory.mobility = \"" + t.mobility + "\" is not allowed: allowed one of grid, headings");
+  int moving = 0;
+  for (std::size_t i = 0; i < t.speeds_mps.size(); ++i) {
+    const double v = t.speeds_mps[i];
+    if (v == 0) continue;
+    const long k = lattice_steps(v, t.slot_s, t.d_fly_m);
+    if (k < 1)
+      throw InputError("trajectory.speeds_mps[" + std::to_string(i) + "] = " + format_double(v) + " m/s flies " +
+                       format_double(v * t.slot_s) + " m per slot of trajectory.slot_s = " + format_double(t.slot_s) +
+                       " s: allowed speeds whose step is a whole multiple of trajectory.d_fly_m = " + format_double(t.d_fly_m) +
+                       " m (the lattice pitch), or 0 (hover)");
+    for (std::size_t j = 0; j < i; ++j)
+      if (t.speeds_mps[j] == v)
+        throw InputError("trajectory.speeds_mps[" + std::to_string(i) + "] = " + format_double(v) + " repeats entry " +
+                         std::to_string(j) + ": allowed distinct speeds");
+    if (std::sqrt(2.0) * v >= c.energy.u_tip_mps && c.energy.model != "none")
+      throw InputError("trajectory.speeds_mps[" + std::to_string(i) + "] = " + format_double(v) + " m/s flies " +
+                       format_double(std::sqrt(2.0) * v) + " m/s on a diagonal, at or above energy.u_tip_mps = " +
+                       format_double(c.energy.u_tip_mps) + ": allowed ground speeds below the tip speed (the power model's range)");
+    ++moving;
+  }
+  if (moving == 0)
+    throw InputError("trajectory.speeds_mps = " + format_value(FieldValue(t.speeds_mps)) +
+                     " has no positive speed: allowed at least one speed above 0 (0 = hover)");
+  if (8 * moving + 1 > kMaxActions)
+    throw InputError("trajectory.speeds_mps has " + std::to_string(moving) + " positive speeds, " + std::to_string(8 * moving + 1) +
+                     " actions: allowed at most " + std::to_string((kMaxActions - 1) / 8) + " positive speeds (" +
+                     std::to_string(kMaxActions) + " actions)");
 }
 
 void finalise(Config& c) {
@@ -572,6 +676,7 @@ void validate(const Config& c) {
                        c.channel.pathloss + "\"'s range: allowed an area whose diagonal is at most " +
                        format_double(pl->max_horizontal_m) + " m");
   }
+  validate_mobility(c);
   if (c.channel.coverage_radius_m < c.scenario.altitude_m)
     throw InputError("channel.coverage_radius_m = " + format_double(c.channel.coverage_radius_m) +
                      " is below scenario.altitude_m = " + format_double(c.scenario.altitude_m) +

@@ -65,6 +65,17 @@ FieldValue to_value(const Field& field, const toml::node& node) {
   if (auto v = node.value_exact<std::int64_t>()) return *v;
   if (auto v = node.value_exact<double>()) return *v;
   if (auto v = node.value_exact<std::string>()) return *v;
+  if (field.type == Field::Type::Reals) {
+    if (const auto* arr = node.as_array()) {
+      std::vector<double> r;
+      for (std::size_t i = 0; i < arr->size(); ++i) {
+        const auto x = number(arr->get(i));
+        if (!x) throw InputError(field.key + " = " + describe(node) + " has the wrong type: allowed " + field.allowed());
+        r.push_back(*x);
+      }
+      return r;
+    }
+  }
   if (auto p = points(node)) return *p;
   throw InputError(field.key + " = " + describe(node) + " has the wrong type: allowed " + field.allowed());
 }

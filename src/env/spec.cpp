@@ -6,6 +6,7 @@
 
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/env/mobility.hpp"
 
 namespace skyloop {
 
@@ -40,14 +41,8 @@ float ArraySpec::high() const {
   return v;
 }
 
-namespace {
-constexpr const char* kActionNames[kActions] = {"UP", "DOWN", "LEFT", "RIGHT", "STAY"};
-}  // namespace
-
-const char* action_name(int a) { return a >= 0 && a < kActions ? kActionNames[a] : "?"; }
-
 const ActionSpec& grid_actions() {
-  static const ActionSpec spec{std::vector<std::string>(kActionNames, kActionNames + kActions)};
+  static const ActionSpec spec{{"UP", "DOWN", "LEFT", "RIGHT", "STAY"}};
   return spec;
 }
 
@@ -59,16 +54,13 @@ ArraySpec named(const std::string& name, const std::string& kind, const std::str
 }
 }  // namespace
 
-const ArraySpec& paper_observation_spec() {
-  static const ArraySpec spec = [] {
-    ArraySpec s = named("obs", "paper", "float32", true);
-    s.add("own_position", 2, 0, 1)                 // (x, y) / area side
-        .add("users_mean_displacement", 2, -1, 1)   // mean over the users of (u - x) / area side
-        .add("destination_displacement", 2, -1, 1)  // (destination - x) / area side
-        .add("previous_action", grid_actions().count(), 0, 1);  // one-hot
-    return s;
-  }();
-  return spec;
+ArraySpec paper_observation_spec(const ActionSpec& actions) {
+  ArraySpec s = named("obs", "paper", "float32", true);
+  s.add("own_position", 2, 0, 1)                 // (x, y) / area side
+      .add("users_mean_displacement", 2, -1, 1)   // mean over the users of (u - x) / area side
+      .add("destination_displacement", 2, -1, 1)  // (destination - x) / area side
+      .add("previous_action", actions.count(), 0, 1);  // one-hot
+  return s;
 }
 
 SpecParams spec_params(const Config& cfg, int agents, int users) {
@@ -78,6 +70,7 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.t_max = cfg.trajectory.t_max;
   p.state = parse_state_kind(cfg.env.state);
   p.observation = parse_observation_kind(cfg.marl.encoder);
+  p.action = MobilityModel(cfg).actions();
   return p;
 }
 
@@ -89,7 +82,7 @@ ArraySpec set_observation_spec(const SpecParams& p) {
       .add("destination_displacement", 2, -1, 1)
       .add("slack", 1, static_cast<float>(-moves / p.t_max), 1)  // (moves left - moves needed) / T_max
       .add("time", 1, 0, 1)                                                    // t / T_max
-      .add("previous_action", grid_actions().count(), 0, 1)
+      .add("previous_action", p.action.count(), 0, 1)
       .add("users_density", kWideGrid * kWideGrid, 0, 4)  // (4 / K) sum_k of Gaussian kernels
       .add("uavs_wide", kWideGrid * kWideGrid, 0, others)
       .add("uavs_near", kNearGrid * kNearGrid, 0, others);
@@ -129,8 +122,8 @@ EnvSpec make_env_spec(const SpecParams& p) {
   e.agents = agents, e.users = users;
   e.observation_kind = p.observation;
   e.state_kind = p.state;
-  e.action = grid_actions();
-  e.paper_obs = paper_observation_spec();
+  e.action = p.action;
+  e.paper_obs = paper_observation_spec(p.action);
   e.set_obs = set_observation_spec(p);
   e.compact_state = compact_state_spec();
   e.obs = e.observation_kind == ObservationKind::Set ? e.set_obs : e.paper_obs;

@@ -26,6 +26,14 @@ namespace {
 bool same(double a, double b) { return std::abs(a - b) < 1e-6; }
 }  // namespace
 
+Objective parse_objective(const std::string& s) {
+  if (s == "sum-rate") return Objective::SumRate;
+  if (s == "energy-efficiency") return Objective::EnergyEfficiency;
+  if (s == "weighted") return Objective::Weighted;
+  if (s == "energy") return Objective::Energy;
+  throw InputError("env.objective = \"" + s + "\" is not allowed: allowed one of sum-rate, energy-efficiency, weighted, energy");
+}
+
 UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
     : n_(static_cast<int>(cfg.trajectory.starts.size())),
       t_max_(cfg.trajectory.t_max),
@@ -38,6 +46,12 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       w_bud_(cfg.env.w_bud),
       w_col_(cfg.env.w_col),
       w_fea_(cfg.env.w_fea),
+      mobility_(std::make_shared<const MobilityModel>(cfg)),
+      propulsion_(cfg.energy),
+      objective_kind_(parse_objective(cfg.env.objective)),
+      bandwidth_hz_(cfg.channel.bandwidth_hz),
+      w_energy_(cfg.energy.weight),
+      budget_j_(cfg.energy.budget_j),
       compact_(cfg.env.state == "compact"),
       objective_reward_(cfg.env.reward == "objective"),
       spec_params_(spec_params(cfg, n_, 0)),
@@ -46,6 +60,19 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       oracle_(std::move(oracle)) {
   spec_params_.users = users();
   spec_ = shared_env_spec(spec_params_);
+  if (!mobility_->is_grid()) {
+    // Each UAV's lattice through its start; its destination must lie on it (validate() checks).
+    for (int n = 0; n < n_; ++n) {
+      Lattice l;
+      l.ox = std::fmod(start_(n, 0), d_fly_), l.oy = std::fmod(start_(n, 1), d_fly_);
+      l.nx = static_cast<int>(std::floor((area_x_ - l.ox) / d_fly_ + 1e-9)) + 1;
+      l.ny = static_cast<int>(std::floor((area_y_ - l.oy) / d_fly_ + 1e-9)) + 1;
+      const int to = static_cast<int>(std::lround((dest_(n, 1) - l.oy) / d_fly_)) * l.nx +
+                     static_cast<int>(std::lround((dest_(n, 0) - l.ox) / d_fly_));
+      l.slots = mobility_->slots_to(l.nx, l.ny, to);
+      lattice_.push_back(std::move(l));
+    }
+  }
   for (int n = 0; n < n_; ++n)
     if (min_moves(n, start_(n, 0), start_(n, 1)) > t_max_ - 1)
       throw InputError("trajectory: UAV " + std::to_string(n) + " needs " +
@@ -68,14 +95,18 @@ void UavEnv::reset() {
   pos_ = start_;
   t_ = 1;
   arrived_.assign(static_cast<std::size_t>(n_), false);
-  prev_action_.assign(static_cast<std::size_t>(n_), kStay);
+  prev_action_.assign(static_cast<std::size_t>(n_), hover());
+  energy_.assign(static_cast<std::size_t>(n_), 0.0);
+  speed_.assign(static_cast<std::size_t>(n_), 0.0);
+  power_.assign(static_cast<std::size_t>(n_), propulsion_.hover_power());
+  energy_total_ = 0;
   prev_tmin_.assign(static_cast<std::size_t>(n_), 0);
   bool all = true;
   for (int n = 0; n < n_; ++n) {
     arrived_[static_cast<std::size_t>(n)] = same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1));
     all = all && arrived_[static_cast<std::size_t>(n)];
     const double d = std::hypot(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1));
-    prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / d_fly_ - 1e-9));
+    prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / mobility_->reach() - 1e-9));
   }
   const double r = oracle_->sum_rate(pos_);
   rates_.assign(1, r);
@@ -86,24 +117,28 @@ void UavEnv::reset() {
 }
 
 bool UavEnv::move(double x, double y, int a, double& nx, double& ny) const {
+  const LatticeStep s = mobility_->step(a);
   nx = x, ny = y;
-  switch (a) {
-    case kUp: ny += d_fly_; break;
-    case kDown: ny -= d_fly_; break;
-    case kLeft: nx -= d_fly_; break;
-    case kRight: nx += d_fly_; break;
-    default: break;
-  }
+  if (s.dx) nx += s.dx * d_fly_;
+  if (s.dy) ny += s.dy * d_fly_;
   return nx >= -1e-9 && nx <= area_x_ + 1e-9 && ny >= -1e-9 && ny <= area_y_ + 1e-9;
 }
 
 int UavEnv::min_moves(int n, double x, double y) const {
-  const double dx = std::abs(dest_(n, 0) - x), dy = std::abs(dest_(n, 1) - y);
-  return static_cast<int>(std::ceil(dx / d_fly_ - 1e-9)) + static_cast<int>(std::ceil(dy / d_fly_ - 1e-9));
+  if (mobility_->is_grid()) {
+    const double dx = std::abs(dest_(n, 0) - x), dy = std::abs(dest_(n, 1) - y);
+    return static_cast<int>(std::ceil(dx / d_fly_ - 1e-9)) + static_cast<int>(std::ceil(dy / d_fly_ - 1e-9));
+  }
+  const Lattice& l = lattice_[static_cast<std::size_t>(n)];
+  const long ix = std::lround((x - l.ox) / d_fly_), iy = std::lround((y - l.oy) / d_fly_);
+  const int far = t_max_ + 1;  // off the lattice or cut off: never reachable in time
+  if (ix < 0 || iy < 0 || ix >= l.nx || iy >= l.ny) return far;
+  const int d = l.slots[static_cast<std::size_t>(iy * l.nx + ix)];
+  return d < 0 ? far : d;
 }
 
 bool UavEnv::feasible(int n, int a) const {
-  if (arrived(n)) return a == kStay;
+  if (arrived(n)) return a == hover();
   double nx, ny;
   if (!move(pos_(n, 0), pos_(n, 1), a, nx, ny)) return false;
   return min_moves(n, nx, ny) <= t_max_ - (t_ + 1);
@@ -112,7 +147,7 @@ bool UavEnv::feasible(int n, int a) const {
 Positions UavEnv::next_positions(const std::vector<int>& actions) const {
   Positions next = pos_;
   for (int n = 0; n < n_; ++n) {
-    const int a = arrived(n) ? kStay : actions[static_cast<std::size_t>(n)];
+    const int a = arrived(n) ? hover() : actions[static_cast<std::size_t>(n)];
     double nx, ny;
     if (move(pos_(n, 0), pos_(n, 1), a, nx, ny)) next(n, 0) = nx, next(n, 1) = ny;
   }
@@ -137,14 +172,22 @@ Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
   Positions next = pos_;
   for (int n = 0; n < n_; ++n) {
     const int requested = actions[static_cast<std::size_t>(n)];
-    if (requested < 0 || requested >= kActions)
+    if (requested < 0 || requested >= mobility_->count())
       throw std::invalid_argument("UavEnv::step: action " + std::to_string(requested) + " of UAV " + std::to_string(n) +
-                                  " is not one of 0..4 (UP, DOWN, LEFT, RIGHT, STAY)");
-    const int a = arrived(n) ? kStay : requested;  // arrival-aware: arrived UAVs are locked
+                                  " is not one of 0.." + std::to_string(mobility_->count() - 1) + " (trajectory.mobility = " +
+                                  mobility_->name() + ")");
+    const int a = arrived(n) ? hover() : requested;  // arrival-aware: arrived UAVs are locked
     double nx, ny;
+    double v = mobility_->speed(a);
     if (move(pos_(n, 0), pos_(n, 1), a, nx, ny)) next(n, 0) = nx, next(n, 1) = ny;
-    else ++info.boundary;  // cancelled: the UAV stays
+    else ++info.boundary, v = 0.0;  // cancelled: the UAV hovers
     prev_action_[static_cast<std::size_t>(n)] = a;
+    const auto i = static_cast<std::size_t>(n);
+    const double e = propulsion_.slot_energy(v, speed_[i], mobility_->slot_s());
+    speed_[i] = v;
+    power_[i] = e / mobility_->slot_s();
+    energy_[i] += e;
+    info.energy_j += e;
   }
   info.collisions = collisions(next);
   return next;
@@ -164,16 +207,21 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
     info.feasibility += feasibility_indicator(n, pos_(n, 0), pos_(n, 1), t_);
   }
   const double before = rate_sum_ / static_cast<double>(t_ - 1);
+  const double j_before = objective_kind_ == Objective::SumRate ? before : objective_at();
+  energy_total_ += info.energy_j;
   rates_.push_back(rate);
   rate_sum_ += rate;
   info.sum_rate = rate;
   info.avg_rate = rate_sum_ / static_cast<double>(t_);
-  if (objective_reward_)
+  if (objective_reward_ && objective_kind_ == Objective::SumRate)
     info.reward = info.avg_rate - before - w_bud_ * info.boundary - w_col_ * info.collisions;
+  else if (objective_reward_)
+    info.reward = objective_at() - j_before - w_bud_ * info.boundary - w_col_ * info.collisions;
   else
     info.reward = w_rate_ * info.avg_rate + w_arr_ * info.arrivals - w_bud_ * info.boundary - w_col_ * info.collisions +
                   w_fea_ * info.feasibility;
-  info.success = all;
+  info.over_budget = over_budget();
+  info.success = all && info.over_budget == 0;
   info.done = done_ = all || t_ >= t_max_;
   tot_arr_ += info.arrivals;
   tot_bud_ += info.boundary;
@@ -186,11 +234,13 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
   info.episode_collisions = tot_col_;
   info.episode_boundary = tot_bud_;
   info.episode_reward = tot_reward_;
+  info.episode_energy_j = energy_total_;
+  info.sum_rate_objective = sum_rate_objective();
 }
 
 int UavEnv::feasibility_indicator(int n, double x, double y, int t) {
   const double d = std::hypot(dest_(n, 0) - x, dest_(n, 1) - y);
-  const int tmin = static_cast<int>(std::ceil(d / d_fly_ - 1e-9));
+  const int tmin = static_cast<int>(std::ceil(d / mobility_->reach() - 1e-9));
   const int phi = (tmin <= t_max_ - t && tmin <= prev_tmin_[static_cast<std::size_t>(n)]) ? 1 : -1;
   prev_tmin_[static_cast<std::size_t>(n)] = tmin;
   return phi;
@@ -203,7 +253,44 @@ StepInfo UavEnv::step(const std::vector<int>& actions) {
   return info;
 }
 
-double UavEnv::objective() const { return rate_sum_ / static_cast<double>(t_); }
+double UavEnv::sum_rate_objective() const { return rate_sum_ / static_cast<double>(t_); }
+
+double UavEnv::objective_of(double rate_sum, int T, double energy_j) const {
+  const double dt = mobility_->slot_s();
+  switch (objective_kind_) {
+    case Objective::SumRate: return rate_sum / static_cast<double>(T);
+    case Objective::EnergyEfficiency: return energy_j > 0 ? bandwidth_hz_ * dt * rate_sum / energy_j / 1e3 : 0.0;
+    case Objective::Weighted: return (rate_sum - w_energy_ * energy_j / dt) / static_cast<double>(T);
+    case Objective::Energy: return -energy_j / 1e3;
+  }
+  return 0;
+}
+
+double UavEnv::objective_at() const { return objective_of(rate_sum_, t_, energy_total_); }
+
+double UavEnv::step_energy(const std::vector<int>& actions) const {
+  double e = 0;
+  for (int n = 0; n < n_; ++n) {
+    const int a = arrived(n) ? hover() : actions[static_cast<std::size_t>(n)];
+    double nx, ny;
+    const double v = move(pos_(n, 0), pos_(n, 1), a, nx, ny) ? mobility_->speed(a) : 0.0;
+    e += propulsion_.slot_energy(v, speed_[static_cast<std::size_t>(n)], mobility_->slot_s());
+  }
+  return e;
+}
+
+double UavEnv::objective() const { return objective_at(); }
+
+double UavEnv::bits_per_joule() const {
+  return energy_total_ > 0 ? bandwidth_hz_ * mobility_->slot_s() * rate_sum_ / energy_total_ : 0.0;
+}
+
+int UavEnv::over_budget() const {
+  if (budget_j_ <= 0) return 0;
+  int count = 0;
+  for (const double e : energy_) count += e > budget_j_;
+  return count;
+}
 
 void UavEnv::write_observation(int n, float* o) const {
   const auto& users = oracle_->users();
@@ -216,7 +303,7 @@ void UavEnv::write_observation(int n, float* o) const {
   o[3] = static_cast<float>(my / K / area_y_);
   o[4] = static_cast<float>((dest_(n, 0) - pos_(n, 0)) / area_x_);
   o[5] = static_cast<float>((dest_(n, 1) - pos_(n, 1)) / area_y_);
-  for (int a = 0; a < kActions; ++a) o[6 + a] = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
+  for (int a = 0; a < actions(); ++a) o[6 + a] = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
 }
 
 std::vector<float> UavEnv::observation(int n) const {
@@ -264,7 +351,7 @@ void UavEnv::write_set_observation(int n, float* o) const {
   *o++ = static_cast<float>((dest_(n, 1) - y) / area_y_);
   *o++ = static_cast<float>(left - min_moves(n, x, y)) / static_cast<float>(t_max_);
   *o++ = static_cast<float>(t_) / static_cast<float>(t_max_);
-  for (int a = 0; a < kActions; ++a) *o++ = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
+  for (int a = 0; a < actions(); ++a) *o++ = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
   constexpr int W = kWideGrid * kWideGrid, Q = kNearGrid * kNearGrid;
   std::fill(o, o + 2 * W + Q, 0.0f);
   const auto& users = oracle_->users();

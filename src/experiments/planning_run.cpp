@@ -56,18 +56,32 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
       users_csv += fmt::format("{},{},{},{}\n", opt.seed, k, format_double(oracle->users()(k, 0)), format_double(oracle->users()(k, 1)));
     write_file_atomic((dir / "users.csv").string(), users_csv);
     write_file_atomic((dir / "summary.csv").string(), summary_csv(out, opt.seed, secs));
+    write_file_atomic((dir / "energy.csv").string(), energy_csv(out, opt.seed));
   }
   return out;
 }
 
 std::string trajectory_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t seed) {
-  std::string s = "seed,planner,t,uav,x,y,action\n";
+  // speed_mps and power_w: what UAV n flies and spends in slot t (empty at the last slot).
+  std::string s = "seed,planner,t,uav,x,y,action,speed_mps,power_w\n";
   for (const auto& r : recs)
     for (std::size_t t = 0; t < r.positions.size(); ++t)
-      for (Eigen::Index n = 0; n < r.positions[t].rows(); ++n)
-        s += fmt::format("{},{},{},{},{},{},{}\n", seed, r.planner, t + 1, n, format_double(r.positions[t](n, 0)),
-                         format_double(r.positions[t](n, 1)),
-                         t < r.actions.size() ? action_name(r.actions[t][static_cast<std::size_t>(n)]) : "END");
+      for (Eigen::Index n = 0; n < r.positions[t].rows(); ++n) {
+        const auto i = static_cast<std::size_t>(n);
+        const bool moved = t < r.actions.size();
+        s += fmt::format("{},{},{},{},{},{},{},{},{}\n", seed, r.planner, t + 1, n, format_double(r.positions[t](n, 0)),
+                         format_double(r.positions[t](n, 1)), moved ? r.action_names.name(r.actions[t][i]) : "END",
+                         moved && t < r.speeds.size() ? format_double(r.speeds[t][i]) : "",
+                         moved && t < r.powers.size() ? format_double(r.powers[t][i]) : "");
+      }
+  return s;
+}
+
+std::string energy_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t seed) {
+  std::string s = "seed,planner,uav,energy_j\n";
+  for (const auto& r : recs)
+    for (std::size_t n = 0; n < r.uav_energy_j.size(); ++n)
+      s += fmt::format("{},{},{},{}\n", seed, r.planner, n, format_double(r.uav_energy_j[n]));
   return s;
 }
 
@@ -88,24 +102,27 @@ std::string rates_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t seed
 }
 
 std::string summary_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t seed, const std::vector<double>& seconds) {
-  std::string s = "seed,planner,objective,T,success,arrivals,collisions,boundary_events,reward,seconds\n";
+  std::string s =
+      "seed,planner,objective,T,success,arrivals,collisions,boundary_events,reward,seconds,sum_rate_objective,energy_j,"
+      "bits_per_joule,over_budget\n";
   for (std::size_t i = 0; i < recs.size(); ++i) {
     const auto& r = recs[i];
-    s += fmt::format("{},{},{},{},{},{},{},{},{},{}\n", seed, r.planner, format_double(r.objective), r.T, r.success ? 1 : 0,
-                     r.arrivals, r.collisions, r.boundary, format_double(r.reward),
-                     format_double(i < seconds.size() ? seconds[i] : 0.0));
+    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, r.planner, format_double(r.objective), r.T,
+                     r.success ? 1 : 0, r.arrivals, r.collisions, r.boundary, format_double(r.reward),
+                     format_double(i < seconds.size() ? seconds[i] : 0.0), format_double(r.sum_rate_objective),
+                     format_double(r.energy_j), format_double(r.bits_per_joule), r.over_budget);
   }
   return s;
 }
 
 std::string format_plan_summary(const std::vector<EpisodeRecord>& recs, const std::vector<double>& seconds) {
-  std::string s = fmt::format("{:<10} {:>10} {:>4} {:>9} {:>9} {:>11} {:>9} {:>10}\n", "planner", "objective", "T",
-                              "arrived", "collided", "boundary", "reward", "time (s)");
+  std::string s = fmt::format("{:<10} {:>10} {:>4} {:>9} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}\n", "planner", "objective",
+                              "T", "arrived", "collided", "boundary", "reward", "time (s)", "energy kJ", "kbit/J");
   for (std::size_t i = 0; i < recs.size(); ++i) {
     const auto& r = recs[i];
-    s += fmt::format("{:<10} {:>10.3f} {:>4} {:>9} {:>9} {:>11} {:>9.2f} {:>10.2f}\n", r.planner, r.objective, r.T,
-                     fmt::format("{}/{}", r.arrivals, r.positions.front().rows()), r.collisions, r.boundary, r.reward,
-                     i < seconds.size() ? seconds[i] : 0.0);
+    s += fmt::format("{:<10} {:>10.3f} {:>4} {:>9} {:>9} {:>11} {:>9.2f} {:>10.2f} {:>10.3f} {:>10.3f}\n", r.planner,
+                     r.objective, r.T, fmt::format("{}/{}", r.arrivals, r.positions.front().rows()), r.collisions, r.boundary,
+                     r.reward, i < seconds.size() ? seconds[i] : 0.0, r.energy_j / 1e3, r.bits_per_joule / 1e3);
   }
   return s;
 }

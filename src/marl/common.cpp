@@ -96,13 +96,13 @@ VecEnv make_training_envs(const Config& cfg, const BeamformerRegistry& registry)
 
 int Encoder::width(const UavEnv& env) const {
   if (set) return env.set_observation_size();
-  return UavEnv::observation_size() + (context ? env.agent_context_size() : 0);
+  return env.observation_size() + (context ? env.agent_context_size() : 0);
 }
 
 void Encoder::write(const UavEnv& env, int n, float* out) const {
   if (set) return env.write_set_observation(n, out);
   env.write_observation(n, out);
-  if (context) env.write_agent_context(n, out + UavEnv::observation_size());
+  if (context) env.write_agent_context(n, out + env.observation_size());
 }
 
 Encoder encoder_of(const Config& cfg, bool context) {

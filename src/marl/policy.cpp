@@ -28,6 +28,8 @@ struct MarlPolicy::Impl {
   bool q_based = false;
   marl::Encoder enc;
   SafetyOptions safety;
+  ActionSpec actions;    // the action space it was trained on
+  std::string mobility;  // trajectory.mobility it was trained with
 };
 
 MarlPolicy::MarlPolicy(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -70,7 +72,11 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   impl->enc.context = q_based;
   // The Q-networks' agent context: a one-hot id (uavs reals; policies written before env.state),
   // nearest UAVs, or none (set observation).
-  auto net = marl::MlpNet(q_based ? obs + meta.value("context_dim", uavs) : obs, hidden, kActions);
+  // The action space it was trained on (policies written before mobility models: the grid's).
+  impl->actions = grid_actions();
+  impl->mobility = meta.value("mobility", std::string("grid"));
+  if (meta.contains("actions")) impl->actions.names = meta.at("actions").get<std::vector<std::string>>();
+  auto net = marl::MlpNet(q_based ? obs + meta.value("context_dim", uavs) : obs, hidden, impl->actions.count());
   (q_based ? impl->nets.q : impl->nets.actor) = net;
   marl::load(path, impl->nets, nullptr);
   return std::unique_ptr<MarlPolicy>(new MarlPolicy(std::move(impl)));
@@ -80,14 +86,19 @@ std::vector<int> MarlPolicy::act(UavEnv& env) {
   torch::NoGradGuard ng;
   auto& net = impl_->q_based ? impl_->nets.q : impl_->nets.actor;
   const auto& enc = impl_->enc;
-  const int N = env.uavs(), D = enc.width(env);
+  if (!(env.mobility().actions() == impl_->actions))
+    throw InputError("policy " + impl_->algo + " was trained with trajectory.mobility = \"" + impl_->mobility + "\" (" +
+                     std::to_string(impl_->actions.count()) + " actions) but the environment has trajectory.mobility = \"" +
+                     env.mobility().name() + "\" (" + std::to_string(env.actions()) + " actions): allowed the mobility settings "
+                     "it was trained with");
+  const int N = env.uavs(), D = enc.width(env), A = env.actions();
   std::vector<float> in(static_cast<std::size_t>(N * D));
   for (int n = 0; n < N; ++n) enc.write(env, n, in.data() + static_cast<std::size_t>(n * D));
   const auto out = net(torch::from_blob(in.data(), {N, D})).contiguous();
   const auto oa = out.accessor<float, 2>();
-  std::vector<std::array<float, kActions>> scores(static_cast<std::size_t>(N));
+  std::vector<std::vector<float>> scores(static_cast<std::size_t>(N), std::vector<float>(static_cast<std::size_t>(A)));
   for (int n = 0; n < N; ++n)
-    for (int a = 0; a < kActions; ++a) scores[static_cast<std::size_t>(n)][static_cast<std::size_t>(a)] = oa[n][a];
+    for (int a = 0; a < A; ++a) scores[static_cast<std::size_t>(n)][static_cast<std::size_t>(a)] = oa[n][a];
   return shielded_argmax(env, impl_->safety, scores);
 }
 

@@ -62,7 +62,7 @@ int CriticReader::width(const UavEnv& e) const {
     case Input::AgentState: return e.agent_state_size();
     case Input::LocalObservation: break;
   }
-  return UavEnv::observation_size();
+  return e.observation_size();
 }
 
 void CriticReader::write(const UavEnv& e, int n, float* out, const float* observation) const {
@@ -82,8 +82,8 @@ void CriticReader::write(const UavEnv& e, int n, float* out, const float* observ
 
 // ---- storage -------------------------------------------------------------------------------------
 
-Rollout::Rollout(int steps, int envs, int agents, int obs, int critic)
-    : T(steps), M(envs), N(agents), obs_width(obs), critic_width(critic) {
+Rollout::Rollout(int steps, int envs, int agents, int obs, int critic, int action_count)
+    : T(steps), M(envs), N(agents), obs_width(obs), critic_width(critic), A(action_count) {
   const std::size_t S = samples();
   observations.resize(S * static_cast<std::size_t>(obs));
   critic_inputs.resize(S * static_cast<std::size_t>(critic));
@@ -91,7 +91,7 @@ Rollout::Rollout(int steps, int envs, int agents, int obs, int critic)
   logprobs.resize(S);
   values.resize(S);
   active.resize(S);
-  allowed.resize(S * kActions);
+  allowed.resize(S * static_cast<std::size_t>(A));
   rewards.resize(static_cast<std::size_t>(T) * M);
   dones.resize(rewards.size());
   next_values.resize(static_cast<std::size_t>(M) * N);
@@ -117,26 +117,27 @@ namespace {
 UpdateStats ppo_loss_rows(const Minibatch& b, const PpoSettings& s, int first, int last, double per_active,
                           const float* logits, int logit_stride, const float* values, int value_stride, float* dlogits,
                           float* dvalues) {
-  const int R = b.rows;
+  const int R = b.rows, A = b.action_count;
   UpdateStats u;
+  std::vector<double> p(static_cast<std::size_t>(A)), logp(static_cast<std::size_t>(A));
   // Actor: the clipped surrogate and the entropy over the allowed moves.
   for (int i = first; i < last; ++i) {
     const float* z = logits + static_cast<std::size_t>(i - first) * logit_stride;
-    const float* allowed = b.allowed.data() + static_cast<std::size_t>(i) * kActions;
+    const float* allowed = b.allowed.data() + static_cast<std::size_t>(i) * A;
     double mx = -1e300;
-    for (int k = 0; k < kActions; ++k)
+    for (int k = 0; k < A; ++k)
       if (allowed[k] > 0) mx = std::max(mx, static_cast<double>(z[k]));
     double sum = 0;
-    for (int k = 0; k < kActions; ++k)
+    for (int k = 0; k < A; ++k)
       if (allowed[k] > 0) sum += std::exp(z[k] - mx);
     const double log_sum = mx + std::log(sum);
-    double p[kActions], logp[kActions], entropy = 0;
-    for (int k = 0; k < kActions; ++k) {
+    double entropy = 0;
+    for (int k = 0; k < A; ++k) {
       logp[k] = allowed[k] > 0 ? z[k] - log_sum : 0.0;
       p[k] = allowed[k] > 0 ? std::exp(logp[k]) : 0.0;
       entropy -= p[k] * logp[k];
     }
-    const auto a = static_cast<int>(b.actions[static_cast<std::size_t>(i)]);
+    const auto a = static_cast<std::size_t>(b.actions[static_cast<std::size_t>(i)]);
     const double adv = b.advantages[static_cast<std::size_t>(i)];
     const double log_ratio = logp[a] - b.logprobs[static_cast<std::size_t>(i)];
     const double ratio = std::exp(log_ratio);
@@ -154,7 +155,7 @@ UpdateStats ppo_loss_rows(const Minibatch& b, const PpoSettings& s, int first, i
     // d/dz_k: -w dsurr ratio (1[k = a] - p_k) from the surrogate, -c2 w (-p_k (log p_k + H)) from the entropy.
     const double dlogp = -w * dsurr * ratio;
     float* dz = dlogits + static_cast<std::size_t>(i - first) * logit_stride;
-    for (int k = 0; k < kActions; ++k)
+    for (std::size_t k = 0; k < static_cast<std::size_t>(A); ++k)
       dz[k] = static_cast<float>(dlogp * ((k == a ? 1.0 : 0.0) - p[k]) + s.entropy_coef * w * p[k] * (logp[k] + entropy));
   }
   // Critic: the clipped value loss, a plain mean over the rows.
@@ -191,10 +192,10 @@ UpdateStats ppo_loss(const Minibatch& b, const PpoSettings& s, const float* logi
 namespace {
 
 /// The actor and critic as LibTorch modules, in MlpNet's default initialisation under `seed`.
-Nets initial_nets(int obs_width, int critic_width, int hidden, std::uint64_t seed) {
+Nets initial_nets(int obs_width, int critic_width, int hidden, int actions, std::uint64_t seed) {
   torch::manual_seed(seed);
   Nets nets;
-  nets.actor = MlpNet(obs_width, hidden, kActions);
+  nets.actor = MlpNet(obs_width, hidden, actions);
   nets.critic = MlpNet(critic_width, hidden, 1);
   return nets;
 }
@@ -210,7 +211,7 @@ class TorchPpo final : public PpoNetworks {
     adam_ = std::make_unique<torch::optim::Adam>(params_, torch::optim::AdamOptions(learning_rate));
   }
 
-  void logits(const float* obs, int rows, float* out) override { forward(nets_.actor, obs, rows, kActions, out); }
+  void logits(const float* obs, int rows, float* out) override { forward(nets_.actor, obs, rows, actions(), out); }
   void values(const float* in, int rows, float* out) override { forward(nets_.critic, in, rows, 1, out); }
 
   UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
@@ -221,7 +222,7 @@ class TorchPpo final : public PpoNetworks {
     const auto active = blob(b.active, {R});
     const auto logp_old = blob(b.logprobs, {R});
     const auto logp_all =
-        torch::log_softmax(masked_logits(nets_.actor(blob(b.observations, {R, b.obs_width})), blob(b.allowed, {R, kActions})), 1);
+        torch::log_softmax(masked_logits(nets_.actor(blob(b.observations, {R, b.obs_width})), blob(b.allowed, {R, b.action_count})), 1);
     const auto actions = torch::from_blob(const_cast<std::int64_t*>(b.actions.data()), {R}, torch::kInt64).to(device_);
     const auto logp = logp_all.gather(1, actions.unsqueeze(1)).squeeze(1);
     const auto entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
@@ -259,6 +260,7 @@ class TorchPpo final : public PpoNetworks {
   void load(const std::string& path, bool optimiser) override { marl::load(path, nets_, optimiser ? adam_.get() : nullptr); }
 
  private:
+  int actions() const { return static_cast<int>(nets_.actor->l3->options.out_features()); }
   void forward(MlpNet& net, const float* in, int rows, int width, float* out) {
     torch::NoGradGuard ng;
     const auto y = net(torch::from_blob(const_cast<float*>(in), {rows, net->l1->options.in_features()}).to(device_))
@@ -278,14 +280,17 @@ class FastPpo final : public PpoNetworks {
  public:
   FastPpo(Nets nets, double learning_rate, int threads)
       : torch_(std::move(nets)),
-        actor_(static_cast<int>(torch_.actor->l1->options.in_features()), static_cast<int>(torch_.actor->l1->options.out_features()), kActions),
+        actor_(static_cast<int>(torch_.actor->l1->options.in_features()), static_cast<int>(torch_.actor->l1->options.out_features()),
+               static_cast<int>(torch_.actor->l3->options.out_features())),
         critic_(static_cast<int>(torch_.critic->l1->options.in_features()), static_cast<int>(torch_.critic->l1->options.out_features()), 1) {
     from_torch();
     actor_adam_.learning_rate = critic_adam_.learning_rate = learning_rate;
     threads_ = std::max(1, std::min<int>(static_cast<int>(kChunks), resolve_threads(threads)));
   }
 
-  void logits(const float* obs, int rows, float* out) override { forward(actor_, obs, rows, kActions, out); }
+  void logits(const float* obs, int rows, float* out) override {
+    forward(actor_, obs, rows, static_cast<int>(torch_.actor->l3->options.out_features()), out);
+  }
   void values(const float* in, int rows, float* out) override { forward(critic_, in, rows, 1, out); }
 
   UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
@@ -426,8 +431,8 @@ class FastPpo final : public PpoNetworks {
 
 std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
                                                double learning_rate, const torch::Device& device, std::uint64_t seed,
-                                               int threads) {
-  auto nets = initial_nets(obs_width, critic_width, hidden, seed);
+                                               int threads, int actions) {
+  auto nets = initial_nets(obs_width, critic_width, hidden, actions, seed);
   if (backend == "torch") return std::make_unique<TorchPpo>(std::move(nets), learning_rate, device);
   if (backend != "fast") throw InputError("marl.backend = \"" + backend + "\" is not allowed: allowed one of fast, torch");
   if (device.is_cuda())
@@ -439,9 +444,9 @@ std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int o
 
 void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety, PpoNetworks& nets,
              const RunningStats& value_norm, Rng& rng, Rollout& r, EpisodeStats& stats) {
-  const int M = r.M, N = r.N;
+  const int M = r.M, N = r.N, A = r.A;
   const std::size_t step_rows = static_cast<std::size_t>(M) * N;
-  std::vector<float> logits(step_rows * kActions);
+  std::vector<float> logits(step_rows * static_cast<std::size_t>(A));
   std::vector<std::vector<int>> actions(static_cast<std::size_t>(M));
   for (int t = 0; t < r.T; ++t) {
     float* obs = r.observations.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.obs_width);
@@ -453,7 +458,7 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
         critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width), obs + i * static_cast<std::size_t>(r.obs_width));
         r.active[r.at(t, e, n)] = static_cast<float>(vec.env(e).mask(n));
         r.logprobs[r.at(t, e, n)] = 0.0f;  // agents that STAY without sampling (arrived) keep these
-        std::fill_n(r.allowed.data() + r.at(t, e, n) * kActions, kActions, 1.0f);
+        std::fill_n(r.allowed.data() + r.at(t, e, n) * A, A, 1.0f);
       }
     nets.logits(obs, static_cast<int>(step_rows), logits.data());
     float* values = r.values.data() + r.at(t, 0, 0);
@@ -462,26 +467,26 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
     for (int e = 0; e < M; ++e) {
       // Each UAV samples from its policy restricted to its allowed moves (the reachability
       // mask and the shield against the UAVs already placed); arrived agents STAY.
-      actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety, [&](int n, unsigned allowed) {
+      actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety, [&](int n, ActionSet allowed) {
         const std::size_t i = r.at(t, e, n);
-        const float* z = logits.data() + static_cast<std::size_t>(e * N + n) * kActions;
+        const float* z = logits.data() + static_cast<std::size_t>(e * N + n) * A;
         double mx = -1e30;
-        for (int k = 0; k < kActions; ++k)
+        for (int k = 0; k < A; ++k)
           if (allowed >> k & 1u) mx = std::max(mx, static_cast<double>(z[k]));
         double sum = 0;
-        for (int k = 0; k < kActions; ++k)
+        for (int k = 0; k < A; ++k)
           if (allowed >> k & 1u) sum += std::exp(static_cast<double>(z[k]) - mx);
         const double u = rng.uniform() * sum;
         double acc = 0;
         int a = -1;
-        for (int k = 0; k < kActions; ++k) {
-          r.allowed[i * kActions + static_cast<std::size_t>(k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
+        for (int k = 0; k < A; ++k) {
+          r.allowed[i * A + static_cast<std::size_t>(k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
           if (!(allowed >> k & 1u)) continue;
           acc += std::exp(static_cast<double>(z[k]) - mx);
           if (a < 0 && u < acc) a = k;
         }
         if (a < 0)
-          for (int k = kActions; k-- > 0;)
+          for (int k = A; k-- > 0;)
             if (allowed >> k & 1u) {
               a = k;
               break;
@@ -556,10 +561,10 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
 
   const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef, m.grad_clip};
   const int rows = static_cast<int>(std::max<std::size_t>(1, S / static_cast<std::size_t>(m.minibatches)));
-  b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width;
+  b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width, b.action_count = r.A;
   b.observations.resize(static_cast<std::size_t>(rows) * r.obs_width);
   b.critic_inputs.resize(static_cast<std::size_t>(rows) * r.critic_width);
-  b.allowed.resize(static_cast<std::size_t>(rows) * kActions);
+  b.allowed.resize(static_cast<std::size_t>(rows) * r.A);
   for (auto* v : {&b.logprobs, &b.advantages, &b.returns, &b.values, &b.active}) v->resize(static_cast<std::size_t>(rows));
   b.actions.resize(static_cast<std::size_t>(rows));
 
@@ -576,7 +581,7 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
           const std::size_t i = order[first + static_cast<std::size_t>(k)], kk = static_cast<std::size_t>(k);
           std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
           std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
-          std::copy_n(r.allowed.data() + i * kActions, kActions, b.allowed.data() + kk * kActions);
+          std::copy_n(r.allowed.data() + i * r.A, r.A, b.allowed.data() + kk * r.A);
           b.actions[kk] = r.actions[i];
           b.logprobs[kk] = r.logprobs[i];
           b.active[kk] = r.active[i];
@@ -603,8 +608,9 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   const CriticReader critic = CriticReader::of(cfg, encoder);
   const SafetyOptions safety = safety_of(cfg);
   const int N = vec.env(0).uavs(), M = vec.size(), obs_width = encoder.width(vec.env(0)), critic_width = critic.width(vec.env(0));
-  auto nets =
-      make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed, cfg.run.threads);
+  const int A = vec.env(0).actions();
+  auto nets = make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed,
+                                cfg.run.threads, A);
   RunningStats value_norm;
 
   std::int64_t steps = 0, updates = 0;
@@ -612,6 +618,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
                           {"obs_dim", obs_width}, {"encoder", m.encoder}, {"backend", m.backend},
+                          {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).mobility().actions().names},
                           {"critic_input", critic.name()}, {"critic_dim", critic_width},
                           {"hidden", m.hidden}, {"env_steps", steps}, {"updates", updates},
                           {"value_mean", value_norm.mean}, {"value_var", value_norm.var}, {"value_count", value_norm.count},
@@ -634,7 +641,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   if (opt.progress)
     bar = std::make_unique<Progress>(fmt::format("{} {} steps", m.algo, m.total_steps),
                                      static_cast<std::size_t>((m.total_steps - steps + per_update - 1) / per_update), *opt.progress, 10.0, 2.0);
-  Rollout rollout(m.rollout, M, N, obs_width, critic_width);
+  Rollout rollout(m.rollout, M, N, obs_width, critic_width, A);
   Minibatch scratch;
   EpisodeStats stats;
   while (steps < m.total_steps) {

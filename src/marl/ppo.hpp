@@ -38,15 +38,15 @@ struct CriticReader {
 /// One rollout: T steps of M environments with N agents. Per-agent arrays are [T, M, N, ...]
 /// row-major (index at(t, e, n)), per-environment ones [T, M].
 struct Rollout {
-  Rollout(int steps, int envs, int agents, int obs_width, int critic_width);
-  int T, M, N, obs_width, critic_width;
+  Rollout(int steps, int envs, int agents, int obs_width, int critic_width, int actions = kGridActions);
+  int T, M, N, obs_width, critic_width, A;  // A: the mobility model's actions
   std::vector<float> observations;     // [T, M, N, obs_width]: what the actor read
   std::vector<float> critic_inputs;    // [T, M, N, critic_width]
   std::vector<std::int64_t> actions;   // [T, M, N]
   std::vector<float> logprobs;         // [T, M, N]: log pi_old(a | o) among the allowed moves
   std::vector<float> values;           // [T, M, N]: V_old (denormalised)
   std::vector<float> active;           // [T, M, N]: 1 while the UAV has not arrived
-  std::vector<float> allowed;          // [T, M, N, kActions]: 1 for the moves the UAV could take
+  std::vector<float> allowed;          // [T, M, N, A]: 1 for the moves the UAV could take
   std::vector<float> rewards, dones;   // [T, M]: team reward, 1 when the episode ended with the step
   std::vector<float> next_values;      // [M, N]: V of the state after the last step (bootstrap)
   std::vector<float> advantages;       // [T, M, N] (compute_advantages)
@@ -60,7 +60,7 @@ struct Rollout {
 /// Minibatch rows gathered contiguously from a rollout (advantages normalised, returns and old
 /// values in the critic's normalised units).
 struct Minibatch {
-  int rows = 0, obs_width = 0, critic_width = 0;
+  int rows = 0, obs_width = 0, critic_width = 0, action_count = kGridActions;
   std::vector<float> observations, critic_inputs, logprobs, advantages, returns, values, active, allowed;
   std::vector<std::int64_t> actions;
 };
@@ -78,7 +78,7 @@ struct UpdateStats {
 };
 
 /// The loss of eq:total_loss (see PpoNetworks::step) on a minibatch from the networks' outputs
-/// (logits [rows x logit_stride], first kActions columns; values [rows x value_stride], first
+/// (logits [rows x logit_stride], first batch.action_count columns; values [rows x value_stride], first
 /// column), and its gradient with respect to them, written into the same places of dlogits and
 /// dvalues (other columns untouched). The fast backend's loss; the torch backend differentiates
 /// the same loss with autograd. grad_norm is left 0.
@@ -88,7 +88,7 @@ UpdateStats ppo_loss(const Minibatch& batch, const PpoSettings& settings, const 
 /// Actor, critic and their optimiser (Adam, one learning rate), on one backend.
 class PpoNetworks : public Learned {
  public:
-  /// logits [rows x kActions] of the actor on observations [rows x obs_width].
+  /// logits [rows x actions] of the actor on observations [rows x obs_width].
   virtual void logits(const float* observations, int rows, float* out) = 0;
   /// The critic's values [rows] in its normalised units.
   virtual void values(const float* critic_inputs, int rows, float* out) = 0;
@@ -99,14 +99,14 @@ class PpoNetworks : public Learned {
   virtual UpdateStats step(const Minibatch& batch, const PpoSettings& settings) = 0;
 };
 
-/// Actor obs_width -> hidden -> hidden -> kActions and critic critic_width -> ... -> 1, both
+/// Actor obs_width -> hidden -> hidden -> actions (the mobility model's) and critic critic_width -> ... -> 1, both
 /// initialised from LibTorch's default initialisation under `seed` (so both backends start from
 /// the same weights). backend: "fast" | "torch". `threads` (run.threads; 0 = every core): the fast
 /// backend computes each minibatch in two fixed halves, on up to two threads, with the same
 /// numbers for any thread count; LibTorch's threads are set by the run.
 std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
                                                double learning_rate, const torch::Device& device, std::uint64_t seed,
-                                               int threads = 1);
+                                               int threads = 1, int actions = kGridActions);
 
 /// Fills the rollout with T steps of every environment: each active UAV samples from its policy
 /// among the moves its safety settings allow (sequential_safe_actions); arrived UAVs STAY.

@@ -24,12 +24,12 @@ namespace {
 struct EpisodeBuffer {
   torch::Tensor obs, state, mask, allow, act, rew, done, valid;
   int64_t capacity = 0, size = 0, next = 0;
-  EpisodeBuffer(int64_t cap, int64_t tmax, int64_t n, int64_t d, int64_t s) : capacity(cap) {
+  EpisodeBuffer(int64_t cap, int64_t tmax, int64_t n, int64_t d, int64_t s, int64_t actions, int64_t hover) : capacity(cap) {
     obs = torch::zeros({cap, tmax, n, d});
-    allow = torch::ones({cap, tmax, n, kActions});
+    allow = torch::ones({cap, tmax, n, actions});
     state = torch::zeros({cap, tmax, s});
     mask = torch::zeros({cap, tmax, n});
-    act = torch::full({cap, tmax - 1, n}, static_cast<int64_t>(kStay), torch::kInt64);
+    act = torch::full({cap, tmax - 1, n}, hover, torch::kInt64);
     rew = torch::zeros({cap, tmax - 1});
     done = torch::zeros({cap, tmax - 1});
     valid = torch::zeros({cap, tmax - 1});
@@ -66,10 +66,12 @@ class ValueDecompositionCore {
         safety_(safety_of(cfg)),
         D_(encoder_.width(vec.env(0))),
         S_(vec.env(0).state_size()),
-        buffer_(cfg.marl.buffer_episodes, Tm_, N_, D_, S_) {
+        A_(vec.env(0).actions()),
+        hover_(vec.env(0).hover()),
+        buffer_(cfg.marl.buffer_episodes, Tm_, N_, D_, S_, A_, hover_) {
     torch::manual_seed(cfg.run.seed);
-    nets_.q = MlpNet(D_, m_.hidden, kActions);
-    target_.q = MlpNet(D_, m_.hidden, kActions);
+    nets_.q = MlpNet(D_, m_.hidden, A_);
+    target_.q = MlpNet(D_, m_.hidden, A_);
     if (qmix()) nets_.mixer = QMixer(N_, S_, m_.mixer_embed), target_.mixer = QMixer(N_, S_, m_.mixer_embed);
     params_ = nets_.q->parameters();
     if (qmix())
@@ -105,17 +107,17 @@ class ValueDecompositionCore {
     const auto q = nets_.q(torch::from_blob(in_.data(), {M * N_, D_}).to(device_)).to(torch::kCPU).contiguous();
     const auto qa = q.accessor<float, 2>();
     for (int e = 0; e < M; ++e)
-      actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety_, [&](int n, unsigned allowed) {
+      actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety_, [&](int n, ActionSet allowed) {
         const int i = e * N_ + n;
         int count = 0, best = -1;
-        for (int a = 0; a < kActions; ++a)
+        for (int a = 0; a < A_; ++a)
           if (allowed >> a & 1u) {
             ++count;
             if (best < 0 || qa[i][a] > qa[i][best]) best = a;
           }
         if (rng.uniform() >= epsilon) return best;
         int pick = static_cast<int>(rng.below(static_cast<std::uint64_t>(count)));
-        for (int a = 0; a < kActions; ++a)
+        for (int a = 0; a < A_; ++a)
           if ((allowed >> a & 1u) && pick-- == 0) return a;
         return best;
       });
@@ -130,8 +132,8 @@ class ValueDecompositionCore {
       r.mask.push_back(static_cast<float>(env.mask(n)));
       // The moves the target's argmax may pick at this slot: the reachability mask (the shield
       // depends on the other UAVs' choices, unknown to the target).
-      const unsigned allowed = allowed_moves(env, n, safety_);
-      for (int a = 0; a < kActions; ++a) r.allow.push_back((allowed >> a & 1u) ? 1.0f : 0.0f);
+      const ActionSet allowed = allowed_moves(env, n, safety_);
+      for (int a = 0; a < A_; ++a) r.allow.push_back((allowed >> a & 1u) ? 1.0f : 0.0f);
     }
     const auto s = env.state();
     r.state.insert(r.state.end(), s.begin(), s.end());
@@ -144,7 +146,7 @@ class ValueDecompositionCore {
     r.obs.resize(r.obs.size() + static_cast<std::size_t>(N_ * D_), 0.0f);
     r.state.resize(r.state.size() + static_cast<std::size_t>(S_), 0.0f);
     r.mask.resize(r.mask.size() + static_cast<std::size_t>(N_), 0.0f);
-    r.allow.resize(r.allow.size() + static_cast<std::size_t>(N_ * kActions), 1.0f);
+    r.allow.resize(r.allow.size() + static_cast<std::size_t>(N_ * A_), 1.0f);
     ++r.slots;
     auto& b = buffer_;
     const int64_t i = b.next, slots = r.slots, trans = slots - 1;
@@ -152,14 +154,14 @@ class ValueDecompositionCore {
     b.state[i].zero_();
     b.mask[i].zero_();
     b.allow[i].fill_(1.0);
-    b.act[i].fill_(static_cast<int64_t>(kStay));
+    b.act[i].fill_(static_cast<int64_t>(hover_));
     b.rew[i].zero_();
     b.done[i].zero_();
     b.valid[i].zero_();
     b.obs[i].narrow(0, 0, slots).copy_(torch::from_blob(r.obs.data(), {slots, N_, D_}));
     b.state[i].narrow(0, 0, slots).copy_(torch::from_blob(r.state.data(), {slots, S_}));
     b.mask[i].narrow(0, 0, slots).copy_(torch::from_blob(r.mask.data(), {slots, N_}));
-    b.allow[i].narrow(0, 0, slots).copy_(torch::from_blob(r.allow.data(), {slots, N_, kActions}));
+    b.allow[i].narrow(0, 0, slots).copy_(torch::from_blob(r.allow.data(), {slots, N_, A_}));
     if (trans > 0) {
       b.act[i].narrow(0, 0, trans).copy_(torch::from_blob(r.act.data(), {trans, N_}, torch::kInt64));
       b.rew[i].narrow(0, 0, trans).copy_(torch::from_blob(r.rew.data(), {trans}));
@@ -226,7 +228,7 @@ class ValueDecompositionCore {
   int N_, Tm_;
   Encoder encoder_;
   SafetyOptions safety_;
-  int D_, S_;
+  int D_, S_, A_, hover_;
   EpisodeBuffer buffer_;
   Nets nets_, target_;
   std::vector<torch::Tensor> params_;
@@ -251,7 +253,8 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   std::string metrics = metrics_header();
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
-                          {"obs_dim", UavEnv::observation_size()}, {"context_dim", D - UavEnv::observation_size()},
+                          {"obs_dim", vec.env(0).observation_size()}, {"context_dim", D - vec.env(0).observation_size()},
+                          {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).mobility().actions().names},
                           {"state_dim", S}, {"hidden", m.hidden}, {"backend", "torch"}, {"encoder", m.encoder},
                           {"mixer_embed", m.mixer_embed}, {"env_steps", steps}, {"grad_steps", core.grad_steps},
                           {"episodes", episodes}, {"config", to_toml(cfg)}};

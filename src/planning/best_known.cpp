@@ -19,12 +19,20 @@ constexpr double kNegInf = -std::numeric_limits<double>::infinity();
 
 /// One UAV's D_fly lattice through its start, clipped to the area.
 struct Lattice {
+  const MobilityModel* mob;
   double ox = 0, oy = 0, d = 1;
   int nx = 0, ny = 0;
-  Lattice(const UavEnv& env, int n) : d(env.d_fly()) {
+  std::vector<int> from_start, to_dest;  // fewest slots from the start / to the destination
+  Lattice(const UavEnv& env, int n) : mob(&env.mobility()), d(env.d_fly()) {
     ox = std::fmod(env.starts()(n, 0), d), oy = std::fmod(env.starts()(n, 1), d);
     nx = static_cast<int>(std::floor((env.area_x() - ox) / d + 1e-9)) + 1;
     ny = static_cast<int>(std::floor((env.area_y() - oy) / d + 1e-9)) + 1;
+    auto fix = [&](std::vector<int> v) {
+      for (int& x : v) x = x < 0 ? env.t_max() + 1 : x;
+      return v;
+    };
+    from_start = fix(mob->slots_to(nx, ny, cell(env.starts()(n, 0), env.starts()(n, 1))));
+    to_dest = fix(mob->slots_to(nx, ny, cell(env.destinations()(n, 0), env.destinations()(n, 1))));
   }
   int cells() const { return nx * ny; }
   int cell(double x, double y) const {
@@ -32,14 +40,13 @@ struct Lattice {
   }
   double x(int c) const { return ox + d * (c % nx); }
   double y(int c) const { return oy + d * (c / nx); }
-  int manhattan(int a, int b) const { return std::abs(a % nx - b % nx) + std::abs(a / nx - b / nx); }
   /// The cell after action a, or -1 outside the grid.
   int step(int c, int a) const {
-    const int ix = c % nx + (a == kRight) - (a == kLeft), iy = c / nx + (a == kUp) - (a == kDown);
+    const int ix = c % nx + mob->step(a).dx, iy = c / nx + mob->step(a).dy;
     return ix >= 0 && ix < nx && iy >= 0 && iy < ny ? iy * nx + ix : -1;
   }
   int action(int from, int to) const {
-    for (int a = 0; a < kActions; ++a)
+    for (int a = 0; a < mob->count(); ++a)
       if (step(from, a) == to) return a;
     throw std::logic_error("best-known planner: non-adjacent cells on a trajectory");
   }
@@ -73,6 +80,9 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
     return plan;
   }
   env.reset();
+  if (env.objective_kind() != Objective::SumRate)
+    throw InputError("the best-known planner's best responses score the sum rate only: allowed env.objective = \"sum-rate\" "
+                     "beyond the optimal planner's size (the optimal planner takes every objective)");
   const int N = env.uavs(), Tmax = env.t_max();
   std::vector<Lattice> lat;
   for (int n = 0; n < N; ++n) lat.emplace_back(env, n);
@@ -128,6 +138,7 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
   auto best_response = [&](int i, Trajectories& tr, double& objective, int& collisions) {
     const auto& L = lat[static_cast<std::size_t>(i)];
     const int G = L.cells(), si = s_cell[static_cast<std::size_t>(i)], di = d_cell[static_cast<std::size_t>(i)];
+    const int A = env.actions(), hover = env.hover();
     int T_others = 0;
     for (int m = 0; m < N; ++m)
       if (m != i) T_others = std::max(T_others, static_cast<int>(tr.cell[static_cast<std::size_t>(m)].size()));
@@ -140,7 +151,7 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
     for (int t = 1; t <= Tend; ++t) {
       Positions p = positions_at(tr, t);
       for (int c = 0; c < G; ++c) {
-        const bool on_path = t <= Tmax ? L.manhattan(si, c) <= t - 1 && L.manhattan(c, di) <= Tmax - t : c == di;
+        const bool on_path = t <= Tmax ? L.from_start[static_cast<std::size_t>(c)] <= t - 1 && L.to_dest[static_cast<std::size_t>(c)] <= Tmax - t : c == di;
         if (!on_path) continue;
         const double x = L.x(c), y = L.y(c);
         bool clear = true;
@@ -174,8 +185,8 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
         for (int c = 0; c < G; ++c) {
           double best = kNegInf;
           if (t < Tmax && c != di && !std::isnan(R[static_cast<std::size_t>(t)][static_cast<std::size_t>(c)]))
-            for (int a = 0; a < kActions; ++a) {
-              const int c2 = a == kStay ? c : L.step(c, a);
+            for (int a = 0; a < A; ++a) {
+              const int c2 = a == hover ? c : L.step(c, a);
               if (c2 < 0) continue;
               const double r = R[static_cast<std::size_t>(t + 1)][static_cast<std::size_t>(c2)];
               if (std::isnan(r)) continue;
@@ -191,8 +202,8 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
         const int t = static_cast<int>(path.size()), c = path.back();
         int next = -1;
         double best = kNegInf;
-        for (int a = 0; a < kActions; ++a) {
-          const int c2 = a == kStay ? c : L.step(c, a);
+        for (int a = 0; a < A; ++a) {
+          const int c2 = a == hover ? c : L.step(c, a);
           if (c2 < 0) continue;
           const double r = R[static_cast<std::size_t>(t + 1)][static_cast<std::size_t>(c2)];
           if (std::isnan(r)) continue;
@@ -228,7 +239,7 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
   plan.T = cur.T();
   plan.collisions = cur_collisions;
   for (int t = 1; t < plan.T; ++t) {
-    std::vector<int> a(static_cast<std::size_t>(N), kStay);
+    std::vector<int> a(static_cast<std::size_t>(N), env.hover());
     for (int n = 0; n < N; ++n)
       if (cur.at(n, t) != d_cell[static_cast<std::size_t>(n)])
         a[static_cast<std::size_t>(n)] = lat[static_cast<std::size_t>(n)].action(cur.at(n, t), cur.at(n, t + 1));

@@ -17,24 +17,28 @@ namespace skyloop {
 namespace {
 constexpr double kNegInf = -std::numeric_limits<double>::infinity();
 
-/// All joint actions of n UAVs, index j -> digit n = (j / 5^n) % 5.
-std::vector<int> joint_action(int j, int n) {
+/// All joint actions of n UAVs with A actions each, index j -> digit n = (j / A^n) % A.
+std::vector<int> joint_action(long j, int n, int A) {
   std::vector<int> a(static_cast<std::size_t>(n));
-  for (int i = 0; i < n; ++i, j /= kActions) a[static_cast<std::size_t>(i)] = j % kActions;
+  for (int i = 0; i < n; ++i, j /= A) a[static_cast<std::size_t>(i)] = static_cast<int>(j % A);
   return a;
 }
-int pow5(int n) {
-  int p = 1;
-  for (int i = 0; i < n; ++i) p *= kActions;
+/// A^n, or -1 above 2^40.
+long joint_count(int A, int n) {
+  long p = 1;
+  for (int i = 0; i < n; ++i) {
+    if (p > (1L << 40) / A) return -1;
+    p *= A;
+  }
   return p;
 }
 }  // namespace
 
 std::vector<int> RandomPlanner::act(UavEnv& env) {
-  std::vector<int> a(static_cast<std::size_t>(env.uavs()), kStay);
+  std::vector<int> a(static_cast<std::size_t>(env.uavs()), env.hover());
   for (int n = 0; n < env.uavs(); ++n) {
     std::vector<int> ok;
-    for (int k = 0; k < kActions; ++k)
+    for (int k = 0; k < env.actions(); ++k)
       if (env.feasible(n, k)) ok.push_back(k);
     if (!ok.empty()) a[static_cast<std::size_t>(n)] = ok[rng_.below(ok.size())];
   }
@@ -42,19 +46,22 @@ std::vector<int> RandomPlanner::act(UavEnv& env) {
 }
 
 void GreedyPlanner::reset(UavEnv& env) {
-  if (env.uavs() > kMaxUavs)
-    throw InputError("planner greedy enumerates 5^N joint actions and takes at most " + std::to_string(kMaxUavs) +
-                     " UAVs, while the scenario has " + std::to_string(env.uavs()) +
-                     ": allowed seqgreedy (the sequential greedy, linear in N) for larger fleets");
+  const long total = joint_count(env.actions(), env.uavs());
+  if (total < 0 || total > kMaxJointActions)
+    throw InputError("planner greedy enumerates A^N joint actions and takes at most " + std::to_string(kMaxJointActions) +
+                     ", while the scenario has " + std::to_string(env.actions()) + "^" + std::to_string(env.uavs()) +
+                     " (trajectory.mobility = " + env.mobility().name() +
+                     "): allowed seqgreedy (the sequential greedy, linear in N) for larger fleets or action spaces");
 }
 
 std::vector<int> GreedyPlanner::act(UavEnv& env) {
-  const int n = env.uavs(), total = pow5(n);
+  const int n = env.uavs(), A = env.actions();
+  const long total = joint_count(A, n);
   std::vector<std::vector<int>> candidates;
   std::vector<Positions> next;
   std::vector<int> colliding;
-  for (int j = 0; j < total; ++j) {
-    auto a = joint_action(j, n);
+  for (long j = 0; j < total; ++j) {
+    auto a = joint_action(j, n, A);
     bool ok = true;
     for (int i = 0; i < n && ok; ++i) ok = env.feasible(i, a[static_cast<std::size_t>(i)]);
     if (!ok) continue;
@@ -62,7 +69,7 @@ std::vector<int> GreedyPlanner::act(UavEnv& env) {
     colliding.push_back(env.collisions(next.back()));
     candidates.push_back(std::move(a));
   }
-  if (candidates.empty()) return std::vector<int>(static_cast<std::size_t>(n), kStay);
+  if (candidates.empty()) return std::vector<int>(static_cast<std::size_t>(n), env.hover());
   const auto rates = env.oracle().sum_rates(next);
   std::size_t best = 0;
   for (std::size_t c = 1; c < candidates.size(); ++c)
@@ -80,9 +87,9 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
   }
   std::stable_sort(order.begin(), order.end(),
                    [&](int a, int b) { return slack[static_cast<std::size_t>(a)] < slack[static_cast<std::size_t>(b)]; });
-  std::vector<int> a(static_cast<std::size_t>(n), kStay);
+  std::vector<int> a(static_cast<std::size_t>(n), env.hover());
   // Each UAV's feasible moves in the order the greedy pass prefers them (its choice first).
-  std::vector<std::vector<int>> ranked(static_cast<std::size_t>(n), std::vector<int>{kStay});
+  std::vector<std::vector<int>> ranked(static_cast<std::size_t>(n), std::vector<int>{env.hover()});
   Positions placed = env.positions();  // chosen moves so far; the others still in place
   const double dmin = env.d_min() - 1e-9;
   for (int i : order) {
@@ -90,7 +97,7 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
     std::vector<int> options;
     std::vector<Positions> next;
     std::vector<char> clear;
-    for (int k = 0; k < kActions; ++k) {
+    for (int k = 0; k < env.actions(); ++k) {
       if (!env.feasible(i, k)) continue;
       Positions p = placed;
       double nx = p(i, 0), ny = p(i, 1);
@@ -180,7 +187,15 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   env.reset();
-  const int N = env.uavs(), Tmax = env.t_max();
+  const int N = env.uavs(), Tmax = env.t_max(), A = env.actions(), hover = env.hover();
+  const MobilityModel& mob = env.mobility();
+  const PropulsionModel& prop = env.propulsion();
+  if (prop.kinetic())
+    throw InputError("energy.acceleration = \"kinetic\" makes a move's energy depend on the previous speed, which the optimal "
+                     "planner's state does not hold: allowed energy.acceleration = \"none\" for the optimal planner");
+  if (env.budget_j() > 0)
+    throw InputError("energy.budget_j = " + format_double(env.budget_j()) + " is not a constraint of the optimal planner's DP: "
+                     "allowed energy.budget_j = 0 for the optimal planner (the plans report each UAV's energy)");
   const double d = env.d_fly();
   const Positions start = env.positions(), dest = env.destinations();
   // The D_fly lattice through start 0, clipped to the area.
@@ -227,15 +242,37 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   for (int n = 0; n < N; ++n) stride[static_cast<std::size_t>(n)] = n == 0 ? 1 : stride[static_cast<std::size_t>(n - 1)] * static_cast<std::size_t>(G);
   auto cx = [&](int c) { return ox + d * (c % nx); };
   auto cy = [&](int c) { return oy + d * (c / nx); };
-  auto manhattan = [&](int a, int b) { return std::abs(a % nx - b % nx) + std::abs(a / nx - b / nx); };
-  // neighbour[c * 5 + a] = cell after action a, or -1 outside the grid.
-  std::vector<int> neighbour(static_cast<std::size_t>(G * kActions), -1);
+  // neighbour[c * A + a] = cell after action a, or -1 outside the grid.
+  std::vector<int> neighbour(static_cast<std::size_t>(G * A), -1);
   for (int c = 0; c < G; ++c)
-    for (int a = 0; a < kActions; ++a) {
-      const int ix = c % nx, iy = c / nx;
-      const int jx = ix + (a == kRight) - (a == kLeft), jy = iy + (a == kUp) - (a == kDown);
-      if (jx >= 0 && jx < nx && jy >= 0 && jy < ny) neighbour[static_cast<std::size_t>(c * kActions + a)] = jy * nx + jx;
+    for (int a = 0; a < A; ++a) {
+      const int jx = c % nx + mob.step(a).dx, jy = c / nx + mob.step(a).dy;
+      if (jx >= 0 && jx < nx && jy >= 0 && jy < ny) neighbour[static_cast<std::size_t>(c * A + a)] = jy * nx + jx;
     }
+  // Fewest slots between each cell and each UAV's start and destination (the model's moves inside
+  // the area; unreachable = a number past the horizon).
+  std::vector<std::vector<int>> from_start, to_dest;
+  for (int n = 0; n < N; ++n) {
+    auto fix = [&](std::vector<int> v) {
+      for (int& x : v) x = x < 0 ? Tmax + 1 : x;
+      return v;
+    };
+    from_start.push_back(fix(mob.slots_to(nx, ny, s_cell[static_cast<std::size_t>(n)])));
+    to_dest.push_back(fix(mob.slots_to(nx, ny, d_cell[static_cast<std::size_t>(n)])));
+  }
+  // The objective as Dinkelbach's parametric problem: maximise sum_t (alpha R[t] - beta lambda)
+  // - sum_moves gamma E(move), then lambda <- J of the maximiser (env.objective; UavEnv's J).
+  const Objective kind = env.objective_kind();
+  const double dt = mob.slot_s();
+  double alpha = 1, beta = 1, gamma = 0;
+  switch (kind) {
+    case Objective::SumRate: break;
+    case Objective::Weighted: gamma = env.energy_weight() / dt; break;
+    case Objective::EnergyEfficiency: alpha = env.bandwidth_hz() * dt / 1e3, beta = 0; break;
+    case Objective::Energy: alpha = 0, beta = 0, gamma = 1e-3; break;
+  }
+  std::vector<double> move_energy(static_cast<std::size_t>(A));
+  for (int a = 0; a < A; ++a) move_energy[static_cast<std::size_t>(a)] = prop.slot_energy(mob.speed(a), 0.0, dt);
   auto cell = [&](std::size_t s, int n) { return static_cast<int>((s / stride[static_cast<std::size_t>(n)]) % static_cast<std::size_t>(G)); };
   // A state is possible at some slot if each UAV's cell lies on a path start -> dest of length <= T_max - 1,
   // and no two UAVs are closer than D_min.
@@ -243,7 +280,7 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   for (int n = 0; n < N; ++n)
     for (int c = 0; c < G; ++c)
       useful[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] =
-          manhattan(s_cell[static_cast<std::size_t>(n)], c) + manhattan(c, d_cell[static_cast<std::size_t>(n)]) <= Tmax - 1;
+          from_start[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] + to_dest[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] <= Tmax - 1;
   std::vector<double> R(S, std::numeric_limits<double>::quiet_NaN());
   {
     std::vector<std::size_t> need;
@@ -284,7 +321,8 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   auto alive_at = [&](std::size_t s, int t) {  // reachable from the start by slot t and home by T_max
     for (int n = 0; n < N; ++n) {
       const int c = cell(s, n);
-      if (manhattan(s_cell[static_cast<std::size_t>(n)], c) > t - 1 || manhattan(c, d_cell[static_cast<std::size_t>(n)]) > Tmax - t)
+      if (from_start[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] > t - 1 ||
+          to_dest[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] > Tmax - t)
         return false;
     }
     return true;
@@ -298,22 +336,34 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
 
   double lambda = 0.0;
   std::vector<std::size_t> path;
+  const long joint = joint_count(A, N);
   for (int iter = 1; iter <= 50; ++iter) {
+    // Energy cost of each action this iteration (gamma, or lambda under energy-efficiency).
+    const double g = kind == Objective::EnergyEfficiency ? lambda : gamma;
+    std::vector<double> cost(static_cast<std::size_t>(A), 0.0);
+    if (g != 0)
+      for (int a = 0; a < A; ++a) cost[static_cast<std::size_t>(a)] = g * move_energy[static_cast<std::size_t>(a)];
+    const double hover_cost = cost[static_cast<std::size_t>(hover)];
     plan.iterations = iter;
     for (int t = Tmax; t >= 1; --t) {
       auto& Vt = V[static_cast<std::size_t>(t - 1)];
       if (t < Tmax) {
-        // M(s) = max over joint actions of V[t+1](s'), one UAV at a time (arrived UAVs only STAY).
+        // M(s) = max over joint actions of V[t+1](s') less their energy cost, one UAV at a time
+        // (arrived UAVs only hover).
         M = V[static_cast<std::size_t>(t)];
         for (int n = 0; n < N; ++n) {
           const std::size_t st = stride[static_cast<std::size_t>(n)];
           for (std::size_t s = 0; s < S; ++s) {
             const int c = cell(s, n);
-            double best = M[s];
+            double best = g != 0 ? M[s] - hover_cost : M[s];
             if (c != d_cell[static_cast<std::size_t>(n)])
-              for (int a = 0; a < kStay; ++a) {
-                const int c2 = neighbour[static_cast<std::size_t>(c * kActions + a)];
-                if (c2 >= 0) best = std::max(best, M[s + st * static_cast<std::size_t>(c2) - st * static_cast<std::size_t>(c)]);
+              for (int a = 0; a < A; ++a) {
+                if (a == hover) continue;
+                const int c2 = neighbour[static_cast<std::size_t>(c * A + a)];
+                if (c2 >= 0) {
+                  const double v = M[s + st * static_cast<std::size_t>(c2) - st * static_cast<std::size_t>(c)];
+                  best = std::max(best, g != 0 ? v - cost[static_cast<std::size_t>(a)] : v);
+                }
               }
             tmp[s] = best;
           }
@@ -325,8 +375,9 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
           Vt[s] = kNegInf;
           continue;
         }
-        if (all_home(s)) Vt[s] = R[s] - lambda;                       // the episode ends: T = t
-        else Vt[s] = t < Tmax ? R[s] - lambda + M[s] : kNegInf;        // not home at T_max: infeasible
+        const double gain = kind == Objective::SumRate ? R[s] - lambda : alpha * R[s] - beta * lambda;
+        if (all_home(s)) Vt[s] = gain;                                 // the episode ends: T = t
+        else Vt[s] = t < Tmax ? gain + M[s] : kNegInf;                 // not home at T_max: infeasible
       }
     }
     if (!std::isfinite(V[0][s0])) throw InputError("no joint trajectory brings every UAV home by trajectory.t_max without a collision");
@@ -339,20 +390,22 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
       double best = kNegInf;
       std::size_t best_s = s;
       std::vector<int> best_a;
-      for (int j = 0; j < pow5(N); ++j) {
-        const auto a = joint_action(j, N);
+      for (long j = 0; j < joint; ++j) {
+        const auto a = joint_action(j, N, A);
         std::size_t s2 = s;
         bool ok = true;
+        double c_move = 0;
         for (int n = 0; n < N && ok; ++n) {
           const int c = cell(s, n);
-          const int act = c == d_cell[static_cast<std::size_t>(n)] ? kStay : a[static_cast<std::size_t>(n)];
-          if (act != a[static_cast<std::size_t>(n)]) { ok = false; break; }  // arrived UAVs: STAY only
-          const int c2 = neighbour[static_cast<std::size_t>(c * kActions + act)];
-          if (act != kStay && c2 < 0) ok = false;
-          else if (act != kStay) s2 = s2 + stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(c2) - stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(c);
+          const int act = c == d_cell[static_cast<std::size_t>(n)] ? hover : a[static_cast<std::size_t>(n)];
+          if (act != a[static_cast<std::size_t>(n)]) { ok = false; break; }  // arrived UAVs: hover only
+          c_move += cost[static_cast<std::size_t>(act)];
+          const int c2 = neighbour[static_cast<std::size_t>(c * A + act)];
+          if (act != hover && c2 < 0) ok = false;
+          else if (act != hover) s2 = s2 + stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(c2) - stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(c);
         }
         if (!ok) continue;
-        const double v = V[static_cast<std::size_t>(t)][s2];
+        const double v = g != 0 ? V[static_cast<std::size_t>(t)][s2] - c_move : V[static_cast<std::size_t>(t)][s2];
         if (v > best) best = v, best_s = s2, best_a = a;
       }
       if (best_a.empty()) throw std::logic_error("optimal planner: no successor on the optimal path");
@@ -360,22 +413,27 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
       path.push_back(best_s);
       ++t;
     }
-    double total = 0;
+    double total = 0, energy = 0;
     for (std::size_t s : path) total += R[s];
-    const double next = total / static_cast<double>(path.size());
+    for (const auto& a : actions)
+      for (const int x : a) energy += move_energy[static_cast<std::size_t>(x)];
+    const double next = env.objective_of(total, static_cast<int>(path.size()), energy);
     plan.objective = next;
+    plan.sum_rate_objective = total / static_cast<double>(path.size());
+    plan.energy_j = energy;
     plan.T = static_cast<int>(path.size());
     plan.actions = actions;
     if (progress)
       *progress << "optimal: iteration " << iter << "  lambda " << format_double(lambda) << " -> " << format_double(next)
                 << "  T = " << plan.T << "\n" << std::flush;
-    if (next <= lambda * (1 + 1e-12)) break;
+    if (kind == Objective::Energy) break;  // no ratio: one pass is the optimum
+    if (next <= (lambda >= 0 ? lambda * (1 + 1e-12) : lambda + 1e-12 * -lambda)) break;
     lambda = next;
   }
   // Arrived UAVs in the plan STAY (their recorded action is whatever index matched: normalise).
   for (std::size_t k = 0; k < plan.actions.size(); ++k)
     for (int n = 0; n < N; ++n)
-      if (cell(path[k], n) == d_cell[static_cast<std::size_t>(n)]) plan.actions[k][static_cast<std::size_t>(n)] = kStay;
+      if (cell(path[k], n) == d_cell[static_cast<std::size_t>(n)]) plan.actions[k][static_cast<std::size_t>(n)] = hover;
   plan.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   env.reset();
   return plan;
@@ -400,7 +458,7 @@ void OptimalPlanner::reset(UavEnv& env) {
 
 std::vector<int> replay(const std::vector<std::vector<int>>& actions, const UavEnv& env) {
   const auto k = static_cast<std::size_t>(env.t() - 1);
-  if (k >= actions.size()) return std::vector<int>(static_cast<std::size_t>(env.uavs()), kStay);
+  if (k >= actions.size()) return std::vector<int>(static_cast<std::size_t>(env.uavs()), env.hover());
   return actions[k];
 }
 
@@ -409,7 +467,8 @@ std::vector<int> OptimalPlanner::act(UavEnv& env) { return replay(plan_.actions,
 double brute_force_optimum(UavEnv& env) {
   env.reset();
   const int N = env.uavs();
-  double best = -1;
+  double best = kNegInf;
+  bool found = false;
   // Depth-first over joint actions; the environment cannot be copied cheaply, so positions are
   // tracked here and R comes from the oracle.
   struct Frame {
@@ -417,30 +476,40 @@ double brute_force_optimum(UavEnv& env) {
     std::vector<bool> home;
     double sum;
     int t;
+    double energy;
   };
+  const int A = env.actions(), hover = env.hover();
+  const long joint = joint_count(A, N);
+  std::vector<double> move_energy(static_cast<std::size_t>(A));
+  for (int a = 0; a < A; ++a)
+    move_energy[static_cast<std::size_t>(a)] = env.propulsion().slot_energy(env.mobility().speed(a), 0.0, env.mobility().slot_s());
   const Positions dest = env.destinations();
   auto is_home = [&](const Positions& p, int n) {
     return std::abs(p(n, 0) - dest(n, 0)) < 1e-6 && std::abs(p(n, 1) - dest(n, 1)) < 1e-6;
   };
   std::vector<Frame> stack;
-  Frame f0{env.positions(), std::vector<bool>(static_cast<std::size_t>(N)), env.rates().front(), 1};
+  Frame f0{env.positions(), std::vector<bool>(static_cast<std::size_t>(N)), env.rates().front(), 1, 0.0};
   for (int n = 0; n < N; ++n) f0.home[static_cast<std::size_t>(n)] = is_home(f0.pos, n);
   stack.push_back(f0);
   while (!stack.empty()) {
     Frame f = std::move(stack.back());
     stack.pop_back();
     if (std::all_of(f.home.begin(), f.home.end(), [](bool b) { return b; })) {
-      best = std::max(best, f.sum / f.t);
+      const double j = env.objective_of(f.sum, f.t, f.energy);
+      found = true;
+      best = std::max(best, j);
       continue;
     }
     if (f.t >= env.t_max()) continue;
-    for (int j = 0; j < pow5(N); ++j) {
-      const auto a = joint_action(j, N);
+    for (long j = 0; j < joint; ++j) {
+      const auto a = joint_action(j, N, A);
       Positions next = f.pos;
       bool ok = true;
+      double e = 0;
       for (int n = 0; n < N && ok; ++n) {
+        e += move_energy[static_cast<std::size_t>(a[static_cast<std::size_t>(n)])];
         if (f.home[static_cast<std::size_t>(n)]) {
-          ok = a[static_cast<std::size_t>(n)] == kStay;
+          ok = a[static_cast<std::size_t>(n)] == hover;
           continue;
         }
         double nx, ny;
@@ -448,12 +517,12 @@ double brute_force_optimum(UavEnv& env) {
         next(n, 0) = nx, next(n, 1) = ny;
       }
       if (!ok || env.collisions(next) > 0) continue;
-      Frame g{next, f.home, f.sum + env.oracle().sum_rate(next), f.t + 1};
+      Frame g{next, f.home, f.sum + env.oracle().sum_rate(next), f.t + 1, f.energy + e};
       for (int n = 0; n < N; ++n) g.home[static_cast<std::size_t>(n)] = g.home[static_cast<std::size_t>(n)] || is_home(next, n);
       stack.push_back(std::move(g));
     }
   }
-  return best;
+  return found ? best : std::numeric_limits<double>::quiet_NaN();
 }
 
 EpisodeRecord run_episode(UavEnv& env, Planner& planner) {
@@ -461,21 +530,31 @@ EpisodeRecord run_episode(UavEnv& env, Planner& planner) {
   planner.reset(env);
   EpisodeRecord r;
   r.planner = planner.name();
+  r.action_names = env.mobility().actions();
   r.positions.push_back(env.positions());
   while (!env.done()) {
     auto a = planner.act(env);
     for (int n = 0; n < env.uavs(); ++n)
-      if (env.arrived(n)) a[static_cast<std::size_t>(n)] = kStay;
+      if (env.arrived(n)) a[static_cast<std::size_t>(n)] = env.hover();
     const StepInfo info = env.step(a);
     r.actions.push_back(a);
     r.steps.push_back(info);
     r.positions.push_back(env.positions());
+    std::vector<double> v, p;
+    for (int n = 0; n < env.uavs(); ++n) v.push_back(env.last_speed(n)), p.push_back(env.last_power(n));
+    r.speeds.push_back(std::move(v));
+    r.powers.push_back(std::move(p));
     r.reward += info.reward;
     r.success = info.success;
   }
   r.T = env.t();
   r.rates = env.rates();
   r.objective = env.objective();
+  r.sum_rate_objective = env.sum_rate_objective();
+  r.energy_j = env.energy_j();
+  r.bits_per_joule = env.bits_per_joule();
+  for (int n = 0; n < env.uavs(); ++n) r.uav_energy_j.push_back(env.energy_j(n));
+  r.over_budget = env.over_budget();
   r.arrivals = env.total_arrivals();
   r.boundary = env.total_boundary();
   r.collisions = env.total_collisions();

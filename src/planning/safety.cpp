@@ -43,50 +43,52 @@ Placed arrived_uavs(const UavEnv& env) {
 }
 
 /// The moves of `allowed` landing at least D_min from every placed UAV.
-unsigned clear_moves(const UavEnv& env, int n, unsigned allowed, const Placed& placed) {
-  unsigned safe = 0;
-  for (int a = 0; a < kActions; ++a) {
+ActionSet clear_moves(const UavEnv& env, int n, ActionSet allowed, const Placed& placed) {
+  ActionSet safe = 0;
+  for (int a = 0; a < env.actions(); ++a) {
     if (!(allowed >> a & 1u)) continue;
     double x, y;
     landing(env, n, a, x, y);
-    if (placed.clear(x, y, env.d_min())) safe |= 1u << a;
+    if (placed.clear(x, y, env.d_min())) safe |= action_bit(a);
   }
   return safe;
 }
 
 /// allowed minus the moves landing within D_min of a placed UAV; if that leaves nothing and the
 /// mask keeps a margin, the clear moves of the margin-0 mask; else allowed.
-unsigned shielded(const UavEnv& env, int n, unsigned allowed, const Placed& placed, const SafetyOptions& safety) {
-  if (const unsigned safe = clear_moves(env, n, allowed, placed)) return safe;
+ActionSet shielded(const UavEnv& env, int n, ActionSet allowed, const Placed& placed, const SafetyOptions& safety) {
+  if (const ActionSet safe = clear_moves(env, n, allowed, placed)) return safe;
   if (safety.mask && safety.margin > 0)
-    if (const unsigned wider = clear_moves(env, n, reachable_moves(env, n, 0), placed)) return wider;
+    if (const ActionSet wider = clear_moves(env, n, reachable_moves(env, n, 0), placed)) return wider;
   return allowed;
 }
 
 }  // namespace
 
-unsigned reachable_moves(const UavEnv& env, int n, int margin) {
-  if (env.arrived(n)) return 1u << kStay;
-  unsigned m = 0, inside = 0;
+ActionSet all_actions(const UavEnv& env) { return env.actions() >= 64 ? ~ActionSet{0} : action_bit(env.actions()) - 1; }
+
+ActionSet reachable_moves(const UavEnv& env, int n, int margin) {
+  if (env.arrived(n)) return action_bit(env.hover());
+  ActionSet m = 0, inside = 0;
   const auto& p = env.positions();
   const int left_after = env.t_max() - (env.t() + 1);
   // The slack a move must leave: the margin, or all the UAV still has if the shield spent some
   // (a move towards the destination keeps the slack; STAY and moves away spend one or two).
   const int slack_now = left_after + 1 - env.min_moves(n, p(n, 0), p(n, 1));
   const int keep = std::max(0, std::min(margin, slack_now));
-  for (int a = 0; a < kActions; ++a) {
+  for (int a = 0; a < env.actions(); ++a) {
     double x, y;
     if (!env.move(p(n, 0), p(n, 1), a, x, y)) continue;
-    inside |= 1u << a;
-    if (env.feasible(n, a) && left_after - env.min_moves(n, x, y) >= keep) m |= 1u << a;
+    inside |= action_bit(a);
+    if (env.feasible(n, a) && left_after - env.min_moves(n, x, y) >= keep) m |= action_bit(a);
   }
   if (!m && margin > 0) return reachable_moves(env, n, 0);
   return m ? m : inside;
 }
 
-unsigned allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety) {
-  if (env.arrived(n)) return 1u << kStay;
-  return safety.mask ? reachable_moves(env, n, safety.margin) : kAllActions;
+ActionSet allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety) {
+  if (env.arrived(n)) return action_bit(env.hover());
+  return safety.mask ? reachable_moves(env, n, safety.margin) : all_actions(env);
 }
 
 std::vector<int> shield_order(const UavEnv& env) {
@@ -101,14 +103,14 @@ std::vector<int> shield_order(const UavEnv& env) {
 }
 
 std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
-                                         const std::function<int(int, unsigned)>& choose,
-                                         std::vector<unsigned>* allowed_out) {
+                                         const std::function<int(int, ActionSet)>& choose,
+                                         std::vector<ActionSet>* allowed_out) {
   const int N = env.uavs();
-  std::vector<int> actions(static_cast<std::size_t>(N), kStay);
-  if (allowed_out) allowed_out->assign(static_cast<std::size_t>(N), 1u << kStay);
+  std::vector<int> actions(static_cast<std::size_t>(N), env.hover());
+  if (allowed_out) allowed_out->assign(static_cast<std::size_t>(N), action_bit(env.hover()));
   Placed placed = arrived_uavs(env);
   for (const int n : shield_order(env)) {
-    unsigned allowed = allowed_moves(env, n, safety);
+    ActionSet allowed = allowed_moves(env, n, safety);
     if (safety.shield) allowed = shielded(env, n, allowed, placed, safety);
     const int a = choose(n, allowed);
     actions[static_cast<std::size_t>(n)] = a;
@@ -122,11 +124,11 @@ std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions&
 
 namespace {
 
-int best_of(const std::array<float, kActions>& s, unsigned allowed) {
+int best_of(const std::vector<float>& s, ActionSet allowed, int hover) {
   int best = -1;
-  for (int a = 0; a < kActions; ++a)
+  for (int a = 0; a < static_cast<int>(s.size()); ++a)
     if ((allowed >> a & 1u) && (best < 0 || s[static_cast<std::size_t>(a)] > s[static_cast<std::size_t>(best)])) best = a;
-  return best < 0 ? kStay : best;
+  return best < 0 ? hover : best;
 }
 
 struct Search {
@@ -158,13 +160,15 @@ struct Search {
 }  // namespace
 
 std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
-                                 const std::vector<std::array<float, kActions>>& scores) {
+                                 const std::vector<std::vector<float>>& scores) {
   auto sequential = [&] {
-    return sequential_safe_actions(env, safety, [&](int n, unsigned allowed) { return best_of(scores[static_cast<std::size_t>(n)], allowed); });
+    return sequential_safe_actions(env, safety, [&](int n, ActionSet allowed) {
+      return best_of(scores[static_cast<std::size_t>(n)], allowed, env.hover());
+    });
   };
   if (!safety.shield) return sequential();
   const auto order = shield_order(env);
-  std::vector<int> actions(static_cast<std::size_t>(env.uavs()), kStay);
+  std::vector<int> actions(static_cast<std::size_t>(env.uavs()), env.hover());
   // Each UAV's moves best first, those that keep the slack margin before those that spend it: the
   // first collision-free joint move spends margin only where a collision demands it.
   Search s{env, order, {}, actions, arrived_uavs(env)};
@@ -172,14 +176,14 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
   plain.margin = 0;
   for (const int n : order) {
     const auto& sc = scores[static_cast<std::size_t>(n)];
-    auto best_first = [&](unsigned set) {
+    auto best_first = [&](ActionSet set) {
       std::vector<int> c;
-      for (int a = 0; a < kActions; ++a)
+      for (int a = 0; a < env.actions(); ++a)
         if (set >> a & 1u) c.push_back(a);
       std::stable_sort(c.begin(), c.end(), [&](int a, int b) { return sc[static_cast<std::size_t>(a)] > sc[static_cast<std::size_t>(b)]; });
       return c;
     };
-    const unsigned keep = allowed_moves(env, n, safety);
+    const ActionSet keep = allowed_moves(env, n, safety);
     auto c = best_first(keep);
     // Moves that spend slack: the least spent first (STAY spends one slot, a move away two).
     auto spend = best_first(allowed_moves(env, n, plain) & ~keep);

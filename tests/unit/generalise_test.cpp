@@ -110,7 +110,7 @@ TEST(Safety, TheMaskNeverChoosesAnUnreachableMoveAndBringsEveryUavHome) {
     env.reset();
     while (!env.done()) {
       // Scores that want to fly anywhere, the boundary and away from the destination included.
-      std::vector<std::array<float, kActions>> scores(3);
+      std::vector<std::vector<float>> scores(3, std::vector<float>(kGridActions));
       for (auto& s : scores)
         for (auto& x : s) x = static_cast<float>(rng.normal());
       const auto a = shielded_argmax(env, SafetyOptions{true, false}, scores);
@@ -134,20 +134,20 @@ TEST(Safety, TheShieldNeverCollidesWhenAJointMoveAvoidsIt) {
     for (int episode = 0; episode < 30; ++episode) {
       env.reset();
       while (!env.done()) {
-        std::vector<std::array<float, kActions>> scores(static_cast<std::size_t>(uavs));
+        std::vector<std::vector<float>> scores(static_cast<std::size_t>(uavs), std::vector<float>(kGridActions));
         for (auto& s : scores)
           for (auto& x : s) x = static_cast<float>(rng.normal());
         const auto a = shielded_argmax(env, SafetyOptions{true, true}, scores);
         // Brute force over the joint actions of the masked moves.
         bool exists = false;
         int total = 1;
-        for (int n = 0; n < uavs; ++n) total *= kActions;
+        for (int n = 0; n < uavs; ++n) total *= kGridActions;
         for (int j = 0; j < total && !exists; ++j) {
           std::vector<int> b(static_cast<std::size_t>(uavs));
           bool ok = true;
-          for (int n = 0, r = j; n < uavs; ++n, r /= kActions) {
-            b[static_cast<std::size_t>(n)] = r % kActions;
-            ok = ok && (allowed_moves(env, n, SafetyOptions{}) >> (r % kActions) & 1u);
+          for (int n = 0, r = j; n < uavs; ++n, r /= kGridActions) {
+            b[static_cast<std::size_t>(n)] = r % kGridActions;
+            ok = ok && (allowed_moves(env, n, SafetyOptions{}) >> (r % kGridActions) & 1u);
           }
           exists = ok && env.collisions(env.next_positions(b)) == 0;
         }
@@ -174,10 +174,10 @@ TEST(Safety, SequentialChoiceStaysInsideTheAllowedMoves) {
   Rng rng(9);
   int shielded = 0;
   while (!env.done()) {
-    std::vector<unsigned> allowed;
-    const auto a = sequential_safe_actions(env, SafetyOptions{}, [&](int n, unsigned ok) {
+    std::vector<ActionSet> allowed;
+    const auto a = sequential_safe_actions(env, SafetyOptions{}, [&](int n, ActionSet ok) {
       std::vector<int> c;
-      for (int k = 0; k < kActions; ++k)
+      for (int k = 0; k < kGridActions; ++k)
         if (ok >> k & 1u) c.push_back(k);
       EXPECT_FALSE(c.empty());
       shielded += ok != allowed_moves(env, n, SafetyOptions{});
@@ -191,7 +191,7 @@ TEST(Safety, SequentialChoiceStaysInsideTheAllowedMoves) {
   }
   // Without the mask and the shield every action is allowed.
   env.reset();
-  for (int n = 0; n < env.uavs(); ++n) EXPECT_EQ(allowed_moves(env, n, SafetyOptions{false, false}), kAllActions);
+  for (int n = 0; n < env.uavs(); ++n) EXPECT_EQ(allowed_moves(env, n, SafetyOptions{false, false}), all_actions(env));
 }
 
 TEST(Env, SetObservationIgnoresTheOrderOfUsersAndUavs) {
@@ -224,7 +224,7 @@ TEST(Env, SetObservationIgnoresTheOrderOfUsersAndUavs) {
       }
     }
     std::vector<int> act(3);
-    for (auto& x : act) x = static_cast<int>(rng.below(kActions));
+    for (auto& x : act) x = static_cast<int>(rng.below(kGridActions));
     std::vector<int> act_c(3);
     for (int n = 0; n < 3; ++n) act_c[static_cast<std::size_t>(n)] = act[static_cast<std::size_t>(perm[static_cast<std::size_t>(n)])];
     a.step(act), b.step(act), c.step(act_c);
@@ -267,7 +267,7 @@ TEST(Safety, ASlackMarginLetsTheShieldAvoidHeadOnTraps) {
         env.reset();
         int collided = 0;
         while (!env.done()) {
-          std::vector<std::array<float, kActions>> scores(static_cast<std::size_t>(uavs));
+          std::vector<std::vector<float>> scores(static_cast<std::size_t>(uavs), std::vector<float>(kGridActions));
           for (auto& s : scores)
             for (auto& x : s) x = static_cast<float>(rng.normal());
           const SafetyOptions safety{true, true, margin};
@@ -305,7 +305,7 @@ TEST(Safety, ASlackMarginAvoidsHeadOnMeetings) {
       Rng rng(episode);
       env.reset();
       while (!env.done()) {
-        std::vector<std::array<float, kActions>> scores(2);
+        std::vector<std::vector<float>> scores(2, std::vector<float>(kGridActions));
         for (auto& s : scores)
           for (auto& x : s) x = static_cast<float>(rng.normal());
         const auto a = shielded_argmax(env, SafetyOptions{true, true, margin}, scores);

@@ -27,12 +27,12 @@ std::shared_ptr<RateOracle> oracle_of(const Config& cfg, std::uint64_t users_see
 bool collision_free_move_exists(const UavEnv& env) {
   const int n = env.uavs();
   int total = 1;
-  for (int i = 0; i < n; ++i) total *= kActions;
+  for (int i = 0; i < n; ++i) total *= kGridActions;
   for (int j = 0; j < total; ++j) {
     std::vector<int> a(static_cast<std::size_t>(n));
     bool ok = true;
-    for (int i = 0, r = j; i < n && ok; ++i, r /= kActions) {
-      a[static_cast<std::size_t>(i)] = r % kActions;
+    for (int i = 0, r = j; i < n && ok; ++i, r /= kGridActions) {
+      a[static_cast<std::size_t>(i)] = r % kGridActions;
       ok = env.feasible(i, a[static_cast<std::size_t>(i)]);
     }
     if (ok && env.collisions(env.next_positions(a)) == 0) return true;

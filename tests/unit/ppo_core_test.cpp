@@ -73,12 +73,12 @@ Minibatch random_minibatch(int rows, int obs_width, int critic_width, std::uint6
   for (int i = 0; i < rows * obs_width; ++i) b.observations.push_back(2 * u(g));
   for (int i = 0; i < rows * critic_width; ++i) b.critic_inputs.push_back(2 * u(g));
   for (int i = 0; i < rows; ++i) {
-    unsigned allowed = 1u << kStay;
-    for (int k = 0; k < kActions; ++k)
+    ActionSet allowed = action_bit(kStay);
+    for (int k = 0; k < kGridActions; ++k)
       if (u(g) > -0.3f) allowed |= 1u << k;
-    for (int k = 0; k < kActions; ++k) b.allowed.push_back(allowed >> k & 1u ? 1.0f : 0.0f);
+    for (int k = 0; k < kGridActions; ++k) b.allowed.push_back(allowed >> k & 1u ? 1.0f : 0.0f);
     int a;
-    do a = static_cast<int>(g() % kActions);
+    do a = static_cast<int>(g() % kGridActions);
     while (!(allowed >> a & 1u));
     b.actions.push_back(a);
     b.logprobs.push_back(std::log(0.2f) + 0.6f * u(g));  // ratios from about 0.5 to 2
@@ -98,7 +98,7 @@ torch::Tensor torch_loss(const Minibatch& b, const PpoSettings& s, const torch::
     return torch::from_blob(const_cast<float*>(x.data()), shape).to(type);
   };
   const auto active = t(b.active, {R});
-  const auto logp_all = torch::log_softmax(masked_logits(logits, t(b.allowed, {R, kActions})), 1);
+  const auto logp_all = torch::log_softmax(masked_logits(logits, t(b.allowed, {R, kGridActions})), 1);
   const auto actions = torch::tensor(b.actions, torch::kInt64);
   const auto logp = logp_all.gather(1, actions.unsqueeze(1)).squeeze(1);
   const auto entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
@@ -167,13 +167,13 @@ TEST(PpoCore, LossGradientMatchesAutograd) {
   for (std::uint64_t seed : {1, 2, 3}) {
     const auto b = random_minibatch(400, 1, 1, seed);
     torch::manual_seed(seed);
-    const auto logits = (torch::randn({b.rows, kActions}) * 2).to(torch::kDouble).requires_grad_(true);
+    const auto logits = (torch::randn({b.rows, kGridActions}) * 2).to(torch::kDouble).requires_grad_(true);
     const auto values = torch::randn({b.rows, 1}).to(torch::kDouble).requires_grad_(true);
     torch_loss(b, s, logits, values, torch::kDouble).backward();
     const auto l32 = as_vector(logits), v32 = as_vector(values);
     std::vector<float> dl(l32.size(), 0.0f), dv(v32.size(), 0.0f);
-    const auto u = ppo_loss(b, s, l32.data(), kActions, v32.data(), 1, dl.data(), dv.data());
-    const auto dl_t = torch::from_blob(dl.data(), {b.rows, kActions}), dv_t = torch::from_blob(dv.data(), {b.rows, 1});
+    const auto u = ppo_loss(b, s, l32.data(), kGridActions, v32.data(), 1, dl.data(), dv.data());
+    const auto dl_t = torch::from_blob(dl.data(), {b.rows, kGridActions}), dv_t = torch::from_blob(dv.data(), {b.rows, 1});
     const double gl = logits.grad().abs().max().item<double>(), gv = values.grad().abs().max().item<double>();
     // ppo_loss works in float64 from the float32 inputs and rounds its output to float32.
     EXPECT_LE(max_error(dl_t, logits.grad()), 1e-6 * gl + 1e-9) << "seed " << seed;
@@ -193,7 +193,7 @@ TEST(PpoCore, BackendsTakeTheSameSteps) {
   const auto b = random_minibatch(512, 11, 37, 5);
   auto fast = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 9);
   auto ref = make_ppo_networks("torch", 11, 37, 64, 3e-4, torch::kCPU, 9);
-  std::vector<float> lf(static_cast<std::size_t>(b.rows) * kActions), lr(lf.size());
+  std::vector<float> lf(static_cast<std::size_t>(b.rows) * kGridActions), lr(lf.size());
   fast->logits(b.observations.data(), b.rows, lf.data());
   ref->logits(b.observations.data(), b.rows, lr.data());
   for (std::size_t i = 0; i < lf.size(); ++i) ASSERT_NEAR(lf[i], lr[i], 1e-5) << "same initial weights";
@@ -224,7 +224,7 @@ TEST(PpoCore, FastBackendIsTheSameOnAnyThreadCount) {
     EXPECT_EQ(u1.value_loss, u2.value_loss) << "step " << step;
     EXPECT_EQ(u1.grad_norm, u2.grad_norm) << "step " << step;
   }
-  std::vector<float> l1(static_cast<std::size_t>(b.rows) * kActions), l2(l1.size());
+  std::vector<float> l1(static_cast<std::size_t>(b.rows) * kGridActions), l2(l1.size());
   one->logits(b.observations.data(), b.rows, l1.data());
   two->logits(b.observations.data(), b.rows, l2.data());
   EXPECT_EQ(l1, l2);
@@ -269,8 +269,8 @@ TEST(PpoCore, CollectFillsEveryCellOfTheRollout) {
         const auto i = r.at(t, e, n);
         const auto a = r.actions[i];
         ASSERT_GE(a, 0);
-        ASSERT_LT(a, kActions);
-        EXPECT_EQ(r.allowed[i * kActions + static_cast<std::size_t>(a)], 1.0f) << "t " << t << " e " << e << " n " << n;
+        ASSERT_LT(a, kGridActions);
+        EXPECT_EQ(r.allowed[i * kGridActions + static_cast<std::size_t>(a)], 1.0f) << "t " << t << " e " << e << " n " << n;
         if (r.active[i] == 0) {
           EXPECT_EQ(a, kStay) << "an arrived UAV stays";
           EXPECT_EQ(r.logprobs[i], 0.0f);
@@ -345,13 +345,13 @@ TEST(PpoCore, UpdateRaisesTheProbabilityOfAdvantageousActions) {
     std::fill(r.allowed.begin(), r.allowed.end(), 1.0f);
     std::fill(r.active.begin(), r.active.end(), 1.0f);
     auto nets = make_ppo_networks(backend, 6, 6, 32, 1e-3, torch::kCPU, 3);
-    std::vector<float> before(r.samples() * kActions);
+    std::vector<float> before(r.samples() * kGridActions);
     nets->logits(r.observations.data(), static_cast<int>(r.samples()), before.data());
     for (std::size_t i = 0; i < r.samples(); ++i) {
-      r.actions[i] = static_cast<std::int64_t>(g() % kActions);
-      const float* z = before.data() + i * kActions;
+      r.actions[i] = static_cast<std::int64_t>(g() % kGridActions);
+      const float* z = before.data() + i * kGridActions;
       double sum = 0;
-      for (int k = 0; k < kActions; ++k) sum += std::exp(z[k]);
+      for (int k = 0; k < kGridActions; ++k) sum += std::exp(z[k]);
       r.logprobs[i] = static_cast<float>(z[r.actions[i]] - std::log(sum));
       r.advantages[i] = r.actions[i] == kRight ? 1.0f : -0.25f;
       r.values[i] = 0;
@@ -372,8 +372,8 @@ TEST(PpoCore, UpdateRaisesTheProbabilityOfAdvantageousActions) {
       double s = 0;
       for (std::size_t i = 0; i < r.samples(); ++i) {
         double sum = 0;
-        for (int k = 0; k < kActions; ++k) sum += std::exp(z[i * kActions + static_cast<std::size_t>(k)]);
-        s += std::exp(z[i * kActions + kRight]) / sum;
+        for (int k = 0; k < kGridActions; ++k) sum += std::exp(z[i * kGridActions + static_cast<std::size_t>(k)]);
+        s += std::exp(z[i * kGridActions + kRight]) / sum;
       }
       return s / static_cast<double>(r.samples());
     };

@@ -61,7 +61,7 @@ TEST(Spec, EveryWriterFillsExactlyItsRow) {
         EXPECT_EQ(s.state.size, std::string(state) == "paper" ? 4 * N + 2 * 15 : 3 * kStateGrid * kStateGrid + 2) << what;
         EXPECT_EQ(s.agent_state.size, s.state.size + s.agent_context.size + s.paper_obs.size) << what;
         EXPECT_EQ(s.obs.size, std::string(encoder) == "set" ? s.set_obs.size : 11) << what;
-        EXPECT_EQ(s.action.count(), kActions);
+        EXPECT_EQ(s.action.count(), kGridActions);
         EXPECT_EQ(env.state_size(), s.state.size);
         Rng rng(static_cast<std::uint64_t>(N));
         for (int t = 0; t < 3 && !env.done(); ++t) {
@@ -76,7 +76,7 @@ TEST(Spec, EveryWriterFillsExactlyItsRow) {
             EXPECT_EQ(env.agent_state(n).size(), static_cast<std::size_t>(s.agent_state.size));
           }
           std::vector<int> a(static_cast<std::size_t>(N));
-          for (auto& x : a) x = static_cast<int>(rng.below(kActions));
+          for (auto& x : a) x = static_cast<int>(rng.below(kGridActions));
           env.step(a);
         }
       }
@@ -96,6 +96,6 @@ TEST(Spec, FieldsAreContiguousAndNamedOnce) {
   }
   EXPECT_EQ(s.agent_state.field("obs.previous_action").offset, s.state.size + s.agent_context.size + 6);
   EXPECT_THROW(s.obs.field("nope"), InputError);
-  EXPECT_EQ(s.action_mask.size, kActions);
-  for (int a = 0; a < kActions; ++a) EXPECT_EQ(s.action.names[static_cast<std::size_t>(a)], action_name(a));
+  EXPECT_EQ(s.action_mask.size, kGridActions);
+  for (int a = 0; a < kGridActions; ++a) EXPECT_EQ(s.action.names[static_cast<std::size_t>(a)], grid_actions().name(a));
 }

@@ -60,6 +60,7 @@ struct ChannelConfig {                     // [channel]
   double d0_m = 1.0;                       // reference distance d_0
   double coverage_radius_m = 150.0;        // R_c, on the 3-D UAV-user distance
   std::string spectrum = "orthogonal";     // "orthogonal" (the paper) | "orthogonal-split" | "shared"
+  double bandwidth_hz = 1e6;               // B: turns R (bit/s/Hz) into bits for bits per joule (noise stays noise_dbm)
   // The air-to-ground channel (channel/channel_model.hpp; the models in channel/path_loss.hpp).
   std::string pathloss = "free-space";     // "free-space" (the paper) | "3gpp-uma-av" | "3gpp-umi-av" | "3gpp-rma-av" | "al-hourani"
   std::string environment = "urban";       // al-hourani: "suburban" | "urban" | "dense-urban" | "highrise-urban"
@@ -105,6 +106,27 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   int t_max = 24;                   // mission horizon in slots
   std::string layout = "given";     // given (starts, destinations above) | generated (scenario.uavs UAVs from layout_seed)
   std::uint64_t layout_seed = 1;    // seed of a generated layout
+  // Mobility (skyloop/env/mobility.hpp; beyond the paper but the grid model, which is the paper's).
+  std::string mobility = "grid";    // grid (the paper's five moves of D_fly) | headings (8 headings x speeds_mps)
+  std::vector<double> speeds_mps{0.0, 10.0, 20.0};  // headings: axis speeds (0 = hover); speed x slot_s a multiple of D_fly
+  double slot_s = 2.0;              // slot duration delta_t (s); the grid model flies V = D_fly / delta_t
+};
+
+struct EnergyConfig {               // [energy] propulsion (skyloop/env/energy.hpp; beyond the paper)
+  // Rotary-wing power P(V) of Zeng, Xu and Zhang, IEEE TWC 2019, eq. (12), Table I values.
+  std::string model = "rotary-wing";  // rotary-wing | none (no propulsion energy)
+  double p0_w = 79.86;              // blade profile power in hover P0 (W)
+  double pi_w = 88.63;              // induced power in hover Pi (W)
+  double u_tip_mps = 120.0;         // rotor blade tip speed U_tip (m/s)
+  double v0_mps = 4.03;             // mean rotor induced velocity in hover v0 (m/s)
+  double d0 = 0.6;                  // fuselage drag ratio d0
+  double rho_kgm3 = 1.225;          // air density rho (kg/m^3)
+  double solidity = 0.05;           // rotor solidity s
+  double rotor_area_m2 = 0.503;     // rotor disc area A (m^2)
+  std::string acceleration = "none";  // none | kinetic: + max(0, m (V[t]^2 - V[t-1]^2) / 2) per slot
+  double mass_kg = 2.04;            // aircraft mass m (Table I: weight W = 20 N)
+  double budget_j = 0.0;            // energy budget per UAV over a mission (J; 0 = none)
+  double weight = 0.0;              // env.objective = weighted: w in (bit/s/Hz) per W of fleet power
 };
 
 struct EnvConfig {                  // [env] the trajectory environment (Sections III-A, V-B)
@@ -123,6 +145,7 @@ struct EnvConfig {                  // [env] the trajectory environment (Section
   std::string users_file;           // TOML with users = [[x, y], ...]; empty = uniform from the seed
   int users_min = 0;                // a sampled layout's K is uniform in [users_min, users_max] (0 = scenario.users)
   int users_max = 0;
+  std::string objective = "sum-rate";  // sum-rate (P2.2) | energy-efficiency (kbit/J) | weighted (R-bar - w P-bar)
   std::string state = "paper";      // global state of the critics / mixers: paper (4N + 2K reals) | compact (independent of N and K)
 };
 
@@ -189,6 +212,7 @@ struct Config {
   WmmseConfig wmmse;
   GaConfig ga;
   TrajectoryConfig trajectory;
+  EnergyConfig energy;
   NnConfig nn;
   EnvConfig env;
   MarlConfig marl;
@@ -198,14 +222,14 @@ std::string to_string(PowerScaling s);
 
 // ---- the field table -------------------------------------------------------------------------
 
-using FieldValue = std::variant<bool, std::int64_t, double, std::string, std::vector<Point2>>;
+using FieldValue = std::variant<bool, std::int64_t, double, std::string, std::vector<Point2>, std::vector<double>>;
 
 struct Field {
-  enum class Type { Boolean, Integer, Real, Text, Points };
+  enum class Type { Boolean, Integer, Real, Text, Points, Reals };
   std::string key;   // "section.name"
   Type type;
   std::string help;  // one line: meaning and unit
-  double lo = 0, hi = 0;             // inclusive range for Integer/Real
+  double lo = 0, hi = 0;             // inclusive range for Integer/Real and each entry of Reals
   std::vector<std::string> choices;  // allowed values for Text
   std::function<FieldValue(const Config&)> get;
   std::function<void(Config&, const FieldValue&)> set;  // assumes a checked value
@@ -222,6 +246,14 @@ const Field* find_field(const std::string& key);
 /// Checks `value` against the field's type and range, converts it (an integer is accepted for a
 /// real) and stores it. Throws InputError: "<key> = <value> is out of range: allowed [lo, hi]".
 void set_field(Config& cfg, const Field& field, const FieldValue& value);
+
+/// Most actions a mobility model may have (action masks are 64-bit sets).
+constexpr int kMaxActions = 64;
+/// Lattice steps per slot at axis speed v (m/s), or -1 if v slot_s is not a whole multiple of pitch.
+long lattice_steps(double speed, double slot_s, double pitch);
+/// The mobility settings (trajectory.mobility, speeds_mps, slot_s against D_fly and the power
+/// model's range); throws InputError naming the field, the value and what is allowed.
+void validate_mobility(const Config& cfg);
 
 /// Cross-field rules (starts and destinations in the area, same count, R_c >= H, ...).
 /// Throws InputError naming the fields.

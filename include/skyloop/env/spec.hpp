@@ -51,17 +51,18 @@ struct ArraySpec {
   float high() const;
 };
 
-/// The paper's grid moves (the compile-time count the C++ planners and learners size arrays with;
-/// everything else reads grid_actions()).
+/// The paper's grid moves (the grid mobility model's actions; every other reader takes the action
+/// space of the environment's mobility model, skyloop/env/mobility.hpp).
 enum Action : int { kUp = 0, kDown = 1, kLeft = 2, kRight = 3, kStay = 4 };
-constexpr int kActions = 5;
-/// "UP", "DOWN", "LEFT", "RIGHT", "STAY"; "?" outside 0..kActions-1.
-const char* action_name(int a);
+constexpr int kGridActions = 5;
 
 /// The discrete action space: `names.size()` actions, index = action.
 struct ActionSpec {
   std::vector<std::string> names;
   int count() const { return static_cast<int>(names.size()); }
+  /// names[a]; "?" outside 0..count()-1.
+  const char* name(int a) const { return a >= 0 && a < count() ? names[static_cast<std::size_t>(a)].c_str() : "?"; }
+  bool operator==(const ActionSpec& o) const { return names == o.names; }
 };
 
 
@@ -84,8 +85,9 @@ constexpr int kNearGrid = 5;    // set observation: UAVs one move away, spacing 
 
 /// The action space of the paper's grid mobility: UP, DOWN, LEFT, RIGHT, STAY.
 const ActionSpec& grid_actions();
-/// The paper's 11-real observation layout (bounds for any scenario).
-const ArraySpec& paper_observation_spec();
+/// The paper's observation layout (bounds for any scenario): 6 reals and the one-hot previous
+/// action (11 reals under the grid model).
+ArraySpec paper_observation_spec(const ActionSpec& actions = grid_actions());
 /// What an environment's spec depends on.
 struct SpecParams {
   int agents = 0, users = 0;
@@ -93,9 +95,10 @@ struct SpecParams {
   int t_max = 0;
   StateKind state = StateKind::Paper;
   ObservationKind observation = ObservationKind::Paper;
+  ActionSpec action = grid_actions();  // the mobility model's
   bool operator==(const SpecParams& o) const {
     return agents == o.agents && users == o.users && area_x == o.area_x && area_y == o.area_y && d_fly == o.d_fly &&
-           t_max == o.t_max && state == o.state && observation == o.observation;
+           t_max == o.t_max && state == o.state && observation == o.observation && action == o.action;
   }
 };
 SpecParams spec_params(const Config& cfg, int agents, int users);

@@ -1,7 +1,9 @@
 #pragma once
 // The outer loop's world (Sections III-A and V-B): N UAVs fly from their starts to their
-// destinations over fixed ground users, one move of D_fly per slot, and R[t] comes from a
-// beamformer behind a RateOracle.
+// destinations over fixed ground users, one move per slot of the mobility model
+// (skyloop/env/mobility.hpp; the paper's: D_fly along x or y, or stay), and R[t] comes from a
+// beamformer behind a RateOracle. Every slot each UAV spends propulsion energy at its ground speed
+// (skyloop/env/energy.hpp); arrived UAVs hover until the mission ends.
 //
 // Time: slot t = 1 is the start (positions = starts, R[1] computed at reset); step() applies the
 // joint action of slot t and moves to slot t + 1. The episode ends when every UAV has arrived
@@ -20,13 +22,24 @@
 //    T_min = ceil(||l_D - l_A|| / D_fly) (Euclidean, as printed).
 //    Under env.reward = "objective" (beyond the paper): R-bar[t] - R-bar[t-1] - w_bud N_bud
 //    - w_col N_col, so that an episode's rewards sum to its P2.2 objective less R[1];
-//  - evaluations report the P2.2 objective (1/T) sum_{t=1}^T R[t], not the shaped reward.
+//    Under env.objective other than sum-rate the objective reward is J[t+1] - J[t] (less the
+//    same penalties) with J the mission objective so far (below; J[1] = 0 for energy-efficiency and energy);
+//  - evaluations report the objective J, not the shaped reward. J by env.objective (E = propulsion
+//    energy of every UAV over slots 1..T-1, slot t's move lasting delta_t; B = channel.bandwidth_hz):
+//      sum-rate (P2.2):   J = (1/T) sum_{t=1}^T R[t]
+//      energy-efficiency: J = B delta_t sum_{t=1}^T R[t] / E / 1000   (kbit/J)
+//      weighted:          J = (1/T) sum_{t=1}^T (R[t] - w P_fleet[t]), P_fleet[t] = E[t] / delta_t, P_fleet[T] = 0
+//      energy:            J = -E / 1000 (kJ; the rate term off: the least-energy mission)
+//  - energy budget (energy.budget_j > 0): a UAV whose energy passes it fails the mission (success
+//    needs every UAV home within T_max and within its budget); moves are not masked by it.
 #include <cstdint>
 #include <functional>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "skyloop/env/energy.hpp"
+#include "skyloop/env/mobility.hpp"
 #include "skyloop/env/rate_oracle.hpp"
 #include "skyloop/env/spec.hpp"
 
@@ -44,7 +57,15 @@ struct StepInfo {
   double objective = 0;
   int T = 0, home = 0, episode_collisions = 0, episode_boundary = 0;
   double episode_reward = 0;
+  // Propulsion (skyloop/env/energy.hpp): this slot's energy over the fleet, the episode's so far,
+  // its sum rate objective (P2.2, whatever env.objective is) and the UAVs past energy.budget_j.
+  double energy_j = 0, episode_energy_j = 0, sum_rate_objective = 0;
+  int over_budget = 0;
 };
+
+/// env.objective
+enum class Objective { SumRate, EnergyEfficiency, Weighted, Energy };
+Objective parse_objective(const std::string& s);
 
 /// Users of an environment: from env.users_file if set, else K uniform users from `seed`.
 Positions make_users(const Config& cfg, int users, std::uint64_t seed);
@@ -68,6 +89,12 @@ class UavEnv {
   const Positions& starts() const { return start_; }
   const Positions& destinations() const { return dest_; }
   bool arrived(int n) const { return arrived_[static_cast<std::size_t>(n)]; }
+  /// The mobility model: the action space (actions().count()), moves, speeds.
+  const MobilityModel& mobility() const { return *mobility_; }
+  int actions() const { return mobility_->count(); }
+  int hover() const { return mobility_->hover(); }
+  const PropulsionModel& propulsion() const { return propulsion_; }
+  Objective objective_kind() const { return objective_kind_; }
   /// Active-agent mask m_n (0 once arrived).
   int mask(int n) const { return arrived(n) ? 0 : 1; }
   RateOracle& oracle() { return *oracle_; }
@@ -78,10 +105,11 @@ class UavEnv {
 
   /// Position after `a` from (x, y), and whether it stays in the area.
   bool move(double x, double y, int a, double& nx, double& ny) const;
-  /// Minimum number of moves from (x, y) to UAV n's destination on the D_fly grid (Manhattan).
+  /// Fewest slots from (x, y) to UAV n's destination under the mobility model (grid: Manhattan on
+  /// the D_fly grid; headings: breadth-first over UAV n's lattice, (x, y) on it).
   int min_moves(int n, double x, double y) const;
   /// True if `a` keeps UAV n in the area and its destination reachable in the moves left after
-  /// it (T_max - (t + 1)). An arrived UAV may only STAY.
+  /// it (T_max - (t + 1)). An arrived UAV may only hover (STAY).
   bool feasible(int n, int a) const;
   /// Positions after a joint action (boundary moves cancelled), without stepping.
   Positions next_positions(const std::vector<int>& actions) const;
@@ -94,10 +122,11 @@ class UavEnv {
   /// The agents' observation of spec().obs (paper or set, by marl.encoder) into out[0..obs.size-1].
   void write_obs(int n, float* out) const;
   /// o_n[t], the paper's 11 reals (spec().paper_obs): own position / area, mean displacement to
-  /// the users / area, displacement to the destination / area, one-hot previous action.
+  /// the users / area, displacement to the destination / area, one-hot previous action (as wide
+  /// as the action space: 5 under the grid model).
   void write_observation(int n, float* out) const;
   std::vector<float> observation(int n) const;
-  static int observation_size() { return paper_observation_spec().size; }
+  int observation_size() const { return spec_->paper_obs.size; }
   /// s[t] (spec().state) under env.state = "paper": all UAV positions, all user positions, all
   /// destinations, each / area (4N + 2K reals). Under "compact" (any N and K, 3 G^2 + 2 reals,
   /// G = kStateGrid): the share of users, of UAVs and of not-yet-arrived UAVs' destinations in
@@ -135,8 +164,28 @@ class UavEnv {
 
   // ---- episode record -----------------------------------------------------------------------
   const std::vector<double>& rates() const { return rates_; }  // R[1..t]
-  /// (1/T) sum R[t] over the episode so far (T = current slot).
+  /// J of env.objective over the episode so far (T = current slot); sum-rate: (1/T) sum R[t].
   double objective() const;
+  /// (1/T) sum R[t] (P2.2), whatever env.objective is.
+  double sum_rate_objective() const;
+  /// Propulsion energy (J) of UAV n and of the fleet so far; speed (m/s) and power (W) of UAV n
+  /// in the last slot (0 and hover power before the first step).
+  double energy_j(int n) const { return energy_[static_cast<std::size_t>(n)]; }
+  double energy_j() const { return energy_total_; }
+  double last_speed(int n) const { return speed_[static_cast<std::size_t>(n)]; }
+  double last_power(int n) const { return power_[static_cast<std::size_t>(n)]; }
+  /// Bits delivered so far per joule spent (bit/J): B delta_t sum R[t] / E; 0 before any energy.
+  double bits_per_joule() const;
+  /// UAVs whose energy passed energy.budget_j (0 without a budget).
+  int over_budget() const;
+  /// J of env.objective for a mission of T slots with sum_{t<=T} R[t] = rate_sum and fleet energy
+  /// energy_j over slots 1..T-1: the one formula the environment, the DP and the reports use.
+  double objective_of(double rate_sum, int T, double energy_j) const;
+  /// Fleet energy (J) of a joint action from the current slot (arrived UAVs and cancelled moves hover).
+  double step_energy(const std::vector<int>& actions) const;
+  double budget_j() const { return budget_j_; }
+  double energy_weight() const { return w_energy_; }
+  double bandwidth_hz() const { return bandwidth_hz_; }
   int total_arrivals() const { return tot_arr_; }
   int total_boundary() const { return tot_bud_; }
   int total_collisions() const { return tot_col_; }
@@ -150,8 +199,24 @@ class UavEnv {
   /// Phi_n at slot t for UAV n at (x, y); updates T_min[t-1].
   int feasibility_indicator(int n, double x, double y, int t);
 
+  /// J after the rates and energy so far (the objective reward's J[t]).
+  double objective_at() const;
+
   int n_, t_max_;
   double d_fly_, d_min_, area_x_, area_y_;
+  std::shared_ptr<const MobilityModel> mobility_;
+  PropulsionModel propulsion_;
+  Objective objective_kind_ = Objective::SumRate;
+  double bandwidth_hz_ = 1e6, w_energy_ = 0, budget_j_ = 0;
+  // Headings: UAV n's lattice (origin, size) and the fewest slots from each cell to its destination.
+  struct Lattice {
+    double ox = 0, oy = 0;
+    int nx = 0, ny = 0;
+    std::vector<int> slots;
+  };
+  std::vector<Lattice> lattice_;
+  std::vector<double> energy_, speed_, power_;
+  double energy_total_ = 0;
   double w_rate_, w_arr_, w_bud_, w_col_, w_fea_;
   bool compact_ = false;  // env.state = "compact"
   bool objective_reward_ = false;  // env.reward = "objective"

@@ -22,6 +22,8 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
 
 /// CSV texts (seed and planner in every row).
 std::string trajectory_csv(const std::vector<EpisodeRecord>& r, std::uint64_t seed);
+/// seed,planner,uav,energy_j: each UAV's propulsion energy over the mission.
+std::string energy_csv(const std::vector<EpisodeRecord>& r, std::uint64_t seed);
 std::string rates_csv(const std::vector<EpisodeRecord>& r, std::uint64_t seed);
 std::string summary_csv(const std::vector<EpisodeRecord>& r, std::uint64_t seed, const std::vector<double>& seconds);
 std::string format_plan_summary(const std::vector<EpisodeRecord>& r, const std::vector<double>& seconds);

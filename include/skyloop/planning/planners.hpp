@@ -36,13 +36,14 @@ class RandomPlanner final : public Planner {
   Rng rng_;
 };
 
-/// Exhaustive search over the 5^N joint actions for the highest next-slot sum rate, among joint
-/// actions that keep every destination reachable, stay in the area and avoid collisions (if none
-/// avoids collisions, the fewest colliding UAVs first). Ties go to the lowest joint index.
-/// Exponential in N: refused (InputError) above kMaxUavs, where SequentialGreedyPlanner serves.
+/// Exhaustive search over the A^N joint actions (A = the mobility model's actions) for the highest
+/// next-slot sum rate, among joint actions that keep every destination reachable, stay in the area
+/// and avoid collisions (if none avoids collisions, the fewest colliding UAVs first). Ties go to the
+/// lowest joint index. Exponential in N: refused (InputError) above kMaxJointActions, where
+/// SequentialGreedyPlanner serves.
 class GreedyPlanner final : public Planner {
  public:
-  static constexpr int kMaxUavs = 8;  // 5^8 = 390,625 joint actions per slot
+  static constexpr long kMaxJointActions = 390625;  // 5^8: the grid model up to 8 UAVs, headings (17) up to 4
   std::string name() const override { return "greedy"; }
   void reset(UavEnv& env) override;
   std::vector<int> act(UavEnv& env) override;
@@ -66,7 +67,9 @@ class SequentialGreedyPlanner final : public Planner {
 };
 
 struct OptimalPlan {
-  double objective = 0;                     // (1/T) sum_{t=1}^T R[t]
+  double objective = 0;                     // J of env.objective (sum-rate: (1/T) sum_{t=1}^T R[t])
+  double sum_rate_objective = 0;            // (1/T) sum_{t=1}^T R[t]
+  double energy_j = 0;                      // the plan's propulsion energy (J)
   int T = 0;                                // slot of the last arrival
   std::vector<std::vector<int>> actions;    // joint action of slots 1..T-1
   int iterations = 0;                       // Dinkelbach iterations
@@ -80,8 +83,12 @@ struct OptimalPlan {
 /// joint trajectories on the D_fly grid with every UAV at its destination by T <= T_max, arrival
 /// absorbing, no collision and no boundary exit. The ratio objective is solved by Dinkelbach's
 /// method: each iteration maximises sum_t (R[t] - lambda) by backward dynamic programming over
-/// the joint grid state (value tables per slot, the max over the 5^N joint actions taken one UAV
+/// the joint grid state (value tables per slot, the max over the A^N joint actions taken one UAV
 /// at a time), then lambda <- the objective of the maximiser, until lambda stops increasing.
+/// Any mobility model's moves (the lattice steps of its actions) and any env.objective: the
+/// energy of each move is the transition cost (UavEnv's J: weighted = sum_t (R[t] - lambda) - w
+/// sum E / delta_t; energy-efficiency = B delta_t sum R / 1000 - lambda E; energy = -E / 1000, one
+/// pass). Refused: energy.acceleration = kinetic (the state holds no speed), energy.budget_j > 0.
 /// Throws InputError if starts and destinations are not on one D_fly lattice, the joint grid is
 /// too large (G^N > 5e6), or no feasible joint trajectory exists.
 OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress = nullptr);
@@ -151,17 +158,24 @@ class BestKnownPlanner final : public Planner {
   BestKnownPlan plan_;
 };
 
-/// Best objective by enumerating every feasible joint action sequence (tiny instances only; the
-/// check of solve_optimal). -1 if no sequence brings every UAV home by T_max.
+/// Best objective J (env.objective) by enumerating every feasible joint action sequence (tiny
+/// instances only; the check of solve_optimal). NaN if no sequence brings every UAV home by T_max.
 double brute_force_optimum(UavEnv& env);
 
 struct EpisodeRecord {
   std::string planner;
+  ActionSpec action_names;                  // the mobility model's actions (names of `actions`)
   std::vector<Positions> positions;         // slots 1..T
-  std::vector<std::vector<int>> actions;    // slots 1..T-1 (as executed: arrived UAVs STAY)
+  std::vector<std::vector<int>> actions;    // slots 1..T-1 (as executed: arrived UAVs hover)
+  std::vector<std::vector<double>> speeds;  // [slot 1..T-1][UAV] ground speed flown (m/s)
+  std::vector<std::vector<double>> powers;  // [slot 1..T-1][UAV] propulsion power (W; energy / delta_t)
   std::vector<StepInfo> steps;              // after each action
   std::vector<double> rates;                // R[1..T]
-  double objective = 0;                     // (1/T) sum_{t=1}^T R[t]
+  double objective = 0;                     // J of env.objective (sum-rate: (1/T) sum_{t=1}^T R[t])
+  double sum_rate_objective = 0;            // (1/T) sum_{t=1}^T R[t]
+  double energy_j = 0, bits_per_joule = 0;  // the fleet's propulsion energy, B delta_t sum R / energy
+  std::vector<double> uav_energy_j;         // per UAV
+  int over_budget = 0;                      // UAVs past energy.budget_j
   int T = 0;
   bool success = false;                     // every UAV arrived by T_max
   int arrivals = 0, boundary = 0, collisions = 0;

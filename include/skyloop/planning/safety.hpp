@@ -3,7 +3,7 @@
 // Random and Greedy baselines already fly with, and a collision shield over the joint action.
 //
 //  - reachability mask: UAV n may take action a only if a keeps it in the area and its
-//    destination reachable in the slots left (UavEnv::feasible). An arrived UAV may only STAY.
+//    destination reachable in the slots left (UavEnv::feasible). An arrived UAV may only hover.
 //    Flown from the start, the mask brings every UAV home by T_max: a UAV with no slack left can
 //    only move towards its destination.
 //  - collision shield: the UAVs choose one after another, least slack first (ties by index); a
@@ -18,7 +18,7 @@
 // Training samples through sequential_safe_actions (each UAV's allowed set is its action mask in
 // the PPO / Q-learning update); execution uses shielded_argmax, which searches the joint action
 // depth first so that a collision is never chosen when any joint action of allowed moves avoids one.
-#include <array>
+#include <cstdint>
 #include <functional>
 #include <vector>
 
@@ -32,33 +32,38 @@ struct SafetyOptions {
   int margin = 0;      // slots of slack the mask keeps for the shield (marl.slack_margin)
 };
 
-constexpr unsigned kAllActions = (1u << kActions) - 1;
+/// A set of actions, bit a = action a (the mobility models have at most 64 actions).
+using ActionSet = std::uint64_t;
+constexpr ActionSet action_bit(int a) { return ActionSet{1} << a; }
+/// Every action of the environment's mobility model.
+ActionSet all_actions(const UavEnv& env);
 
 /// Bit a set if UAV n may take action a under the reachability mask: a keeps it in the area and its
 /// destination reachable, with a slack (slots left after the move less the moves still needed)
 /// of at least `margin`, or of all the slack it has if that is less (with no such move, the
 /// margin-0 set). Never empty: if no move keeps the destination reachable (a state the mask itself never
-/// leads to), the moves that stay in the area; an arrived UAV: STAY only.
-unsigned reachable_moves(const UavEnv& env, int n, int margin = 0);
+/// leads to), the moves that stay in the area; an arrived UAV: hover only.
+ActionSet reachable_moves(const UavEnv& env, int n, int margin = 0);
 /// Moves of UAV n allowed before the shield: reachable_moves (with safety.margin) with the mask,
-/// else every action (STAY only once arrived).
-unsigned allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety);
+/// else every action (hover only once arrived).
+ActionSet allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety);
 /// The order in which not-yet-arrived UAVs choose: least slack (moves left minus moves needed)
 /// first, ties by index.
 std::vector<int> shield_order(const UavEnv& env);
 
 /// Joint action chosen one UAV at a time in shield order: choose(n, allowed) returns UAV n's
 /// action given its allowed set (the shield applied against the UAVs placed so far).
-/// `allowed_out[n]`, when given, receives each UAV's allowed set (arrived UAVs: STAY only).
+/// `allowed_out[n]`, when given, receives each UAV's allowed set (arrived UAVs: hover only).
 std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
-                                         const std::function<int(int n, unsigned allowed)>& choose,
-                                         std::vector<unsigned>* allowed_out = nullptr);
+                                         const std::function<int(int n, ActionSet allowed)>& choose,
+                                         std::vector<ActionSet>* allowed_out = nullptr);
 
-/// The deployed joint action of a learned planner from per-UAV action scores (higher is better):
+/// The deployed joint action of a learned planner from per-UAV action scores (scores[n][a], one
+/// per action of the environment's mobility model; higher is better):
 /// each UAV its best allowed move, and with the shield the first joint action, depth first over
 /// the UAVs in shield order and each UAV's allowed moves best first, in which no two UAVs end
 /// within D_min; if none exists (or the search passes its node budget), the sequential choice.
 std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
-                                 const std::vector<std::array<float, kActions>>& scores);
+                                 const std::vector<std::vector<float>>& scores);
 
 }  // namespace skyloop

@@ -1,0 +1,77 @@
+#pragma once
+// Mobility models (beyond the paper's fixed-speed grid; its future work "more realistic UAV
+// mobility models"): what one action does to a UAV in one slot of delta_t = trajectory.slot_s.
+// Every model moves on the D_fly lattice through the UAV's start, so that reachability is exact
+// and the DP stays exact; the action space is the model's ActionSpec, read by the environment,
+// the masks and shield, the planners, the DP, the learners, policy files and Python.
+//
+//   grid (the paper, eq. of Section V-B): UP, DOWN, LEFT, RIGHT, STAY; a move of D_fly along y
+//     or x, or none. Ground speed V = D_fly / delta_t (0 for STAY).
+//   headings: for each positive speed v of trajectory.speeds_mps (in the order given), the 8
+//     headings E, NE, N, NW, W, SW, S, SE ("E@10" = east at 10 m/s); then HOVER. Speed v moves
+//     k = v delta_t / D_fly lattice steps along each axis the heading uses: ground speed v along
+//     the axes and sqrt(2) v on the diagonals (king moves keep the lattice). k must be a whole number.
+//
+// Rules shared by the models (UavEnv):
+//  - boundary: a move that would leave the area is cancelled (the UAV hovers) and counted;
+//  - arrival: a UAV is arrived when it stands on its destination (a lattice point); it then hovers;
+//  - reachability: the fewest slots from a lattice point to the destination moving inside the area
+//    (grid: ceil(|dx| / D_fly) + ceil(|dy| / D_fly); headings: a breadth-first search over the
+//    lattice, exact for any speed set);
+//  - collision: two UAVs closer than D_min at the end of a slot (positions are sampled per slot);
+//  - energy: the UAV's propulsion power at its ground speed (skyloop/env/energy.hpp) times delta_t.
+#include <string>
+#include <vector>
+
+#include "skyloop/core/config.hpp"
+#include "skyloop/env/spec.hpp"
+
+namespace skyloop {
+
+struct Config;
+
+struct MobilityInfo {
+  const char* name;
+  const char* description;
+};
+/// The mobility models (trajectory.mobility), the paper's first.
+extern const MobilityInfo kMobilityModels[2];
+
+/// A move in lattice steps along x and y.
+struct LatticeStep {
+  int dx = 0, dy = 0;
+};
+
+class MobilityModel {
+ public:
+  explicit MobilityModel(const Config& cfg);
+  const std::string& name() const { return name_; }
+  bool is_grid() const { return grid_; }
+  /// The discrete action space: names, index = action.
+  const ActionSpec& actions() const { return actions_; }
+  int count() const { return actions_.count(); }
+  /// The action that stays in place (grid: STAY = 4; headings: HOVER, the last).
+  int hover() const { return hover_; }
+  LatticeStep step(int a) const { return steps_[static_cast<std::size_t>(a)]; }
+  /// Lattice pitch D_fly (m) and slot duration delta_t (s).
+  double pitch() const { return pitch_; }
+  double slot_s() const { return slot_s_; }
+  /// Ground speed of action a (m/s).
+  double speed(int a) const { return speeds_[static_cast<std::size_t>(a)]; }
+  /// The longest move along one axis (m): the paper's T_min = ceil(distance / reach).
+  double reach() const { return reach_; }
+  /// Fewest slots from every cell of an nx x ny lattice to cell `to`, moving inside the lattice
+  /// (breadth-first over the model's moves; -1 where unreachable). Cell = iy * nx + ix.
+  std::vector<int> slots_to(int nx, int ny, int to) const;
+
+ private:
+  std::string name_;
+  bool grid_ = true;
+  ActionSpec actions_;
+  std::vector<LatticeStep> steps_;
+  std::vector<double> speeds_;
+  int hover_ = 0;
+  double pitch_ = 1, slot_s_ = 1, reach_ = 1;
+};
+
+}  // namespace skyloop

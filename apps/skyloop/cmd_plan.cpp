@@ -48,7 +48,7 @@ void add_plan_command(CLI::App& app, Action& action) {
       std::cout << "plan: N = " << cfg.trajectory.starts.size() << " UAVs, K = " << cfg.scenario.users
                 << " users (seed " << opt.seed << "), oracle " << cfg.env.oracle << ", T_max = " << cfg.trajectory.t_max << "\n"
                 << format_plan_summary(recs, seconds);
-      if (!o->out.empty()) std::cout << "wrote " << o->out << "/{trajectory,rates,summary,users}.csv and config.toml\n";
+      if (!o->out.empty()) std::cout << "wrote " << o->out << "/{trajectory,rates,summary,users,energy}.csv and config.toml\n";
       return 0;
     };
   });

@@ -198,8 +198,14 @@ class PyVecEnv {
     auto home = Array<std::int32_t>({M}), T = Array<std::int32_t>({M});
     auto success = py::array_t<bool>({M});
     auto episode_reward = Array<double>({M});
+    auto energy = Array<double>({M}), episode_energy = Array<double>({M}), bits_per_joule = Array<double>({M});
+    auto sum_rate_objective = Array<double>({M});
     for (int i = 0; i < M; ++i) {
       const auto& s = info[static_cast<std::size_t>(i)];
+      energy.mutable_at(i) = s.energy_j;
+      episode_energy.mutable_at(i) = s.episode_energy_j;
+      bits_per_joule.mutable_at(i) = s.bits_per_joule;
+      sum_rate_objective.mutable_at(i) = s.sum_rate_objective;
       reward.mutable_at(i) = static_cast<float>(s.reward);
       sum_rate.mutable_at(i) = s.sum_rate;
       objective.mutable_at(i) = s.objective;
@@ -227,6 +233,10 @@ class PyVecEnv {
     inf["T"] = T;
     inf["success"] = success;
     inf["episode_reward"] = episode_reward;
+    inf["energy_j"] = energy;                  // the fleet's propulsion energy in this step (J)
+    inf["episode_energy_j"] = episode_energy;  // so far in the episode
+    inf["bits_per_joule"] = bits_per_joule;
+    inf["sum_rate_objective"] = sum_rate_objective;  // P2.2's (1/T) sum R[t], whatever env.objective is
     inf["final_obs"] = final_obs;
     inf["final_state"] = final_state;
     d["info"] = inf;
@@ -440,10 +450,23 @@ py::dict episode_dict(const EpisodeRecord& r) {
   auto act = Array<std::int32_t>({std::max(T - 1, 0), N});
   for (std::size_t t = 0; t < r.actions.size(); ++t)
     for (int n = 0; n < N; ++n) act.mutable_at(static_cast<py::ssize_t>(t), n) = r.actions[t][static_cast<std::size_t>(n)];
+  auto speed = Array<double>({std::max(T - 1, 0), N}), power = Array<double>({std::max(T - 1, 0), N});
+  for (std::size_t t = 0; t < r.speeds.size() && t + 1 < static_cast<std::size_t>(T); ++t)
+    for (int n = 0; n < N; ++n)
+      speed.mutable_at(static_cast<py::ssize_t>(t), n) = r.speeds[t][static_cast<std::size_t>(n)],
+      power.mutable_at(static_cast<py::ssize_t>(t), n) = r.powers[t][static_cast<std::size_t>(n)];
   py::dict d;
   d["planner"] = r.planner;
   d["positions"] = pos;
   d["actions"] = act;
+  d["action_names"] = py::tuple(py::cast(r.action_names.names));
+  d["speed_mps"] = speed;   // [T - 1, N]: ground speed flown in each slot
+  d["power_w"] = power;     // [T - 1, N]: propulsion power in each slot
+  d["energy_j"] = Array<double>(static_cast<py::ssize_t>(r.uav_energy_j.size()), r.uav_energy_j.data());  // per UAV
+  d["total_energy_j"] = r.energy_j;
+  d["bits_per_joule"] = r.bits_per_joule;
+  d["sum_rate_objective"] = r.sum_rate_objective;
+  d["over_budget"] = r.over_budget;
   d["rates"] = Array<double>(static_cast<py::ssize_t>(r.rates.size()), r.rates.data());
   d["objective"] = r.objective;
   d["T"] = r.T;
@@ -510,6 +533,7 @@ py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policie
     d["users"] = r.users, d["uavs"] = r.uavs, d["planner"] = r.planner, d["objective"] = r.objective;
     d["reference"] = r.reference, d["reference_objective"] = r.reference_objective, d["fraction"] = r.fraction, d["T"] = r.T, d["home"] = r.home, d["complete"] = r.complete;
     d["collisions"] = r.collisions, d["boundary_events"] = r.boundary, d["seconds"] = r.seconds;
+    d["energy_j"] = r.energy_j, d["bits_per_joule"] = r.bits_per_joule;
     rl.append(d);
   }
   for (const auto& x : summarise_layouts(rows)) {
@@ -519,6 +543,7 @@ py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policie
     d["mean_home"] = x.arrivals, d["mean_objective"] = x.objective, d["reference"] = x.reference;
     d["fraction_mean"] = x.fraction_mean;
     d["fraction_p5"] = x.fraction_p5, d["fraction_worst"] = x.fraction_worst;
+    d["mean_energy_j"] = x.energy_j, d["mean_bits_per_joule"] = x.bits_per_joule;
     sl.append(d);
   }
   py::dict out;

@@ -357,8 +357,9 @@ std::vector<Field> make_fields() {
                    {"paper", "objective"}, [](Config& c) -> std::string& { return c.env.reward; }));
   f.push_back(text("env.objective",
                    "what a mission is scored by: sum-rate = P2.2's (1/T) sum R[t]; energy-efficiency = bits per joule (kbit/J); "
-                   "weighted = R-bar - energy.weight x mean fleet propulsion power (README, objectives)",
-                   {"sum-rate", "energy-efficiency", "weighted"}, [](Config& c) -> std::string& { return c.env.objective; }));
+                   "weighted = R-bar - energy.weight x mean fleet propulsion power; energy = -kJ (the rate term off) "
+                   "(README, objectives)",
+                   {"sum-rate", "energy-efficiency", "weighted", "energy"}, [](Config& c) -> std::string& { return c.env.objective; }));
   f.push_back(real("env.w_fea", "weight of the reachability indicator Phi_n", 0, 1e6, [](Config& c) -> double& { return c.env.w_fea; }));
   {
     Field b{"env.resample_users", Type::Boolean, "draw new users at every reset", 0, 0, {}, {}, {}};

@@ -207,7 +207,7 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
     info.feasibility += feasibility_indicator(n, pos_(n, 0), pos_(n, 1), t_);
   }
   const double before = rate_sum_ / static_cast<double>(t_ - 1);
-  const double j_before = objective_kind_ == Objective::SumRate ? before : objective_at();
+  const double j_before = objective_kind_ == Objective::SumRate ? before : objective_of(rate_sum_, t_ - 1, energy_total_);
   energy_total_ += info.energy_j;
   rates_.push_back(rate);
   rate_sum_ += rate;
@@ -236,6 +236,7 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
   info.episode_reward = tot_reward_;
   info.episode_energy_j = energy_total_;
   info.sum_rate_objective = sum_rate_objective();
+  info.bits_per_joule = bits_per_joule();
 }
 
 int UavEnv::feasibility_indicator(int n, double x, double y, int t) {

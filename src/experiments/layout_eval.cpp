@@ -36,6 +36,8 @@ LayoutRow row_of(const EpisodeRecord& r, const std::string& planner, double seco
   x.boundary = r.boundary;
   x.complete = r.success && r.collisions == 0 && r.boundary == 0;
   x.seconds = seconds;
+  x.energy_j = r.energy_j;
+  x.bits_per_joule = r.bits_per_joule;
   return x;
 }
 
@@ -68,6 +70,8 @@ LayoutRow reference_of(const Config& cfg, UavEnv& env, const std::string& cache_
       r.boundary = static_cast<int>(t.number(0, "boundary"));
       r.complete = t.number(0, "complete") > 0;
       r.seconds = t.number(0, "seconds");
+      r.energy_j = t.number(0, "energy_j");
+      r.bits_per_joule = t.number(0, "bits_per_joule");
       return r;
     }
   }
@@ -77,9 +81,11 @@ LayoutRow reference_of(const Config& cfg, UavEnv& env, const std::string& cache_
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   auto r = row_of(rec, name, s);
   if (!path.empty())
-    write_file_atomic(path, fmt::format("objective,T,arrivals,collisions,boundary,complete,seconds\n{},{},{},{},{},{},{}\n",
+    write_file_atomic(path, fmt::format("objective,T,arrivals,collisions,boundary,complete,seconds,energy_j,bits_per_joule\n"
+                                        "{},{},{},{},{},{},{},{},{}\n",
                                         format_double(r.objective), r.T, r.arrivals, r.collisions, r.boundary,
-                                        r.complete ? 1 : 0, format_double(s)));
+                                        r.complete ? 1 : 0, format_double(s), format_double(r.energy_j),
+                                        format_double(r.bits_per_joule)));
   return r;
 }
 
@@ -217,10 +223,12 @@ std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows)
       s.boundary += r->boundary;
       s.arrivals += r->home;
       s.objective += r->objective;
+      s.energy_j += r->energy_j;
+      s.bits_per_joule += r->bits_per_joule;
       f.push_back(r->fraction);
     }
     const double n = std::max(1, s.layouts);
-    s.complete /= n, s.arrivals /= n, s.objective /= n;
+    s.complete /= n, s.arrivals /= n, s.objective /= n, s.energy_j /= n, s.bits_per_joule /= n;
     for (const double x : f) s.fraction_mean += x / n;
     s.fraction_p5 = percentile(f, 0.05);
     s.fraction_worst = f.empty() ? 0.0 : *std::min_element(f.begin(), f.end());
@@ -230,22 +238,23 @@ std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows)
 
 std::string layout_rows_csv(const std::vector<LayoutRow>& rows, std::uint64_t seed, LayoutSplit split) {
   std::string s = "seed,split,layout,users_seed,users,uavs,planner,objective,reference,reference_objective,fraction,T,home,"
-                  "complete,collisions,boundary_events,seconds\n";
+                  "complete,collisions,boundary_events,seconds,energy_j,bits_per_joule\n";
   for (const auto& r : rows)
-    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), r.layout, r.users_seed, r.users,
-                     r.uavs, r.planner, format_double(r.objective), r.reference, format_double(r.reference_objective),
-                     format_double(r.fraction), r.T,
-                     r.home, r.complete ? 1 : 0, r.collisions, r.boundary, format_double(r.seconds));
+    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), r.layout, r.users_seed,
+                     r.users, r.uavs, r.planner, format_double(r.objective), r.reference, format_double(r.reference_objective),
+                     format_double(r.fraction), r.T, r.home, r.complete ? 1 : 0, r.collisions, r.boundary,
+                     format_double(r.seconds), format_double(r.energy_j), format_double(r.bits_per_joule));
   return s;
 }
 
 std::string layout_summary_csv(const std::vector<LayoutSummary>& sum, std::uint64_t seed, LayoutSplit split) {
   std::string s = "seed,split,planner,layouts,complete_rate,collisions,boundary_events,mean_home,mean_objective,reference,"
-                  "fraction_mean,fraction_p5,fraction_worst\n";
+                  "fraction_mean,fraction_p5,fraction_worst,mean_energy_j,mean_bits_per_joule\n";
   for (const auto& x : sum)
-    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), x.planner, x.layouts,
+    s += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, to_string(split), x.planner, x.layouts,
                      format_double(x.complete), x.collisions, x.boundary, format_double(x.arrivals), format_double(x.objective),
-                     x.reference, format_double(x.fraction_mean), format_double(x.fraction_p5), format_double(x.fraction_worst));
+                     x.reference, format_double(x.fraction_mean), format_double(x.fraction_p5), format_double(x.fraction_worst),
+                     format_double(x.energy_j), format_double(x.bits_per_joule));
   return s;
 }
 
@@ -253,12 +262,13 @@ std::string format_layout_summary(const std::vector<LayoutSummary>& sum) {
   // Fractions are of each layout's reference: the exact optimum, or the best-known planner where
   // the joint DP cannot go.
   const std::string ref = sum.empty() ? std::string("optimal") : sum.back().reference;
-  std::string s = fmt::format("{:<14} {:>8} {:>9} {:>10} {:>9} {:>10} {:>11} {:>9} {:>9}\n", "planner", "layouts", "complete",
-                              "collisions", "boundary", "objective", ref == "optimal" ? "% optimum" : "% " + ref, "p5 %", "worst %");
+  std::string s = fmt::format("{:<14} {:>8} {:>9} {:>10} {:>9} {:>10} {:>11} {:>9} {:>9} {:>10} {:>8}\n", "planner", "layouts",
+                              "complete", "collisions", "boundary", "objective", ref == "optimal" ? "% optimum" : "% " + ref,
+                              "p5 %", "worst %", "energy kJ", "kbit/J");
   for (const auto& x : sum)
-    s += fmt::format("{:<14} {:>8} {:>8.1f}% {:>10} {:>9} {:>10.3f} {:>11.2f} {:>9.2f} {:>9.2f}\n", x.planner, x.layouts,
-                     100 * x.complete, x.collisions, x.boundary, x.objective, 100 * x.fraction_mean, 100 * x.fraction_p5,
-                     100 * x.fraction_worst);
+    s += fmt::format("{:<14} {:>8} {:>8.1f}% {:>10} {:>9} {:>10.3f} {:>11.2f} {:>9.2f} {:>9.2f} {:>10.2f} {:>8.1f}\n", x.planner,
+                     x.layouts, 100 * x.complete, x.collisions, x.boundary, x.objective, 100 * x.fraction_mean,
+                     100 * x.fraction_p5, 100 * x.fraction_worst, x.energy_j / 1e3, x.bits_per_joule / 1e3);
   return s;
 }
 

@@ -132,6 +132,9 @@ void EpisodeStats::add(const StepInfo& s, int uavs) {
   ++episodes;
   reward += s.episode_reward;
   objective += s.objective;
+  sum_rate += s.sum_rate_objective;
+  energy_j += s.episode_energy_j;
+  bits_per_joule += s.bits_per_joule;
   home += static_cast<double>(s.home) / uavs;
   collisions += s.episode_collisions;
   boundary += s.episode_boundary;
@@ -140,17 +143,19 @@ void EpisodeStats::add(const StepInfo& s, int uavs) {
 std::string metrics_header() {
   return "seed,env_steps,episodes,charts/episode_reward,charts/sum_rate,charts/arrival_rate,charts/collisions,"
          "charts/boundary_events,losses/policy,losses/value,losses/entropy,losses/old_approx_kl,losses/approx_kl,"
-         "losses/clipfrac,losses/explained_variance,losses/grad_norm,charts/epsilon,charts/steps_per_s\n";
+         "losses/clipfrac,losses/explained_variance,losses/grad_norm,charts/epsilon,charts/steps_per_s,charts/objective,"
+         "charts/energy_j,charts/bits_per_joule\n";
 }
 
 std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, const LearnerLog& log, double sps) {
   const double n = std::max(1, e.episodes);
   auto f = [&](double x) { return e.episodes ? format_double(x / n) : std::string(""); };
   auto g = [](double x) { return std::isnan(x) ? std::string("") : format_double(x); };
-  return fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, steps, e.episodes, f(e.reward),
-                     f(e.objective), f(e.home), f(e.collisions), f(e.boundary), g(log.policy_loss), g(log.value_loss),
+  // charts/sum_rate: P2.2's (1/T) sum R[t]; charts/objective: env.objective's J (the same under sum-rate).
+  return fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, steps, e.episodes, f(e.reward),
+                     f(e.sum_rate), f(e.home), f(e.collisions), f(e.boundary), g(log.policy_loss), g(log.value_loss),
                      g(log.entropy), g(log.old_approx_kl), g(log.approx_kl), g(log.clipfrac), g(log.explained_variance),
-                     g(log.grad_norm), g(log.epsilon), format_double(sps));
+                     g(log.grad_norm), g(log.epsilon), format_double(sps), f(e.objective), f(e.energy_j), f(e.bits_per_joule));
 }
 
 EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner) {

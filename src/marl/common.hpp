@@ -89,6 +89,7 @@ struct RunningStats {
 struct EpisodeStats {
   int episodes = 0;
   double reward = 0, objective = 0, home = 0, collisions = 0, boundary = 0;
+  double sum_rate = 0, energy_j = 0, bits_per_joule = 0;  // P2.2's objective, propulsion energy, bit/J
   void add(const StepInfo& s, int uavs);
   void clear() { *this = EpisodeStats{}; }
 };

@@ -70,7 +70,10 @@ std::vector<int> GreedyPlanner::act(UavEnv& env) {
     candidates.push_back(std::move(a));
   }
   if (candidates.empty()) return std::vector<int>(static_cast<std::size_t>(n), env.hover());
-  const auto rates = env.oracle().sum_rates(next);
+  auto rates = env.oracle().sum_rates(next);
+  // Under an energy-aware objective the look-ahead is the objective itself, the move's energy included.
+  if (env.objective_kind() != Objective::SumRate)
+    for (std::size_t c = 0; c < candidates.size(); ++c) rates[c] = env.objective_after(rates[c], env.step_energy(candidates[c]));
   std::size_t best = 0;
   for (std::size_t c = 1; c < candidates.size(); ++c)
     if (colliding[c] < colliding[best] || (colliding[c] == colliding[best] && rates[c] > rates[best])) best = c;
@@ -112,7 +115,13 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
     }
     if (options.empty()) continue;  // cannot happen on a feasible mission: STAY keeps it as it was
     const bool any_clear = std::find(clear.begin(), clear.end(), 1) != clear.end();
-    const auto rates = env.oracle().sum_rates(next);
+    auto rates = env.oracle().sum_rates(next);
+    if (env.objective_kind() != Objective::SumRate)  // the objective one slot ahead, the UAVs still to choose hovering
+      for (std::size_t c = 0; c < options.size(); ++c) {
+        std::vector<int> partial = a;
+        partial[static_cast<std::size_t>(i)] = options[c];
+        rates[c] = env.objective_after(rates[c], env.step_energy(partial));
+      }
     std::vector<std::size_t> pref(options.size());
     for (std::size_t c = 0; c < pref.size(); ++c) pref[c] = c;
     std::stable_sort(pref.begin(), pref.end(), [&](std::size_t x, std::size_t y) {

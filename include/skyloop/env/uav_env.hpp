@@ -59,7 +59,7 @@ struct StepInfo {
   double episode_reward = 0;
   // Propulsion (skyloop/env/energy.hpp): this slot's energy over the fleet, the episode's so far,
   // its sum rate objective (P2.2, whatever env.objective is) and the UAVs past energy.budget_j.
-  double energy_j = 0, episode_energy_j = 0, sum_rate_objective = 0;
+  double energy_j = 0, episode_energy_j = 0, sum_rate_objective = 0, bits_per_joule = 0;
   int over_budget = 0;
 };
 
@@ -181,6 +181,9 @@ class UavEnv {
   /// J of env.objective for a mission of T slots with sum_{t<=T} R[t] = rate_sum and fleet energy
   /// energy_j over slots 1..T-1: the one formula the environment, the DP and the reports use.
   double objective_of(double rate_sum, int T, double energy_j) const;
+  /// J one slot from now if that slot's sum rate is `rate` and the move costs `energy_j` (the
+  /// one-step look-ahead the greedy planners rank moves by).
+  double objective_after(double rate, double energy_j) const { return objective_of(rate_sum_ + rate, t_ + 1, energy_total_ + energy_j); }
   /// Fleet energy (J) of a joint action from the current slot (arrived UAVs and cancelled moves hover).
   double step_energy(const std::vector<int>& actions) const;
   double budget_j() const { return budget_j_; }

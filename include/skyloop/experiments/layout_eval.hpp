@@ -39,6 +39,7 @@ struct LayoutRow {
   int T = 0, home = 0, arrivals = 0, collisions = 0, boundary = 0;
   bool complete = false;                // every UAV home by T_max, no collision, no boundary event
   double seconds = 0;
+  double energy_j = 0, bits_per_joule = 0;  // the fleet's propulsion energy and bits per joule
 };
 
 struct LayoutSummary {
@@ -49,6 +50,7 @@ struct LayoutSummary {
   int collisions = 0, boundary = 0;     // totals over the layouts
   double arrivals = 0;                  // mean UAVs home per layout
   double objective = 0;                 // mean
+  double energy_j = 0, bits_per_joule = 0;  // means
   double fraction_mean = 0, fraction_p5 = 0, fraction_worst = 0;
 };
 

@@ -37,7 +37,7 @@ class RandomPlanner final : public Planner {
 };
 
 /// Exhaustive search over the A^N joint actions (A = the mobility model's actions) for the highest
-/// next-slot sum rate, among joint actions that keep every destination reachable, stay in the area
+/// next-slot sum rate (under another env.objective: the objective one slot ahead, the move's energy included), among joint actions that keep every destination reachable, stay in the area
 /// and avoid collisions (if none avoids collisions, the fewest colliding UAVs first). Ties go to the
 /// lowest joint index. Exponential in N: refused (InputError) above kMaxJointActions, where
 /// SequentialGreedyPlanner serves.
@@ -52,7 +52,7 @@ class GreedyPlanner final : public Planner {
 /// Greedy one UAV at a time, linear in N (5 N candidate positions per slot): the UAVs choose in
 /// order of least slack (moves left minus moves needed to reach the destination; ties by index),
 /// each the feasible action (in the area, destination still reachable) with the highest
-/// next-slot sum rate given the moves already chosen, the UAVs still to choose held in place.
+/// next-slot sum rate (or env.objective one slot ahead) given the moves already chosen, the UAVs still to choose held in place.
 /// An action that brings the UAV within D_min of a UAV already placed (or of one still in place)
 /// is masked whenever another feasible action avoids it. Ties go to the lowest action index.
 /// The 5 candidates of each UAV go to the oracle in one batched call. If the pass still leaves a

@@ -189,7 +189,7 @@ def _toml_value(v) -> str:
             return _toml_value(v.item())
     except ImportError:  # pragma: no cover
         pass
-    raise InputError(f"value {v!r} has the wrong type: allowed a number, a bool, a string or a list of [x, y] pairs")
+    raise InputError(f"value {v!r} has the wrong type: allowed a number, a bool, a string, a list of numbers or a list of [x, y] pairs")
 
 
 def _flatten(d, prefix=""):

@@ -149,7 +149,7 @@ except ImportError:
 
 class ParallelEnv(_ParallelBase):
     """PettingZoo Parallel API over one skyloop environment. Arrived UAVs stay in ``agents`` (they
-    keep serving users) with a STAY-only action mask until the episode ends; then ``agents``
+    keep serving users) with a hover-only action mask (STAY under the grid model) until the episode ends; then ``agents``
     is empty until ``reset``. Rewards are the team reward, given to every agent."""
 
     metadata = {"name": "skyloop_uav_v0", "render_modes": [], "is_parallelizable": True}
@@ -164,7 +164,7 @@ class ParallelEnv(_ParallelBase):
         self._obs_space = Dict({"observation": _row_box(spec["obs"]), "action_mask": _mask_box(spec["num_actions"])})
         self._act_space = Discrete(spec["num_actions"])
         self.state_space = _row_box(spec["state"])
-        self._stay = spec["actions"].index("STAY")
+        self._stay = spec["hover"]
         self.render_mode = None
         self._last: Optional[tuple] = None
 
@@ -204,7 +204,7 @@ class ParallelEnv(_ParallelBase):
         done = bool(r.terminated[0] or r.truncated[0])
         obs = r.info["final_obs"] if done else r.obs
         mask = r.action_mask
-        if done:  # the finished episode's last view: every agent may only STAY
+        if done:  # the finished episode's last view: every agent may only hover
             mask = np.zeros_like(mask)
             mask[..., self._stay] = 1
         observations = self._per_agent(obs, mask)
@@ -285,7 +285,7 @@ class SmacEnv:
     runners use it. ``reset(seed=None, options=None) -> (obs, info)``; ``step(actions) -> (obs,
     reward, terminated, truncated, info)`` with ``info["episode_limit"]`` = truncated (T_max hit),
     numeric values only (the runners sum them); after the last step ``get_obs``, ``get_state`` and
-    ``get_avail_actions`` describe the finished episode's last slot (every agent may only STAY)
+    ``get_avail_actions`` describe the finished episode's last slot (every agent may only hover)
     until ``reset``. ``common_reward`` (EPyMARL's argument): True gives the team reward as a float,
     False the same reward once per agent; ``reward_scalarisation`` is accepted and has no effect
     (the reward is already a team reward). Register it as ``REGISTRY["skyloop"] = SmacEnv``."""
@@ -304,7 +304,7 @@ class SmacEnv:
         self.common_reward = common_reward
         self.reward_scalarisation = reward_scalarisation
         self.episode_limit = int(self.env.config["trajectory.t_max"]) - 1
-        self._stay = spec["actions"].index("STAY")
+        self._stay = spec["hover"]
         self._next = self.env.reset()  # the environment's current episode, first slot
         self._view = (self._next.obs[0], self._next.state[0], self._next.action_mask[0])
         self._pending = False  # a finished episode is shown; the next one's first slot waits in _next

@@ -1,8 +1,9 @@
 """The batch-first trajectory environment (EnvPool style).
 
 ``VecEnv(config, num_envs, seed)`` holds M copies of the paper's trajectory environment (N UAVs
-flying from their starts to their destinations over K ground users, one move per slot from UP,
-DOWN, LEFT, RIGHT, STAY), stepped as one batch in C++ with the GIL released; every environment's
+flying from their starts to their destinations over K ground users, one move per slot of the
+mobility model: the paper's UP, DOWN, LEFT, RIGHT, STAY, or ``trajectory.mobility = "headings"``;
+``spec["actions"]`` names them), stepped as one batch in C++ with the GIL released; every environment's
 sum rate R[t] comes from one batched beamformer call (``env.oracle``, default the paper's GNN).
 
 Environment i draws its K users from ``derive_seed(seed, i)``; with ``env.resample_users`` each
@@ -11,11 +12,13 @@ reset draws new ones from that environment's own stream.
 Auto-reset: an environment whose episode ends (every UAV home: ``terminated``; T_max reached
 first: ``truncated``) is reset inside the same ``step``; the arrays returned are the new episode's
 first slot, and ``info["final_obs"]`` / ``info["final_state"]`` hold the finished episode's last
-observation (zeros elsewhere). ``info`` also carries the finished episode's ``objective`` (P2.2's
-average sum rate), ``T``, ``home``, ``success`` and ``episode_reward``.
+observation (zeros elsewhere). ``info`` also carries the finished episode's ``objective``
+(``env.objective``'s J; P2.2's average sum rate by default), ``sum_rate_objective``, ``T``, ``home``,
+``success`` and ``episode_reward``, and the propulsion energy: ``energy_j`` (this step, the fleet),
+``episode_energy_j`` and ``bits_per_joule``.
 
 Arrived UAVs stay in the agent list: they keep serving users, their action mask is
-STAY only and any action given for them is executed as STAY.
+hover only (``spec["hover"]``: STAY under the grid model) and any action given for them is executed as hover.
 """
 from __future__ import annotations
 
@@ -30,7 +33,7 @@ class Observation(NamedTuple):
     obs: np.ndarray          # float32 [M, N, spec["obs"]["size"]]: the agents' observation (marl.encoder: the paper's 11 reals, or the set observation)
     state: np.ndarray        # float32 [M, spec["state"]["size"]]: the global state (env.state: paper 4N + 2K, or compact)
     agent_state: np.ndarray  # float32 [M, N, spec["agent_state"]["size"]]: state, agent context, the paper observation
-    action_mask: np.ndarray  # int8 [M, N, spec["num_actions"]]: 1 = allowed; an arrived UAV may only STAY
+    action_mask: np.ndarray  # int8 [M, N, spec["num_actions"]]: 1 = allowed; an arrived UAV may only hover (spec["hover"]; STAY under the grid model)
 
 
 class StepResult(NamedTuple):

@@ -101,6 +101,7 @@ py::dict env_spec_dict(const EnvSpec& e) {
   d["agents"] = e.agents, d["users"] = e.users;
   d["num_actions"] = e.action.count();
   d["actions"] = py::tuple(py::cast(e.action.names));
+  d["hover"] = e.action.hover;  // the action that stays in place (an arrived UAV's only one)
   d["observation_kind"] = to_string(e.observation_kind), d["state_kind"] = to_string(e.state_kind);
   d["obs"] = array_spec_dict(e.obs, e.agents);
   d["state"] = array_spec_dict(e.state, e.agents);
@@ -162,7 +163,7 @@ class PyVecEnv {
         if (v < 0 || v >= A)
           throw InputError("actions[" + std::to_string(i) + ", " + std::to_string(n) + "] = " + std::to_string(v) +
                            " is invalid: allowed 0.." + std::to_string(A - 1) + " (" + action_list() + ")");
-        // An arrived UAV is locked to STAY (its mask allows only STAY); any other action is taken as STAY.
+        // An arrived UAV is locked to hover (its mask allows only spec["hover"]); any other action is taken as hover.
         joint[static_cast<std::size_t>(i)][static_cast<std::size_t>(n)] = static_cast<int>(v);
       }
     auto out = allocate();
@@ -390,7 +391,7 @@ class PyVecEnv {
 
   /// Current arrays of every environment, each row written by the environment itself; the action
   /// mask is the reachability mask of marl.action_mask (skyloop/planning/safety.hpp), else every
-  /// action; an arrived UAV may only STAY. Called with the lock held.
+  /// action; an arrived UAV may only hover (spec["hover"]). Called with the lock held.
   void fill(Arrays& out) const {
     const int M = num_envs_, N = agents();
     const std::size_t O = static_cast<std::size_t>(spec_->obs.size), S = static_cast<std::size_t>(spec_->state.size);

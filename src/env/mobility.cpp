@@ -48,7 +48,7 @@ MobilityModel::MobilityModel(const Config& cfg)
   actions_.names.push_back("HOVER");
   steps_.push_back({0, 0});
   speeds_.push_back(0.0);
-  hover_ = actions_.count() - 1;
+  hover_ = actions_.hover = actions_.count() - 1;
   reach_ = static_cast<double>(kmax) * pitch_;
 }
 

@@ -42,7 +42,7 @@ float ArraySpec::high() const {
 }
 
 const ActionSpec& grid_actions() {
-  static const ActionSpec spec{{"UP", "DOWN", "LEFT", "RIGHT", "STAY"}};
+  static const ActionSpec spec{{"UP", "DOWN", "LEFT", "RIGHT", "STAY"}, kStay};
   return spec;
 }
 

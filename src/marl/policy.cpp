@@ -75,7 +75,10 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   // The action space it was trained on (policies written before mobility models: the grid's).
   impl->actions = grid_actions();
   impl->mobility = meta.value("mobility", std::string("grid"));
-  if (meta.contains("actions")) impl->actions.names = meta.at("actions").get<std::vector<std::string>>();
+  if (meta.contains("actions")) {
+    impl->actions.names = meta.at("actions").get<std::vector<std::string>>();
+    impl->actions.hover = meta.value("hover", kStay);
+  }
   auto net = marl::MlpNet(q_based ? obs + meta.value("context_dim", uavs) : obs, hidden, impl->actions.count());
   (q_based ? impl->nets.q : impl->nets.actor) = net;
   marl::load(path, impl->nets, nullptr);

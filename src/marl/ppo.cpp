@@ -619,6 +619,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
                           {"obs_dim", obs_width}, {"encoder", m.encoder}, {"backend", m.backend},
                           {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).mobility().actions().names},
+                          {"hover", vec.env(0).hover()},
                           {"critic_input", critic.name()}, {"critic_dim", critic_width},
                           {"hidden", m.hidden}, {"env_steps", steps}, {"updates", updates},
                           {"value_mean", value_norm.mean}, {"value_var", value_norm.var}, {"value_count", value_norm.count},

@@ -59,10 +59,11 @@ constexpr int kGridActions = 5;
 /// The discrete action space: `names.size()` actions, index = action.
 struct ActionSpec {
   std::vector<std::string> names;
+  int hover = kStay;  // the action that stays in place (grid: STAY; headings: HOVER, the last)
   int count() const { return static_cast<int>(names.size()); }
   /// names[a]; "?" outside 0..count()-1.
   const char* name(int a) const { return a >= 0 && a < count() ? names[static_cast<std::size_t>(a)].c_str() : "?"; }
-  bool operator==(const ActionSpec& o) const { return names == o.names; }
+  bool operator==(const ActionSpec& o) const { return names == o.names && hover == o.hover; }
 };
 
 

@@ -422,8 +422,71 @@ def generalisation(run, exp):
     return figs, [(f"each row over {rows[0]['layouts']} layouts", head, body)]
 
 
+def rate_energy(run, exp):
+    front = read_csv(os.path.join(run, exp["files"][0]))
+    speeds = read_csv(os.path.join(run, exp["files"][1]))
+    paths = read_csv(os.path.join(run, exp["files"][2]))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    # The front: the optimum of R-bar - w P-bar at each w; the planners flying the experiment's objective.
+    ax = axes[0]
+    pts = sorted(((float(r["mean_power_w"]), float(r["sum_rate_objective"]), r["weight"]) for r in front if r["role"] == "front"))
+    ax.plot([p[0] for p in pts], [p[1] for p in pts], "k--", marker="x", label="front: optimum of R-bar - w P-bar")
+    for x, y, w in pts:
+        ax.annotate(f"w={w}", (x, y), fontsize=6, textcoords="offset points", xytext=(3, -8))
+    for r in front:
+        if r["role"] != "placed":
+            continue
+        lab, col, mk, _ = style(r["planner"])
+        if r["planner"] == "optimal":
+            lab, mk = "optimum of bits/J", "*"
+        ax.scatter([float(r["mean_power_w"])], [float(r["sum_rate_objective"])], color=col, marker=mk, s=60,
+                   label=f"{lab} ({fnum(float(r['bits_per_joule']) / 1e3, 1)} kbit/J)")
+    ax.set_xlabel("mean fleet propulsion power P-bar (W)")
+    ax.set_ylabel("average sum rate R-bar (bit/s/Hz)")
+    ax.set_title("rate-power front", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6)
+    # The speeds the optimum flies at each weight.
+    ax = axes[1]
+    ws = sorted({r["weight"] for r in speeds}, key=float)
+    vs = sorted({float(r["speed_mps"]) for r in speeds})
+    width = 0.8 / max(1, len(ws))
+    for i, w in enumerate(ws):
+        count = {float(r["speed_mps"]): int(r["slots"]) for r in speeds if r["weight"] == w}
+        total = max(1, sum(count.values()))
+        ax.bar([j + i * width for j in range(len(vs))], [count.get(v, 0) / total for v in vs], width, label=f"w = {w}")
+    ax.set_xticks([j + 0.4 - width / 2 for j in range(len(vs))])
+    ax.set_xticklabels([fnum(v, 1) for v in vs])
+    ax.set_xlabel("ground speed (m/s; 0 = hover)")
+    ax.set_ylabel("share of UAV-slots")
+    ax.set_title("speeds of the optimum", fontsize=9)
+    ax.legend(fontsize=6)
+    # Hover-and-serve (w = smallest) vs fly-through (w = largest).
+    ax = axes[2]
+    colours = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd"]
+    for w, ls in ((ws[0], "-"), (ws[-1], "--")):
+        rs = [r for r in paths if r["weight"] == w]
+        for n in sorted({int(r["uav"]) for r in rs}):
+            p = sorted((int(r["t"]), float(r["x"]), float(r["y"])) for r in rs if int(r["uav"]) == n)
+            ax.plot([q[1] for q in p], [q[2] for q in p], ls=ls, marker=".", color=colours[n % 4],
+                    label=f"UAV {n + 1}, w = {w}")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("optimum's trajectories: solid w = min, dashed w = max", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6)
+    fig.suptitle(exp["title"], fontsize=9)
+    figs = save(fig, run, exp["name"])
+    head = ["role", "weight", "planner", "train seed", "R-bar (bit/s/Hz)", "P-bar (W)", "energy (kJ)", "kbit/J", "T", "complete"]
+    body = [[r["role"], r["weight"], style(r["planner"])[0], r["train_seed"], fnum(r["sum_rate_objective"], 3),
+             fnum(r["mean_power_w"], 1), fnum(float(r["energy_j"]) / 1e3, 2), fnum(float(r["bits_per_joule"]) / 1e3, 1), r["T"],
+             r["success"]] for r in front]
+    return figs, [("front: the optimum at each weight; placed: flying the experiment's objective", head, body)]
+
+
 KINDS = {"generalisation": generalisation, "beamform_sweep": beamform_sweep, "marl_training": marl_training, "planning_users": planning_users,
-         "trajectories": trajectories, "models": models}
+         "trajectories": trajectories, "models": models, "rate_energy": rate_energy}
 
 
 # --- the paper's numbers beside skyloop's ------------------------------------------------------------

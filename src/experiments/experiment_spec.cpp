@@ -18,7 +18,7 @@ std::string source_dir() { return data_dir(); }
 
 const std::vector<std::string>& experiment_kinds() {
   static const std::vector<std::string> kinds = {"models", "beamform_sweep", "marl_training", "planning_users", "trajectories",
-                                                 "generalisation"};
+                                                 "generalisation", "rate_energy"};
   return kinds;
 }
 
@@ -192,6 +192,13 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
       for (const auto& a : s.algos) check_in(source, "experiment.algos", a, learner_names());
     } else {
       need(!s.users.empty(), "experiment.users", "a list of user counts K");
+      if (s.kind == "rate_energy") {
+        need(!s.values.empty(), "experiment.values", "a list of energy.weight values (the front's points)");
+        need(s.users.size() == 1, "experiment.users", "one user count K");
+        for (const auto& v : s.values)
+          if (v.find_first_not_of("0123456789.eE+-") != std::string::npos)
+            throw InputError(source + ": experiment.values has \"" + v + "\": allowed numbers (energy.weight)");
+      }
       if (s.algos.empty()) s.algos = {"mappo"};
       for (const auto& a : s.algos) check_in(source, "experiment.algos", a, learner_names());
     }

@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <filesystem>
 
 #include "common.hpp"
@@ -77,7 +78,9 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   impl->mobility = meta.value("mobility", std::string("grid"));
   if (meta.contains("actions")) {
     impl->actions.names = meta.at("actions").get<std::vector<std::string>>();
-    impl->actions.hover = meta.value("hover", kStay);
+    const auto& n = impl->actions.names;
+    const auto named = std::find_if(n.begin(), n.end(), [](const std::string& a) { return a == "STAY" || a == "HOVER"; });
+    impl->actions.hover = meta.value("hover", named == n.end() ? kStay : static_cast<int>(named - n.begin()));
   }
   auto net = marl::MlpNet(q_based ? obs + meta.value("context_dim", uavs) : obs, hidden, impl->actions.count());
   (q_based ? impl->nets.q : impl->nets.actor) = net;

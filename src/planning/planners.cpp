@@ -436,7 +436,9 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
       *progress << "optimal: iteration " << iter << "  lambda " << format_double(lambda) << " -> " << format_double(next)
                 << "  T = " << plan.T << "\n" << std::flush;
     if (kind == Objective::Energy) break;  // no ratio: one pass is the optimum
-    if (next <= (lambda >= 0 ? lambda * (1 + 1e-12) : lambda + 1e-12 * -lambda)) break;
+    // Dinkelbach's lambda rises from the ratio of a feasible plan: lambda = 0 before the first
+    // iteration is none when the optimum is negative (weighted with a large w), so always go on once.
+    if (iter > 1 && next <= (lambda >= 0 ? lambda * (1 + 1e-12) : lambda + 1e-12 * -lambda)) break;
     lambda = next;
   }
   // Arrived UAVs in the plan STAY (their recorded action is whatever index matched: normalise).

@@ -177,7 +177,7 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   ASSERT_EQ(r.code, 0) << r.err;
 
   const auto manifest = nlohmann::json::parse(slurp(out / "manifest.json"));
-  ASSERT_EQ(manifest["experiments"].size(), 26u);
+  ASSERT_EQ(manifest["experiments"].size(), 27u);
   for (const auto& e : manifest["experiments"]) {
     const std::string name = e["name"];
     EXPECT_TRUE(fs::exists(out / name / "config.toml")) << name;
@@ -196,7 +196,8 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
                                 "marl_sum_rate", "planning_users", "trajectories", "shared_power_sweep", "split_power_sweep",
                                 "shared_uav_sweep", "shared_marl_episode_reward", "shared_marl_sum_rate", "shared_trajectories",
                                 "generalisation", "generalisation_wmmse", "generalisation_shared", "one_policy_trajectories",
-                                "channel_models", "channel_environments", "rician_k", "altitude", "generalisation_3gpp"})
+                                "channel_models", "channel_environments", "rician_k", "altitude", "generalisation_3gpp",
+                                "rate_energy"})
     for (const std::string ext : {".png", ".pdf"}) EXPECT_GT(fs::file_size(out / "figures" / (fig + ext)), 1000u) << fig << ext;
 
   const std::string report = slurp(out / "report.html");
@@ -221,6 +222,25 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
     for (const auto& [x, m] : mean) EXPECT_EQ(m.size(), 6u) << x;
     const std::string altitude = slurp(out / "altitude" / "altitude.csv");
     EXPECT_NE(altitude.find("channel.environment,highrise-urban"), std::string::npos);
+  }
+  // The rate-power front: a larger energy weight never buys more power or more rate (exact optima
+  // of R-bar - w P-bar), and the energy-efficiency optimum has the most bits per joule of the
+  // planners placed on it.
+  {
+    std::vector<std::vector<std::string>> front, placed;
+    for (const auto& f : csv_rows(slurp(out / "rate_energy" / "front.csv"))) (f.at(1) == "front" ? front : placed).push_back(f);
+    ASSERT_EQ(front.size(), 2u);
+    std::sort(front.begin(), front.end(), [](const auto& a, const auto& b) { return std::stod(a.at(2)) < std::stod(b.at(2)); });
+    EXPECT_LE(std::stod(front[1].at(8)), std::stod(front[0].at(8)) * (1 + 1e-12));  // mean power
+    EXPECT_LE(std::stod(front[1].at(7)), std::stod(front[0].at(7)) * (1 + 1e-12));  // mean sum rate
+    double best = 0, optimum = 0;
+    for (const auto& f : placed) {
+      (f.at(3) == "optimal" ? optimum : best) = std::max(f.at(3) == "optimal" ? optimum : best, std::stod(f.at(10)));
+      EXPECT_EQ(f.at(12), "1") << f.at(3) << ": every mission complete";
+    }
+    EXPECT_GE(placed.size(), 4u);  // greedy, random, optimal, mappo
+    EXPECT_GE(optimum, best * (1 - 1e-12));
+    EXPECT_GT(csv_rows(slurp(out / "rate_energy" / "speeds.csv")).size(), 1u);
   }
   // The shared-spectrum sweep: coordinated WMMSE starts from per-cluster WMMSE and only climbs, so
   // its mean is at least per-cluster WMMSE's at every power.

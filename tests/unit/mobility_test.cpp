@@ -264,7 +264,8 @@ TEST(Mobility, ObjectiveRewardSumsToTheObjective) {
 // ---- the exact optimum over headings and every objective ---------------------------------------
 
 TEST(Mobility, OptimumEqualsBruteForceOnTinyHeadingsInstances) {
-  for (const char* objective : {"sum-rate", "energy-efficiency", "weighted", "energy"})
+  // weighted with w = 2 has a negative optimum (Dinkelbach must not stop at lambda = 0).
+  for (const char* objective : {"sum-rate", "energy-efficiency", "weighted", "weighted-heavy", "energy"})
     for (std::uint64_t seed : {1u, 2u}) {
       Config c = headings({0, 10});
       c.scenario.area_x_m = 40;
@@ -274,10 +275,12 @@ TEST(Mobility, OptimumEqualsBruteForceOnTinyHeadingsInstances) {
       c.trajectory.destinations = {{40, 20}, {0, 20}};
       c.trajectory.d_min_m = 15;
       c.trajectory.t_max = 4;
-      c.env.objective = objective;
-      c.energy.weight = 0.1;
+      const bool heavy = std::string(objective) == "weighted-heavy";
+      c.env.objective = heavy ? "weighted" : objective;
+      c.energy.weight = heavy ? 2.0 : 0.1;
       auto env = make_env(c, seed);
       const OptimalPlan plan = solve_optimal(*env);
+      if (heavy) EXPECT_LT(plan.objective, 0.0);
       const double brute = brute_force_optimum(*env);
       const double tol = 1e-9 * std::max(1.0, std::abs(brute));
       EXPECT_NEAR(plan.objective, brute, tol) << objective << " seed " << seed;

@@ -153,6 +153,7 @@ StageKind models_stage();
 StageKind sweep_stage();
 StageKind marl_training_stage();
 StageKind planning_users_stage();
+StageKind rate_energy_stage();
 StageKind trajectories_stage();
 StageKind generalisation_stage();
 

@@ -14,6 +14,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/marl/marl.hpp"
+#include "skyloop/planning/safety.hpp"
 
 using namespace skyloop;
 
@@ -250,6 +251,40 @@ TEST(Marl, EveryAlgorithmRunsSeededAndResumes) {
     }
     const auto rc = train_marl(more, a);
     EXPECT_GE(rc.env_steps, 8192) << variant;
+  }
+}
+
+// Every learner reads the action space from the mobility model: under `headings` (17 actions) each
+// trains, writes a policy that names its actions, and flies it with allowed moves only; an
+// environment of another mobility model refuses the policy in one line.
+TEST(Marl, EveryLearnerTrainsAndFliesTheHeadingsModel) {
+  for (const std::string algo : {"mappo", "ippo", "vdn", "qmix"}) {
+    Config cfg = small_scenario(algo, 2048);
+    cfg.trajectory.mobility = "headings";
+    cfg.marl.batch_episodes = 8;
+    validate(cfg);
+    MarlTrainOptions opt;
+    opt.out_dir = fresh("headings_" + algo);
+    opt.registry = &zf_registry();
+    const auto r = train_marl(cfg, opt);
+    for (const auto& a : r.evaluation.actions)
+      for (int x : a) EXPECT_TRUE(x >= 0 && x < 17) << algo;
+    auto policy = MarlPolicy::load(opt.out_dir);
+    auto oracle = std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, 3));
+    UavEnv env(cfg, oracle);
+    ASSERT_EQ(env.actions(), 17);
+    const auto a = policy->act(env);
+    for (int n = 0; n < env.uavs(); ++n)
+      EXPECT_TRUE(allowed_moves(env, n, SafetyOptions{}) >> a[static_cast<std::size_t>(n)] & 1u) << algo;
+    Config grid = cfg;
+    grid.trajectory.mobility = "grid";
+    UavEnv genv(grid, std::make_shared<RateOracle>(grid, zf_registry().create("zf", grid), make_users(grid, 6, 3)));
+    try {
+      policy->act(genv);
+      ADD_FAILURE() << algo << ": a headings policy flew the grid model";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("trajectory.mobility = \"headings\""), std::string::npos) << e.what();
+    }
   }
 }
 

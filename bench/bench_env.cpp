@@ -127,6 +127,36 @@ static void BM_OptimalPaper(benchmark::State& state) {
 }
 BENCHMARK(BM_OptimalPaper)->Arg(0)->Arg(1)->ArgName("wmmse")->Unit(benchmark::kSecond)->Iterations(1);
 
+// The exact optimum under the headings mobility model (8 headings x 10, 20 m/s, hover: 17
+// actions) on the paper scenario, GNN oracle cold, per objective. Args: objective (0 sum-rate,
+// 1 energy-efficiency, 2 weighted w = 0.1), area side in m (200: 11 x 11 cells, the paper; 240:
+// 13 x 13, 4.8e6 joint states, the largest square lattice the DP takes for three UAVs: run it with
+// --benchmark_filter=BM_OptimalHeadings, it is left out of the default set to keep the smoke test short).
+static void BM_OptimalHeadings(benchmark::State& state) {
+  Config cfg;
+  cfg.trajectory.mobility = "headings";
+  const char* objectives[] = {"sum-rate", "energy-efficiency", "weighted"};
+  cfg.env.objective = objectives[state.range(0)];
+  cfg.energy.weight = 0.1;
+  const double side = static_cast<double>(state.range(1));
+  cfg.scenario.area_x_m = cfg.scenario.area_y_m = side;
+  cfg.trajectory.starts = {{20, 20}, {20, side - 20}, {side - 20, side - 20}};
+  cfg.trajectory.destinations = {{side - 20, 100}, {side - 20, 20}, {20, 100}};
+  const auto bf = oracle_beamformer("gnn");
+  double objective = 0, iterations = 0;
+  for (auto _ : state) {
+    UavEnv env(cfg, std::make_shared<RateOracle>(cfg, bf, make_users(cfg, 12, 3)));
+    const auto plan = solve_optimal(env);
+    objective = plan.objective, iterations = plan.iterations;
+  }
+  state.SetLabel("objective=" + std::to_string(objective) + " dinkelbach_iterations=" + std::to_string(iterations));
+}
+BENCHMARK(BM_OptimalHeadings)->Args({0, 200})->Args({1, 200})->ArgNames({"objective", "side"})
+    ->Unit(benchmark::kSecond)->Iterations(1);
+static void BM_OptimalHeadingsLarge(benchmark::State& state) { BM_OptimalHeadings(state); }
+BENCHMARK(BM_OptimalHeadingsLarge)->Args({2, 200})->Args({0, 240})->Args({1, 240})->ArgNames({"objective", "side"})
+    ->Unit(benchmark::kSecond)->Iterations(1);
+
 // The rate oracle's cost per new position (a cache miss: every cluster's channel drawn, the
 // beamformer run on it in each fast slot, the sum rate): the paper's channel, and 3GPP UMa-AV with
 // Rician fading at M = 1 and M = 8 fast slots. Args: oracle (0 gnn, 1 zfsel), channel (0 paper,

@@ -73,12 +73,23 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       lattice_.push_back(std::move(l));
     }
   }
-  for (int n = 0; n < n_; ++n)
+  for (int n = 0; n < n_; ++n) {
+    if (!mobility_->is_grid()) {
+      const Lattice& l = lattice_[static_cast<std::size_t>(n)];
+      const long ix = std::lround((start_(n, 0) - l.ox) / d_fly_), iy = std::lround((start_(n, 1) - l.oy) / d_fly_);
+      if (l.slots[static_cast<std::size_t>(iy * l.nx + ix)] < 0)
+        throw InputError("trajectory.destinations[" + std::to_string(n) + "] cannot be reached from trajectory.starts[" +
+                         std::to_string(n) + "] with trajectory.speeds_mps = " + format_value(FieldValue(cfg.trajectory.speeds_mps)) +
+                         " (no speed flies a single lattice step per slot, so some lattice points are out of reach): allowed "
+                         "speeds that include trajectory.d_fly_m / trajectory.slot_s = " +
+                         format_double(d_fly_ / mobility_->slot_s()) + " m/s");
+    }
     if (min_moves(n, start_(n, 0), start_(n, 1)) > t_max_ - 1)
       throw InputError("trajectory: UAV " + std::to_string(n) + " needs " +
                        std::to_string(min_moves(n, start_(n, 0), start_(n, 1))) + " moves from its start to its destination "
                        "but trajectory.t_max = " + std::to_string(t_max_) + " allows " + std::to_string(t_max_ - 1) +
                        ": allowed t_max >= moves + 1");
+  }
   reset();
 }
 

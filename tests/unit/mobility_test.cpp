@@ -153,7 +153,15 @@ TEST(Mobility, BadSettingsAreRefusedInOneLine) {
   EXPECT_NE(refused({"trajectory.speeds_mps=[]"}).find("trajectory.speeds_mps"), std::string::npos);
   EXPECT_NE(refused({"trajectory.mobility=walk"}).find("allowed one of grid, headings"), std::string::npos);
   EXPECT_NE(refused({"env.objective=joules"}).find("env.objective"), std::string::npos);
-  for (const auto& e : {refused({"trajectory.mobility=headings", "trajectory.speeds_mps=[0, 15]"}), refused({"trajectory.speeds_mps=[]"})})
+  // Only two-step moves: the paper's destination (160 m along x, 80 m along y from its start) is out of reach.
+  const std::string parity = error_of([] {
+    Config c = headings({0, 20});
+    c.trajectory.destinations[0] = {180, 80};
+    make_env(c);
+  });
+  EXPECT_NE(parity.find("trajectory.destinations[0] cannot be reached"), std::string::npos) << parity;
+  for (const auto& e : {refused({"trajectory.mobility=headings", "trajectory.speeds_mps=[0, 15]"}), refused({"trajectory.speeds_mps=[]"}),
+                        parity})
     EXPECT_EQ(e.find('\n'), std::string::npos) << e;
 }
 

@@ -52,6 +52,16 @@ MobilityModel::MobilityModel(const Config& cfg)
   reach_ = static_cast<double>(kmax) * pitch_;
 }
 
+LatticeFrame::LatticeFrame(double x, double y, double area_x, double area_y, double d)
+    : ox(std::fmod(x, d)), oy(std::fmod(y, d)), pitch(d) {
+  nx = static_cast<int>(std::floor((area_x - ox) / d + 1e-9)) + 1;
+  ny = static_cast<int>(std::floor((area_y - oy) / d + 1e-9)) + 1;
+}
+
+int LatticeFrame::cell(double x, double y) const {
+  return static_cast<int>(std::lround((y - oy) / pitch)) * nx + static_cast<int>(std::lround((x - ox) / pitch));
+}
+
 std::vector<int> MobilityModel::slots_to(int nx, int ny, int to) const {
   std::vector<int> dist(static_cast<std::size_t>(nx) * static_cast<std::size_t>(ny), -1);
   std::deque<int> queue{to};

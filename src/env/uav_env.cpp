@@ -64,20 +64,15 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
     // Each UAV's lattice through its start; its destination must lie on it (validate() checks).
     for (int n = 0; n < n_; ++n) {
       Lattice l;
-      l.ox = std::fmod(start_(n, 0), d_fly_), l.oy = std::fmod(start_(n, 1), d_fly_);
-      l.nx = static_cast<int>(std::floor((area_x_ - l.ox) / d_fly_ + 1e-9)) + 1;
-      l.ny = static_cast<int>(std::floor((area_y_ - l.oy) / d_fly_ + 1e-9)) + 1;
-      const int to = static_cast<int>(std::lround((dest_(n, 1) - l.oy) / d_fly_)) * l.nx +
-                     static_cast<int>(std::lround((dest_(n, 0) - l.ox) / d_fly_));
-      l.slots = mobility_->slots_to(l.nx, l.ny, to);
+      l.frame = LatticeFrame(start_(n, 0), start_(n, 1), area_x_, area_y_, d_fly_);
+      l.slots = mobility_->slots_to(l.frame.nx, l.frame.ny, l.frame.cell(dest_(n, 0), dest_(n, 1)));
       lattice_.push_back(std::move(l));
     }
   }
   for (int n = 0; n < n_; ++n) {
     if (!mobility_->is_grid()) {
       const Lattice& l = lattice_[static_cast<std::size_t>(n)];
-      const long ix = std::lround((start_(n, 0) - l.ox) / d_fly_), iy = std::lround((start_(n, 1) - l.oy) / d_fly_);
-      if (l.slots[static_cast<std::size_t>(iy * l.nx + ix)] < 0)
+      if (l.slots[static_cast<std::size_t>(l.frame.cell(start_(n, 0), start_(n, 1)))] < 0)
         throw InputError("trajectory.destinations[" + std::to_string(n) + "] cannot be reached from trajectory.starts[" +
                          std::to_string(n) + "] with trajectory.speeds_mps = " + format_value(FieldValue(cfg.trajectory.speeds_mps)) +
                          " (no speed flies a single lattice step per slot, so some lattice points are out of reach): allowed "
@@ -141,10 +136,10 @@ int UavEnv::min_moves(int n, double x, double y) const {
     return static_cast<int>(std::ceil(dx / d_fly_ - 1e-9)) + static_cast<int>(std::ceil(dy / d_fly_ - 1e-9));
   }
   const Lattice& l = lattice_[static_cast<std::size_t>(n)];
-  const long ix = std::lround((x - l.ox) / d_fly_), iy = std::lround((y - l.oy) / d_fly_);
+  const long ix = std::lround((x - l.frame.ox) / d_fly_), iy = std::lround((y - l.frame.oy) / d_fly_);
   const int far = t_max_ + 1;  // off the lattice or cut off: never reachable in time
-  if (ix < 0 || iy < 0 || ix >= l.nx || iy >= l.ny) return far;
-  const int d = l.slots[static_cast<std::size_t>(iy * l.nx + ix)];
+  if (ix < 0 || iy < 0 || ix >= l.frame.nx || iy >= l.frame.ny) return far;
+  const int d = l.slots[static_cast<std::size_t>(iy * l.frame.nx + ix)];
   return d < 0 ? far : d;
 }
 

@@ -18,15 +18,11 @@ namespace {
 constexpr double kNegInf = -std::numeric_limits<double>::infinity();
 
 /// One UAV's D_fly lattice through its start, clipped to the area.
-struct Lattice {
+struct Lattice : LatticeFrame {
   const MobilityModel* mob;
-  double ox = 0, oy = 0, d = 1;
-  int nx = 0, ny = 0;
   std::vector<int> from_start, to_dest;  // fewest slots from the start / to the destination
-  Lattice(const UavEnv& env, int n) : mob(&env.mobility()), d(env.d_fly()) {
-    ox = std::fmod(env.starts()(n, 0), d), oy = std::fmod(env.starts()(n, 1), d);
-    nx = static_cast<int>(std::floor((env.area_x() - ox) / d + 1e-9)) + 1;
-    ny = static_cast<int>(std::floor((env.area_y() - oy) / d + 1e-9)) + 1;
+  Lattice(const UavEnv& env, int n)
+      : LatticeFrame(env.starts()(n, 0), env.starts()(n, 1), env.area_x(), env.area_y(), env.d_fly()), mob(&env.mobility()) {
     auto fix = [&](std::vector<int> v) {
       for (int& x : v) x = x < 0 ? env.t_max() + 1 : x;
       return v;
@@ -34,12 +30,6 @@ struct Lattice {
     from_start = fix(mob->slots_to(nx, ny, cell(env.starts()(n, 0), env.starts()(n, 1))));
     to_dest = fix(mob->slots_to(nx, ny, cell(env.destinations()(n, 0), env.destinations()(n, 1))));
   }
-  int cells() const { return nx * ny; }
-  int cell(double x, double y) const {
-    return static_cast<int>(std::lround((y - oy) / d)) * nx + static_cast<int>(std::lround((x - ox) / d));
-  }
-  double x(int c) const { return ox + d * (c % nx); }
-  double y(int c) const { return oy + d * (c / nx); }
   /// The cell after action a, or -1 outside the grid.
   int step(int c, int a) const {
     const int ix = c % nx + mob->step(a).dx, iy = c / nx + mob->step(a).dy;

@@ -186,8 +186,8 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
 
 bool fits_optimal(const UavEnv& env) {
   const double d = env.d_fly();
-  const double ox = std::fmod(env.starts()(0, 0), d), oy = std::fmod(env.starts()(0, 1), d);
-  const double G = (std::floor((env.area_x() - ox) / d + 1e-9) + 1) * (std::floor((env.area_y() - oy) / d + 1e-9) + 1);
+  const LatticeFrame f(env.starts()(0, 0), env.starts()(0, 1), env.area_x(), env.area_y(), d);
+  const double G = static_cast<double>(f.nx) * static_cast<double>(f.ny);
   const double states = std::pow(G, env.uavs());
   return states <= 5e6 && states * env.t_max() <= 134217728.0;
 }
@@ -208,9 +208,9 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   const double d = env.d_fly();
   const Positions start = env.positions(), dest = env.destinations();
   // The D_fly lattice through start 0, clipped to the area.
-  const double ox = std::fmod(start(0, 0), d), oy = std::fmod(start(0, 1), d);
-  const int nx = static_cast<int>(std::floor((env.area_x() - ox) / d + 1e-9)) + 1;
-  const int ny = static_cast<int>(std::floor((env.area_y() - oy) / d + 1e-9)) + 1;
+  const LatticeFrame frame(start(0, 0), start(0, 1), env.area_x(), env.area_y(), d);
+  const double ox = frame.ox, oy = frame.oy;
+  const int nx = frame.nx, ny = frame.ny;
   const int G = nx * ny;
   auto cell_of = [&](double x, double y, const std::string& what) {
     const double fx = (x - ox) / d, fy = (y - oy) / d;

@@ -42,6 +42,21 @@ struct LatticeStep {
   int dx = 0, dy = 0;
 };
 
+/// The lattice of pitch D_fly through a point, clipped to the area [0, area_x] x [0, area_y]:
+/// origin (ox, oy) in [0, pitch), nx x ny points, cell = iy * nx + ix. What the environment's
+/// reachability, the DP and the best-known planner index positions by.
+struct LatticeFrame {
+  double ox = 0, oy = 0, pitch = 1;
+  int nx = 0, ny = 0;
+  LatticeFrame() = default;
+  LatticeFrame(double x, double y, double area_x, double area_y, double pitch);
+  int cells() const { return nx * ny; }
+  /// The cell of (x, y) rounded to the nearest lattice point (no range check).
+  int cell(double x, double y) const;
+  double x(int c) const { return ox + pitch * (c % nx); }
+  double y(int c) const { return oy + pitch * (c / nx); }
+};
+
 class MobilityModel {
  public:
   explicit MobilityModel(const Config& cfg);

@@ -213,8 +213,7 @@ class UavEnv {
   double bandwidth_hz_ = 1e6, w_energy_ = 0, budget_j_ = 0;
   // Headings: UAV n's lattice (origin, size) and the fewest slots from each cell to its destination.
   struct Lattice {
-    double ox = 0, oy = 0;
-    int nx = 0, ny = 0;
+    LatticeFrame frame;
     std::vector<int> slots;
   };
   std::vector<Lattice> lattice_;

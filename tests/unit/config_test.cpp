@@ -4,18 +4,11 @@
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 
-using namespace skyloop;
+#include "test_util.hpp"
 
-namespace {
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
-}
-}  // namespace
+using namespace skyloop;
+using skyloop::test::error_of;
+
 
 TEST(Config, DefaultsAreThePaperValues) {
   const Config c;

@@ -13,7 +13,10 @@
 #include "skyloop/planning/planners.hpp"
 #include "skyloop/planning/safety.hpp"
 
+#include "test_util.hpp"
+
 using namespace skyloop;
+using skyloop::test::error_of;
 
 namespace {
 
@@ -30,16 +33,6 @@ Config headings(std::vector<double> speeds = {0, 10, 20}) {
   return c;
 }
 
-/// The first line of the InputError `f` throws ("" if none).
-template <class F>
-std::string error_of(F f) {
-  try {
-    f();
-  } catch (const InputError& e) {
-    return e.what();
-  }
-  return "";
-}
 
 }  // namespace
 
@@ -228,8 +221,9 @@ TEST(Mobility, EnergyBookkeepingAddsUp) {
         const PropulsionModel p(c.energy);
         EXPECT_NEAR(r.powers[t][static_cast<std::size_t>(n)], p.power(r.speeds[t][static_cast<std::size_t>(n)]), 1e-9);
         if (r.positions[t](n, 0) == r.positions.back()(n, 0) && r.positions[t](n, 1) == r.positions.back()(n, 1) &&
-            r.positions[t + 1](n, 0) == r.positions[t](n, 0) && r.positions[t + 1](n, 1) == r.positions[t](n, 1))
+            r.positions[t + 1](n, 0) == r.positions[t](n, 0) && r.positions[t + 1](n, 1) == r.positions[t](n, 1)) {
           EXPECT_EQ(r.speeds[t][static_cast<std::size_t>(n)], 0.0);
+        }
       }
       EXPECT_NEAR(e, r.uav_energy_j[static_cast<std::size_t>(n)], 1e-6);
       total += e;
@@ -288,7 +282,9 @@ TEST(Mobility, OptimumEqualsBruteForceOnTinyHeadingsInstances) {
       c.energy.weight = heavy ? 2.0 : 0.1;
       auto env = make_env(c, seed);
       const OptimalPlan plan = solve_optimal(*env);
-      if (heavy) EXPECT_LT(plan.objective, 0.0);
+      if (heavy) {
+        EXPECT_LT(plan.objective, 0.0);
+      }
       const double brute = brute_force_optimum(*env);
       const double tol = 1e-9 * std::max(1.0, std::abs(brute));
       EXPECT_NEAR(plan.objective, brute, tol) << objective << " seed " << seed;

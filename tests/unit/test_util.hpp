@@ -1,12 +1,24 @@
 #pragma once
 // Helpers shared by the unit tests.
+#include <functional>
 #include <string>
 #include <vector>
 
 #include "skyloop/channel/system_model.hpp"
+#include "skyloop/core/error.hpp"
 #include "skyloop/core/rng.hpp"
 
 namespace skyloop::test {
+
+/// The message of the InputError `f` throws ("" if it throws none).
+inline std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const InputError& e) {
+    return e.what();
+  }
+  return "";
+}
 
 /// Clusters of K users (from random snapshots) served by one UAV at the area's centre, so every
 /// user in range is in the cluster; only clusters of exactly `k` users are kept.

@@ -207,10 +207,6 @@ class UavEnv {
 
   int n_, t_max_;
   double d_fly_, d_min_, area_x_, area_y_;
-  std::shared_ptr<const MobilityModel> mobility_;
-  PropulsionModel propulsion_;
-  Objective objective_kind_ = Objective::SumRate;
-  double bandwidth_hz_ = 1e6, w_energy_ = 0, budget_j_ = 0;
   // Headings: UAV n's lattice (origin, size) and the fewest slots from each cell to its destination.
   struct Lattice {
     LatticeFrame frame;
@@ -220,6 +216,10 @@ class UavEnv {
   std::vector<double> energy_, speed_, power_;
   double energy_total_ = 0;
   double w_rate_, w_arr_, w_bud_, w_col_, w_fea_;
+  std::shared_ptr<const MobilityModel> mobility_;
+  PropulsionModel propulsion_;
+  Objective objective_kind_ = Objective::SumRate;
+  double bandwidth_hz_ = 1e6, w_energy_ = 0, budget_j_ = 0;
   bool compact_ = false;  // env.state = "compact"
   bool objective_reward_ = false;  // env.reward = "objective"
   SpecParams spec_params_;  // what spec_ is made from (N, K, area, horizon, env.state, marl.encoder)

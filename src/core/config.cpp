@@ -228,14 +228,20 @@ std::vector<Field> make_fields() {
   f.push_back(integer("trajectory.layout_seed", "seed of a generated layout", 0, 4611686018427387904.0,
                       [](Config& c) -> std::uint64_t& { return c.trajectory.layout_seed; }));
   f.push_back(text("trajectory.mobility",
-                   "grid: the paper's five moves of D_fly; headings: 8 headings x trajectory.speeds_mps on the D_fly lattice "
-                   "(README, mobility models)",
-                   {"grid", "headings"}, [](Config& c) -> std::string& { return c.trajectory.mobility; }));
+                   "grid: the paper's five moves of D_fly; headings: 8 headings x trajectory.speeds_mps on the D_fly lattice; "
+                   "continuous: a velocity in the disc of v_max_mps, its change bounded by a_max_mps2 (README, mobility models)",
+                   {"grid", "headings", "continuous"}, [](Config& c) -> std::string& { return c.trajectory.mobility; }));
   f.push_back(reals("trajectory.speeds_mps",
                     "headings: speeds along the axes (m/s; 0 = hover; diagonals fly sqrt(2) x), each x slot_s a multiple of D_fly",
                     0, 200, [](Config& c) -> std::vector<double>& { return c.trajectory.speeds_mps; }));
   f.push_back(real("trajectory.slot_s", "slot duration delta_t (s); the grid model flies V = D_fly / delta_t", 0.01, 3600,
                    [](Config& c) -> double& { return c.trajectory.slot_s; }));
+  f.push_back(real("trajectory.v_max_mps", "continuous: the largest ground speed (m/s); the velocity lies in its disc", 0.1, 200,
+                   [](Config& c) -> double& { return c.trajectory.v_max_mps; }));
+  f.push_back(real("trajectory.a_max_mps2", "continuous: the largest acceleration (m/s^2): |V[t] - V[t-1]| <= a_max slot_s", 0.01, 1000,
+                   [](Config& c) -> double& { return c.trajectory.a_max_mps2; }));
+  f.push_back(real("trajectory.arrival_m", "continuous: a UAV this close to its destination at a slot's end has arrived (m)", 0.001,
+                   1000, [](Config& c) -> double& { return c.trajectory.arrival_m; }));
   // [energy]
   f.push_back(text("energy.model", "propulsion power: rotary-wing (Zeng, Xu, Zhang, IEEE TWC 2019, eq. (12)) or none",
                    {"rotary-wing", "none"}, [](Config& c) -> std::string& { return c.energy.model; }));
@@ -586,8 +592,14 @@ void validate_mobility(const Config& c) {
                        format_double(c.energy.u_tip_mps) + ": allowed a ground speed below the tip speed (the power model's range)");
     return;
   }
+  if (t.mobility == "continuous") {
+    if (c.energy.model != "none" && t.v_max_mps >= c.energy.u_tip_mps)
+      throw InputError("trajectory.v_max_mps = " + format_double(t.v_max_mps) + " is at or above energy.u_tip_mps = " +
+                       format_double(c.energy.u_tip_mps) + ": allowed a ground speed below the tip speed (the power model's range)");
+    return;
+  }
   if (t.mobility != "headings")
-    throw InputError("trajectory.mobility = \"" + t.mobility + "\" is not allowed: allowed one of grid, headings");
+    throw InputError("trajectory.mobility = \"" + t.mobility + "\" is not allowed: allowed one of grid, headings, continuous");
   int moving = 0;
   for (std::size_t i = 0; i < t.speeds_mps.size(); ++i) {
     const double v = t.speeds_mps[i];

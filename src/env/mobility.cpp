@@ -1,5 +1,6 @@
 #include "skyloop/env/mobility.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <deque>
 
@@ -9,9 +10,10 @@
 
 namespace skyloop {
 
-const MobilityInfo kMobilityModels[2] = {
+const MobilityInfo kMobilityModels[3] = {
     {"grid", "the paper's five moves: UP, DOWN, LEFT, RIGHT by D_fly, STAY; V = D_fly / slot_s"},
     {"headings", "8 headings x the positive speeds_mps, then HOVER; king moves of k = v slot_s / D_fly lattice steps"},
+    {"continuous", "a velocity command in [-1, 1]^2 onto the disc of v_max_mps, its change at most a_max_mps2 x slot_s"},
 };
 
 namespace {
@@ -26,6 +28,26 @@ MobilityModel::MobilityModel(const Config& cfg)
     : name_(cfg.trajectory.mobility), pitch_(cfg.trajectory.d_fly_m), slot_s_(cfg.trajectory.slot_s) {
   validate_mobility(cfg);
   grid_ = name_ == "grid";
+  continuous_ = name_ == "continuous";
+  if (continuous_) {
+    const auto& t = cfg.trajectory;
+    v_max_ = t.v_max_mps, dv_max_ = t.a_max_mps2 * slot_s_, arrival_m_ = t.arrival_m;
+    actions_.dims = 2;
+    for (const double v : {v_max_ / 2, v_max_})
+      for (int h = 0; h < 8; ++h) {
+        actions_.names.push_back(std::string(kHeadingNames[h]) + "@" + format_double(v));
+        const double norm = std::hypot(kHx[h], kHy[h]);
+        prim_vx_.push_back(v * kHx[h] / norm), prim_vy_.push_back(v * kHy[h] / norm);
+      }
+    home_ = actions_.count();
+    actions_.names.push_back("HOME");
+    prim_vx_.push_back(0), prim_vy_.push_back(0);
+    actions_.names.push_back("HOVER");
+    prim_vx_.push_back(0), prim_vy_.push_back(0);
+    hover_ = actions_.hover = actions_.count() - 1;
+    reach_ = v_max_ * slot_s_;
+    return;
+  }
   if (grid_) {
     actions_ = grid_actions();
     steps_ = {{0, 1}, {0, -1}, {-1, 0}, {1, 0}, {0, 0}};  // UP, DOWN, LEFT, RIGHT, STAY (spec.hpp's Action)
@@ -50,6 +72,66 @@ MobilityModel::MobilityModel(const Config& cfg)
   speeds_.push_back(0.0);
   hover_ = actions_.hover = actions_.count() - 1;
   reach_ = static_cast<double>(kmax) * pitch_;
+}
+
+void MobilityModel::velocity(double u0, double u1, double& vx, double& vy) const {
+  u0 = std::max(-1.0, std::min(1.0, u0)), u1 = std::max(-1.0, std::min(1.0, u1));
+  const double l2 = std::hypot(u0, u1), linf = std::max(std::abs(u0), std::abs(u1));
+  const double scale = l2 > 0 ? v_max_ * linf / l2 : 0.0;
+  vx = u0 * scale, vy = u1 * scale;
+}
+
+void MobilityModel::command(double vx, double vy, double& u0, double& u1) const {
+  const double v = std::hypot(vx, vy);
+  if (v > v_max_) vx *= v_max_ / v, vy *= v_max_ / v;
+  const double wx = vx / v_max_, wy = vy / v_max_;
+  const double l2 = std::hypot(wx, wy), linf = std::max(std::abs(wx), std::abs(wy));
+  const double scale = linf > 0 ? l2 / linf : 0.0;
+  u0 = std::max(-1.0, std::min(1.0, wx * scale)), u1 = std::max(-1.0, std::min(1.0, wy * scale));
+}
+
+void MobilityModel::project(double vx, double vy, double px, double py, double& ox, double& oy) const {
+  const double R = v_max_, r = dv_max_, eps = 1e-9;
+  auto in_a = [&](double x, double y) { return std::hypot(x, y) <= R + eps; };
+  auto in_b = [&](double x, double y) { return std::hypot(x - px, y - py) <= r + eps; };
+  if (in_a(vx, vy) && in_b(vx, vy)) {
+    ox = vx, oy = vy;
+    return;
+  }
+  // The nearest point of either disc, if it lies in the other.
+  const double na = std::hypot(vx, vy), ax = na > R ? vx * R / na : vx, ay = na > R ? vy * R / na : vy;
+  if (in_b(ax, ay)) {
+    ox = ax, oy = ay;
+    return;
+  }
+  const double nb = std::hypot(vx - px, vy - py);
+  const double bx = nb > r ? px + (vx - px) * r / nb : vx, by = nb > r ? py + (vy - py) * r / nb : vy;
+  if (in_a(bx, by)) {
+    ox = bx, oy = by;
+    return;
+  }
+  // Otherwise a corner of the lens: the nearer point where the two circles cross.
+  const double d = std::hypot(px, py);
+  if (d < 1e-12) {  // concentric (then one disc holds the other and a projection above fitted)
+    ox = bx, oy = by;
+    return;
+  }
+  const double a = (R * R - r * r + d * d) / (2 * d), h = std::sqrt(std::max(0.0, R * R - a * a));
+  const double ex = px / d, ey = py / d, cx = a * ex, cy = a * ey;
+  const double x1 = cx - h * ey, y1 = cy + h * ex, x2 = cx + h * ey, y2 = cy - h * ex;
+  if (std::hypot(vx - x1, vy - y1) <= std::hypot(vx - x2, vy - y2)) ox = x1, oy = y1;
+  else ox = x2, oy = y2;
+}
+
+void MobilityModel::home_command(double dx, double dy, double& vx, double& vy) const {
+  const double d = std::hypot(dx, dy);
+  if (d <= 0) {
+    vx = vy = 0;
+    return;
+  }
+  const double a_max = dv_max_ / slot_s_;
+  const double s = std::min({v_max_, d / slot_s_, std::sqrt(2 * a_max * d)});
+  vx = dx / d * s, vy = dy / d * s;
 }
 
 LatticeFrame::LatticeFrame(double x, double y, double area_x, double area_y, double d)

@@ -54,13 +54,21 @@ ArraySpec named(const std::string& name, const std::string& kind, const std::str
 }
 }  // namespace
 
+namespace {
+/// The previous action: one-hot over a discrete model's actions, or the continuous model's last
+/// velocity / v_max.
+ArraySpec& add_previous_action(ArraySpec& s, const ActionSpec& actions) {
+  if (actions.continuous()) return s.add("previous_velocity", actions.dims, -1, 1);
+  return s.add("previous_action", actions.count(), 0, 1);
+}
+}  // namespace
+
 ArraySpec paper_observation_spec(const ActionSpec& actions) {
   ArraySpec s = named("obs", "paper", "float32", true);
   s.add("own_position", 2, 0, 1)                 // (x, y) / area side
       .add("users_mean_displacement", 2, -1, 1)   // mean over the users of (u - x) / area side
-      .add("destination_displacement", 2, -1, 1)  // (destination - x) / area side
-      .add("previous_action", actions.count(), 0, 1);  // one-hot
-  return s;
+      .add("destination_displacement", 2, -1, 1);  // (destination - x) / area side
+  return add_previous_action(s, actions);
 }
 
 SpecParams spec_params(const Config& cfg, int agents, int users) {
@@ -75,14 +83,16 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
 }
 
 ArraySpec set_observation_spec(const SpecParams& p) {
-  const double moves = std::ceil(p.area_x / p.d_fly) + std::ceil(p.area_y / p.d_fly);
+  // Moves needed: at most the grid's Manhattan distance across the area, or t_max + 1 (out of
+  // reach, UavEnv::min_moves) under the other models.
+  const double moves = std::max(std::ceil(p.area_x / p.d_fly) + std::ceil(p.area_y / p.d_fly), p.t_max + 1.0);
   const float others = static_cast<float>(std::max(0, p.agents - 1));
   ArraySpec s = named("obs", "set", "float32", true);
   s.add("own_position", 2, 0, 1)
       .add("destination_displacement", 2, -1, 1)
       .add("slack", 1, static_cast<float>(-moves / p.t_max), 1)  // (moves left - moves needed) / T_max
-      .add("time", 1, 0, 1)                                                    // t / T_max
-      .add("previous_action", p.action.count(), 0, 1)
+      .add("time", 1, 0, 1);                                                   // t / T_max
+  add_previous_action(s, p.action)
       .add("users_density", kWideGrid * kWideGrid, 0, 4)  // (4 / K) sum_k of Gaussian kernels
       .add("uavs_wide", kWideGrid * kWideGrid, 0, others)
       .add("uavs_near", kNearGrid * kNearGrid, 0, others);

@@ -60,7 +60,8 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       oracle_(std::move(oracle)) {
   spec_params_.users = users();
   spec_ = shared_env_spec(spec_params_);
-  if (!mobility_->is_grid()) {
+  vel_ = Positions::Zero(n_, 2);
+  if (!mobility_->is_grid() && !mobility_->continuous()) {
     // Each UAV's lattice through its start; its destination must lie on it (validate() checks).
     for (int n = 0; n < n_; ++n) {
       Lattice l;
@@ -70,7 +71,7 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
     }
   }
   for (int n = 0; n < n_; ++n) {
-    if (!mobility_->is_grid()) {
+    if (!mobility_->is_grid() && !mobility_->continuous()) {
       const Lattice& l = lattice_[static_cast<std::size_t>(n)];
       if (l.slots[static_cast<std::size_t>(l.frame.cell(start_(n, 0), start_(n, 1)))] < 0)
         throw InputError("trajectory.destinations[" + std::to_string(n) + "] cannot be reached from trajectory.starts[" +
@@ -105,11 +106,14 @@ void UavEnv::reset() {
   energy_.assign(static_cast<std::size_t>(n_), 0.0);
   speed_.assign(static_cast<std::size_t>(n_), 0.0);
   power_.assign(static_cast<std::size_t>(n_), propulsion_.hover_power());
+  vel_ = Positions::Zero(n_, 2);
   energy_total_ = 0;
   prev_tmin_.assign(static_cast<std::size_t>(n_), 0);
   bool all = true;
   for (int n = 0; n < n_; ++n) {
-    arrived_[static_cast<std::size_t>(n)] = same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1));
+    arrived_[static_cast<std::size_t>(n)] = mobility_->continuous()
+                                                ? std::hypot(pos_(n, 0) - dest_(n, 0), pos_(n, 1) - dest_(n, 1)) <= mobility_->arrival_m()
+                                                : same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1));
     all = all && arrived_[static_cast<std::size_t>(n)];
     const double d = std::hypot(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1));
     prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / mobility_->reach() - 1e-9));
@@ -130,7 +134,70 @@ bool UavEnv::move(double x, double y, int a, double& nx, double& ny) const {
   return nx >= -1e-9 && nx <= area_x_ + 1e-9 && ny >= -1e-9 && ny <= area_y_ + 1e-9;
 }
 
+UavEnv::Landing UavEnv::landing(int n, int a) const {
+  Landing l;
+  l.x = pos_(n, 0), l.y = pos_(n, 1);
+  if (arrived(n)) return l;
+  if (mobility_->continuous()) {
+    double vx = mobility_->primitive_vx(a), vy = mobility_->primitive_vy(a);
+    if (a == mobility_->home()) home_velocity(n, vx, vy);
+    return landing_velocity(n, vx, vy);
+  }
+  double nx, ny;
+  if (!move(l.x, l.y, a, nx, ny)) {
+    l.inside = false;
+    return l;
+  }
+  const LatticeStep st = mobility_->step(a);
+  l.x = nx, l.y = ny;
+  l.vx = st.dx * d_fly_ / mobility_->slot_s(), l.vy = st.dy * d_fly_ / mobility_->slot_s();
+  l.speed = mobility_->speed(a);
+  return l;
+}
+
+namespace {
+/// One slot of the continuous dynamics from (x, y) at last velocity (px, py) under command
+/// (cx, cy): projected, moved, cancelled outside the area, placed on (dx, dy) within arrival_m.
+UavEnv::Landing fly(const MobilityModel& m, double x, double y, double px, double py, double cx, double cy, double area_x,
+                    double area_y, double dx, double dy) {
+  UavEnv::Landing l;
+  m.project(cx, cy, px, py, l.vx, l.vy);
+  l.x = x + l.vx * m.slot_s(), l.y = y + l.vy * m.slot_s();
+  if (l.x < -1e-9 || l.x > area_x + 1e-9 || l.y < -1e-9 || l.y > area_y + 1e-9) {
+    l.x = x, l.y = y, l.vx = l.vy = 0, l.inside = false;
+    return l;
+  }
+  l.speed = std::hypot(l.vx, l.vy);
+  if (std::hypot(l.x - dx, l.y - dy) <= m.arrival_m()) l.x = dx, l.y = dy;
+  return l;
+}
+}  // namespace
+
+UavEnv::Landing UavEnv::landing_velocity(int n, double vx, double vy) const {
+  if (!mobility_->continuous())
+    throw std::logic_error("UavEnv::landing_velocity: velocity commands need trajectory.mobility = continuous");
+  if (arrived(n)) return landing(n, hover());
+  return fly(*mobility_, pos_(n, 0), pos_(n, 1), vel_(n, 0), vel_(n, 1), vx, vy, area_x_, area_y_, dest_(n, 0), dest_(n, 1));
+}
+
+void UavEnv::home_velocity(int n, double& vx, double& vy) const {
+  mobility_->home_command(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1), vx, vy);
+}
+
+int UavEnv::home_slots(int n, double x, double y, double vx, double vy) const {
+  const double dx = dest_(n, 0), dy = dest_(n, 1);
+  for (int k = 0; k <= t_max_; ++k) {
+    if (std::hypot(x - dx, y - dy) <= 1e-9) return k;
+    double cx, cy;
+    mobility_->home_command(dx - x, dy - y, cx, cy);
+    const Landing l = fly(*mobility_, x, y, vx, vy, cx, cy, area_x_, area_y_, dx, dy);
+    x = l.x, y = l.y, vx = l.vx, vy = l.vy;
+  }
+  return t_max_ + 1;
+}
+
 int UavEnv::min_moves(int n, double x, double y) const {
+  if (mobility_->continuous()) return home_slots(n, x, y, vel_(n, 0), vel_(n, 1));
   if (mobility_->is_grid()) {
     const double dx = std::abs(dest_(n, 0) - x), dy = std::abs(dest_(n, 1) - y);
     return static_cast<int>(std::ceil(dx / d_fly_ - 1e-9)) + static_cast<int>(std::ceil(dy / d_fly_ - 1e-9));
@@ -143,21 +210,35 @@ int UavEnv::min_moves(int n, double x, double y) const {
   return d < 0 ? far : d;
 }
 
+int UavEnv::min_moves(int n, const Landing& l) const {
+  if (mobility_->continuous()) return home_slots(n, l.x, l.y, l.vx, l.vy);
+  return min_moves(n, l.x, l.y);
+}
+
 bool UavEnv::feasible(int n, int a) const {
   if (arrived(n)) return a == hover();
-  double nx, ny;
-  if (!move(pos_(n, 0), pos_(n, 1), a, nx, ny)) return false;
-  return min_moves(n, nx, ny) <= t_max_ - (t_ + 1);
+  const Landing l = landing(n, a);
+  if (!l.inside) return false;
+  return min_moves(n, l) <= t_max_ - (t_ + 1);
 }
 
 Positions UavEnv::next_positions(const std::vector<int>& actions) const {
   Positions next = pos_;
   for (int n = 0; n < n_; ++n) {
-    const int a = arrived(n) ? hover() : actions[static_cast<std::size_t>(n)];
-    double nx, ny;
-    if (move(pos_(n, 0), pos_(n, 1), a, nx, ny)) next(n, 0) = nx, next(n, 1) = ny;
+    const Landing l = landing(n, arrived(n) ? hover() : actions[static_cast<std::size_t>(n)]);
+    next(n, 0) = l.x, next(n, 1) = l.y;
   }
   return next;
+}
+
+Positions UavEnv::primitive_velocities(const std::vector<int>& actions) const {
+  Positions v = Positions::Zero(n_, 2);
+  for (int n = 0; n < n_; ++n) {
+    const int a = actions[static_cast<std::size_t>(n)];
+    if (a == mobility_->home()) home_velocity(n, v(n, 0), v(n, 1));
+    else v(n, 0) = mobility_->primitive_vx(a), v(n, 1) = mobility_->primitive_vy(a);
+  }
+  return v;
 }
 
 int UavEnv::collisions(const Positions& p) const {
@@ -171,10 +252,25 @@ int UavEnv::collisions(const Positions& p) const {
   return count;
 }
 
-Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
+void UavEnv::check_step(std::size_t count) const {
   if (done_) throw std::logic_error("UavEnv::step called on a finished episode; call reset()");
-  if (static_cast<int>(actions.size()) != n_)
-    throw std::invalid_argument("UavEnv::step: " + std::to_string(actions.size()) + " actions for " + std::to_string(n_) + " UAVs");
+  if (static_cast<int>(count) != n_)
+    throw std::invalid_argument("UavEnv::step: " + std::to_string(count) + " actions for " + std::to_string(n_) + " UAVs");
+}
+
+void UavEnv::land(int n, const Landing& l, StepInfo& info) {
+  const auto i = static_cast<std::size_t>(n);
+  if (!l.inside) ++info.boundary;  // cancelled: the UAV hovers
+  const double e = propulsion_.slot_energy(l.speed, speed_[i], mobility_->slot_s());
+  speed_[i] = l.speed;
+  power_[i] = e / mobility_->slot_s();
+  energy_[i] += e;
+  info.energy_j += e;
+  vel_(n, 0) = l.vx, vel_(n, 1) = l.vy;
+}
+
+Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
+  check_step(actions.size());
   Positions next = pos_;
   for (int n = 0; n < n_; ++n) {
     const int requested = actions[static_cast<std::size_t>(n)];
@@ -183,17 +279,28 @@ Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
                                   " is not one of 0.." + std::to_string(mobility_->count() - 1) + " (trajectory.mobility = " +
                                   mobility_->name() + ")");
     const int a = arrived(n) ? hover() : requested;  // arrival-aware: arrived UAVs are locked
-    double nx, ny;
-    double v = mobility_->speed(a);
-    if (move(pos_(n, 0), pos_(n, 1), a, nx, ny)) next(n, 0) = nx, next(n, 1) = ny;
-    else ++info.boundary, v = 0.0;  // cancelled: the UAV hovers
+    const Landing l = landing(n, a);
+    next(n, 0) = l.x, next(n, 1) = l.y;
     prev_action_[static_cast<std::size_t>(n)] = a;
-    const auto i = static_cast<std::size_t>(n);
-    const double e = propulsion_.slot_energy(v, speed_[i], mobility_->slot_s());
-    speed_[i] = v;
-    power_[i] = e / mobility_->slot_s();
-    energy_[i] += e;
-    info.energy_j += e;
+    land(n, l, info);
+  }
+  info.collisions = collisions(next);
+  return next;
+}
+
+Positions UavEnv::begin_step_velocities(const Positions& v, StepInfo& info) {
+  check_step(static_cast<std::size_t>(v.rows()));
+  if (!mobility_->continuous())
+    throw std::invalid_argument("UavEnv::step_velocities: trajectory.mobility = " + mobility_->name() +
+                                " takes discrete actions; velocity commands need continuous");
+  Positions next = pos_;
+  for (int n = 0; n < n_; ++n) {
+    if (!std::isfinite(v(n, 0)) || !std::isfinite(v(n, 1)))
+      throw std::invalid_argument("UavEnv::step_velocities: the command of UAV " + std::to_string(n) + " is not finite");
+    const Landing l = arrived(n) ? landing(n, hover()) : landing_velocity(n, v(n, 0), v(n, 1));
+    next(n, 0) = l.x, next(n, 1) = l.y;
+    prev_action_[static_cast<std::size_t>(n)] = hover();
+    land(n, l, info);
   }
   info.collisions = collisions(next);
   return next;
@@ -260,6 +367,13 @@ StepInfo UavEnv::step(const std::vector<int>& actions) {
   return info;
 }
 
+StepInfo UavEnv::step_velocities(const Positions& v) {
+  StepInfo info;
+  const Positions next = begin_step_velocities(v, info);
+  end_step(next, oracle_->sum_rate(next), info);
+  return info;
+}
+
 double UavEnv::sum_rate_objective() const { return rate_sum_ / static_cast<double>(t_); }
 
 double UavEnv::objective_of(double rate_sum, int T, double energy_j) const {
@@ -278,10 +392,8 @@ double UavEnv::objective_at() const { return objective_of(rate_sum_, t_, energy_
 double UavEnv::step_energy(const std::vector<int>& actions) const {
   double e = 0;
   for (int n = 0; n < n_; ++n) {
-    const int a = arrived(n) ? hover() : actions[static_cast<std::size_t>(n)];
-    double nx, ny;
-    const double v = move(pos_(n, 0), pos_(n, 1), a, nx, ny) ? mobility_->speed(a) : 0.0;
-    e += propulsion_.slot_energy(v, speed_[static_cast<std::size_t>(n)], mobility_->slot_s());
+    const Landing l = landing(n, arrived(n) ? hover() : actions[static_cast<std::size_t>(n)]);
+    e += propulsion_.slot_energy(l.speed, speed_[static_cast<std::size_t>(n)], mobility_->slot_s());
   }
   return e;
 }
@@ -310,7 +422,16 @@ void UavEnv::write_observation(int n, float* o) const {
   o[3] = static_cast<float>(my / K / area_y_);
   o[4] = static_cast<float>((dest_(n, 0) - pos_(n, 0)) / area_x_);
   o[5] = static_cast<float>((dest_(n, 1) - pos_(n, 1)) / area_y_);
-  for (int a = 0; a < actions(); ++a) o[6 + a] = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
+  write_previous_action(n, o + 6);
+}
+
+void UavEnv::write_previous_action(int n, float* o) const {
+  if (mobility_->continuous()) {
+    o[0] = static_cast<float>(vel_(n, 0) / mobility_->v_max());
+    o[1] = static_cast<float>(vel_(n, 1) / mobility_->v_max());
+    return;
+  }
+  for (int a = 0; a < actions(); ++a) o[a] = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
 }
 
 std::vector<float> UavEnv::observation(int n) const {
@@ -358,7 +479,8 @@ void UavEnv::write_set_observation(int n, float* o) const {
   *o++ = static_cast<float>((dest_(n, 1) - y) / area_y_);
   *o++ = static_cast<float>(left - min_moves(n, x, y)) / static_cast<float>(t_max_);
   *o++ = static_cast<float>(t_) / static_cast<float>(t_max_);
-  for (int a = 0; a < actions(); ++a) *o++ = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
+  write_previous_action(n, o);
+  o += spec_->action.continuous() ? spec_->action.dims : actions();
   constexpr int W = kWideGrid * kWideGrid, Q = kNearGrid * kNearGrid;
   std::fill(o, o + 2 * W + Q, 0.0f);
   const auto& users = oracle_->users();
@@ -484,13 +606,26 @@ void VecEnv::reset() {
 
 std::vector<StepInfo> VecEnv::step(const std::vector<std::vector<int>>& actions,
                                    const std::function<void(std::size_t)>& before_reset) {
+  std::vector<StepInfo> info(envs_.size());
+  std::vector<Positions> next(envs_.size());
+  for (std::size_t i = 0; i < envs_.size(); ++i) next[i] = envs_[i]->begin_step(actions[i], info[i]);
+  return finish(next, info, before_reset);
+}
+
+std::vector<StepInfo> VecEnv::step_velocities(const std::vector<Positions>& velocities,
+                                              const std::function<void(std::size_t)>& before_reset) {
+  std::vector<StepInfo> info(envs_.size());
+  std::vector<Positions> next(envs_.size());
+  for (std::size_t i = 0; i < envs_.size(); ++i) next[i] = envs_[i]->begin_step_velocities(velocities[i], info[i]);
+  return finish(next, info, before_reset);
+}
+
+std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<StepInfo>& info,
+                                     const std::function<void(std::size_t)>& before_reset) {
   const std::size_t m = envs_.size();
-  std::vector<StepInfo> info(m);
-  std::vector<Positions> next(m);
   std::vector<RateOracle*> oracles(m);
   std::vector<const Positions*> ptrs(m);
   for (std::size_t i = 0; i < m; ++i) {
-    next[i] = envs_[i]->begin_step(actions[i], info[i]);
     oracles[i] = &envs_[i]->oracle();
     ptrs[i] = &next[i];
   }

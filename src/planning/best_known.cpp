@@ -63,6 +63,7 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   BestKnownPlan plan;
+  require_lattice(env, "the best-known planner");
   if (!iterated && fits_optimal(env)) {
     const auto o = solve_optimal(env, progress);
     plan.objective = o.objective, plan.T = o.T, plan.actions = o.actions, plan.exact = true;

@@ -103,8 +103,8 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
     for (int k = 0; k < env.actions(); ++k) {
       if (!env.feasible(i, k)) continue;
       Positions p = placed;
-      double nx = p(i, 0), ny = p(i, 1);
-      env.move(p(i, 0), p(i, 1), k, nx, ny);
+      const UavEnv::Landing l = env.landing(i, k);
+      const double nx = l.x, ny = l.y;
       p(i, 0) = nx, p(i, 1) = ny;
       bool ok = true;
       for (int m = 0; m < n && ok; ++m)
@@ -142,9 +142,8 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
   std::vector<std::vector<std::pair<double, double>>> target(static_cast<std::size_t>(n));
   for (int i = 0; i < n; ++i)
     for (int k : ranked[static_cast<std::size_t>(i)]) {
-      double nx = env.positions()(i, 0), ny = env.positions()(i, 1);
-      env.move(env.positions()(i, 0), env.positions()(i, 1), k, nx, ny);
-      target[static_cast<std::size_t>(i)].emplace_back(nx, ny);
+      const UavEnv::Landing l = env.landing(i, k);
+      target[static_cast<std::size_t>(i)].emplace_back(l.x, l.y);
     }
   std::vector<std::size_t> pick(static_cast<std::size_t>(n), 0);
   long budget = kSearchBudget;
@@ -184,7 +183,14 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
 
 // ---- exact optimum --------------------------------------------------------------------------
 
+void require_lattice(const UavEnv& env, const std::string& who) {
+  if (env.mobility().continuous())
+    throw InputError(who + " searches the D_fly lattice, which trajectory.mobility = \"continuous\" leaves: allowed "
+                     "trajectory.mobility = grid or headings (continuous missions: random, greedy, seqgreedy, the learners)");
+}
+
 bool fits_optimal(const UavEnv& env) {
+  if (env.mobility().continuous()) return false;
   const double d = env.d_fly();
   const LatticeFrame f(env.starts()(0, 0), env.starts()(0, 1), env.area_x(), env.area_y(), d);
   const double G = static_cast<double>(f.nx) * static_cast<double>(f.ny);
@@ -199,6 +205,7 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   const int N = env.uavs(), Tmax = env.t_max(), A = env.actions(), hover = env.hover();
   const MobilityModel& mob = env.mobility();
   const PropulsionModel& prop = env.propulsion();
+  require_lattice(env, "the optimal planner");
   if (prop.kinetic())
     throw InputError("energy.acceleration = \"kinetic\" makes a move's energy depend on the previous speed, which the optimal "
                      "planner's state does not hold: allowed energy.acceleration = \"none\" for the optimal planner");
@@ -476,6 +483,7 @@ std::vector<int> replay(const std::vector<std::vector<int>>& actions, const UavE
 std::vector<int> OptimalPlanner::act(UavEnv& env) { return replay(plan_.actions, env); }
 
 double brute_force_optimum(UavEnv& env) {
+  require_lattice(env, "the brute-force optimum");
   env.reset();
   const int N = env.uavs();
   double best = kNegInf;

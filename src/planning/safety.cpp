@@ -13,15 +13,13 @@ bool too_close(double ax, double ay, double bx, double by, double d_min) {
 
 /// Where UAV n ends after action a (a move out of the area is cancelled, as in step()).
 void landing(const UavEnv& env, int n, int a, double& x, double& y) {
-  const auto& p = env.positions();
-  if (!env.move(p(n, 0), p(n, 1), a, x, y)) x = p(n, 0), y = p(n, 1);
+  const UavEnv::Landing l = env.landing(n, a);
+  x = l.x, y = l.y;
 }
 
 /// UAV n's slack after action a: slots left after the move less the moves it still needs.
 int slack_after(const UavEnv& env, int n, int a) {
-  double x, y;
-  landing(env, n, a, x, y);
-  return env.t_max() - (env.t() + 1) - env.min_moves(n, x, y);
+  return env.t_max() - (env.t() + 1) - env.min_moves(n, env.landing(n, a));
 }
 
 /// Placed UAVs' end positions for the shield.
@@ -77,10 +75,11 @@ ActionSet reachable_moves(const UavEnv& env, int n, int margin) {
   const int slack_now = left_after + 1 - env.min_moves(n, p(n, 0), p(n, 1));
   const int keep = std::max(0, std::min(margin, slack_now));
   for (int a = 0; a < env.actions(); ++a) {
-    double x, y;
-    if (!env.move(p(n, 0), p(n, 1), a, x, y)) continue;
+    const UavEnv::Landing l = env.landing(n, a);
+    if (!l.inside) continue;
     inside |= action_bit(a);
-    if (env.feasible(n, a) && left_after - env.min_moves(n, x, y) >= keep) m |= action_bit(a);
+    const int needed = env.min_moves(n, l);
+    if (needed <= left_after && left_after - needed >= keep) m |= action_bit(a);
   }
   if (!m && margin > 0) return reachable_moves(env, n, 0);
   return m ? m : inside;

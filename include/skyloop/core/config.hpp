@@ -107,9 +107,12 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   std::string layout = "given";     // given (starts, destinations above) | generated (scenario.uavs UAVs from layout_seed)
   std::uint64_t layout_seed = 1;    // seed of a generated layout
   // Mobility (skyloop/env/mobility.hpp; beyond the paper but the grid model, which is the paper's).
-  std::string mobility = "grid";    // grid (the paper's five moves of D_fly) | headings (8 headings x speeds_mps)
+  std::string mobility = "grid";    // grid (the paper's five moves of D_fly) | headings (8 headings x speeds_mps) | continuous
   std::vector<double> speeds_mps{0.0, 10.0, 20.0};  // headings: axis speeds (0 = hover); speed x slot_s a multiple of D_fly
   double slot_s = 2.0;              // slot duration delta_t (s); the grid model flies V = D_fly / delta_t
+  double v_max_mps = 20.0;          // continuous: the velocity lies in the disc of this radius (m/s)
+  double a_max_mps2 = 5.0;          // continuous: |V[t] - V[t-1]| <= a_max slot_s (m/s^2)
+  double arrival_m = 1.0;           // continuous: a UAV within this distance of its destination has arrived (m)
 };
 
 struct EnergyConfig {               // [energy] propulsion (skyloop/env/energy.hpp; beyond the paper)

@@ -11,13 +11,27 @@
 //     headings E, NE, N, NW, W, SW, S, SE ("E@10" = east at 10 m/s); then HOVER. Speed v moves
 //     k = v delta_t / D_fly lattice steps along each axis the heading uses: ground speed v along
 //     the axes and sqrt(2) v on the diagonals (king moves keep the lattice). k must be a whole number.
+//   continuous: the action is a velocity command u in [-1, 1]^2 (ActionSpec.dims = 2), stretched
+//     radially onto the disc of radius v_max (velocity(): the square's boundary onto the circle),
+//     then projected onto what the UAV can fly this slot: the nearest velocity V[t] with
+//     |V[t]| <= v_max and |V[t] - V[t-1]| <= a_max delta_t (project()). The UAV moves V[t] delta_t.
+//     Off the lattice: positions are continuous. Planners that choose among discrete actions
+//     (Random, Greedy, seqgreedy, the Q-learners, the masks and the shield) use the model's
+//     primitives, ActionSpec.names: 8 headings at v_max / 2 and v_max ("E@10"), HOME (towards the
+//     destination as fast as the UAV can stop in time: home_command()) and HOVER (command 0), each
+//     a command projected like any other.
 //
 // Rules shared by the models (UavEnv):
 //  - boundary: a move that would leave the area is cancelled (the UAV hovers) and counted;
-//  - arrival: a UAV is arrived when it stands on its destination (a lattice point); it then hovers;
+//  - arrival: a UAV is arrived when it stands on its destination (a lattice point; continuous:
+//    within trajectory.arrival_m of it at a slot's end, where it is placed on it); it then hovers
+//    (continuous: stops, whatever a_max);
 //  - reachability: the fewest slots from a lattice point to the destination moving inside the area
 //    (grid: ceil(|dx| / D_fly) + ceil(|dy| / D_fly); headings: a breadth-first search over the
-//    lattice, exact for any speed set);
+//    lattice, exact for any speed set); continuous: the slots the HOME command takes from the
+//    UAV's position and velocity (a simulation of the same dynamics: an upper bound on the fewest,
+//    and one the UAV can always keep to, so masks and shield built on it keep every destination
+//    reachable);
 //  - collision: two UAVs closer than D_min at the end of a slot (positions are sampled per slot);
 //  - energy: the UAV's propulsion power at its ground speed (skyloop/env/energy.hpp) times delta_t.
 #include <string>
@@ -35,7 +49,7 @@ struct MobilityInfo {
   const char* description;
 };
 /// The mobility models (trajectory.mobility), the paper's first.
-extern const MobilityInfo kMobilityModels[2];
+extern const MobilityInfo kMobilityModels[3];
 
 /// A move in lattice steps along x and y.
 struct LatticeStep {
@@ -62,6 +76,9 @@ class MobilityModel {
   explicit MobilityModel(const Config& cfg);
   const std::string& name() const { return name_; }
   bool is_grid() const { return grid_; }
+  /// The continuous model: positions off the lattice, actions in [-1, 1]^2 (primitives for
+  /// discrete choosers); step() and speed() are the lattice models' only.
+  bool continuous() const { return continuous_; }
   /// The discrete action space: names, index = action.
   const ActionSpec& actions() const { return actions_; }
   int count() const { return actions_.count(); }
@@ -75,18 +92,43 @@ class MobilityModel {
   double speed(int a) const { return speeds_[static_cast<std::size_t>(a)]; }
   /// The longest move along one axis (m): the paper's T_min = ceil(distance / reach).
   double reach() const { return reach_; }
+
+  // ---- continuous ------------------------------------------------------------------------------
+  double v_max() const { return v_max_; }
+  /// Largest change of velocity in one slot, a_max delta_t (m/s).
+  double dv_max() const { return dv_max_; }
+  double arrival_m() const { return arrival_m_; }
+  /// The velocity (m/s) of command u in [-1, 1]^2 (each coordinate clamped first): u stretched
+  /// radially by |u|_inf / |u|_2, so the square maps onto the disc of radius v_max one to one.
+  void velocity(double u0, double u1, double& vx, double& vy) const;
+  /// The inverse of velocity() for a velocity in the disc (outside: clamped to its rim).
+  void command(double vx, double vy, double& u0, double& u1) const;
+  /// The nearest velocity to (vx, vy) in {|V| <= v_max} n {|V - (px, py)| <= dv_max}, (px, py) the
+  /// last slot's velocity (in the first disc, so the set is never empty).
+  void project(double vx, double vy, double px, double py, double& ox, double& oy) const;
+  /// The HOME command from displacement (dx, dy) to the destination: along it at
+  /// min(v_max, |d| / delta_t, sqrt(2 a_max |d|)) (fast enough to stop in time).
+  void home_command(double dx, double dy, double& vx, double& vy) const;
+  /// Primitive a's fixed command velocity (headings and HOVER; HOME is home_command's).
+  double primitive_vx(int a) const { return prim_vx_[static_cast<std::size_t>(a)]; }
+  double primitive_vy(int a) const { return prim_vy_[static_cast<std::size_t>(a)]; }
+  /// The HOME primitive's index.
+  int home() const { return home_; }
   /// Fewest slots from every cell of an nx x ny lattice to cell `to`, moving inside the lattice
   /// (breadth-first over the model's moves; -1 where unreachable). Cell = iy * nx + ix.
   std::vector<int> slots_to(int nx, int ny, int to) const;
 
  private:
   std::string name_;
-  bool grid_ = true;
+  bool grid_ = true, continuous_ = false;
   ActionSpec actions_;
   std::vector<LatticeStep> steps_;
   std::vector<double> speeds_;
   int hover_ = 0;
   double pitch_ = 1, slot_s_ = 1, reach_ = 1;
+  double v_max_ = 0, dv_max_ = 0, arrival_m_ = 0;
+  std::vector<double> prim_vx_, prim_vy_;
+  int home_ = -1;
 };
 
 }  // namespace skyloop

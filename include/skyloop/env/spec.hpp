@@ -56,14 +56,18 @@ struct ArraySpec {
 enum Action : int { kUp = 0, kDown = 1, kLeft = 2, kRight = 3, kStay = 4 };
 constexpr int kGridActions = 5;
 
-/// The discrete action space: `names.size()` actions, index = action.
+/// The action space. Discrete models: `names.size()` actions, index = action. The continuous model
+/// (dims = 2): a command in [-1, 1]^dims, and `names` its primitives, the discrete actions of
+/// planners that choose among a few (skyloop/env/mobility.hpp).
 struct ActionSpec {
   std::vector<std::string> names;
   int hover = kStay;  // the action that stays in place (grid: STAY; headings: HOVER, the last)
+  int dims = 0;       // continuous: the command's size (2: velocity along x and y); 0: discrete
+  bool continuous() const { return dims > 0; }
   int count() const { return static_cast<int>(names.size()); }
   /// names[a]; "?" outside 0..count()-1.
   const char* name(int a) const { return a >= 0 && a < count() ? names[static_cast<std::size_t>(a)].c_str() : "?"; }
-  bool operator==(const ActionSpec& o) const { return names == o.names && hover == o.hover; }
+  bool operator==(const ActionSpec& o) const { return names == o.names && hover == o.hover && dims == o.dims; }
 };
 
 

@@ -103,16 +103,44 @@ class UavEnv {
   double area_x() const { return area_x_; }
   double area_y() const { return area_y_; }
 
-  /// Position after `a` from (x, y), and whether it stays in the area.
+  /// Where a UAV ends a slot: position, velocity (m/s) and whether the move stayed in the area
+  /// (a move that would leave it is cancelled: the UAV hovers where it was, velocity 0).
+  struct Landing {
+    double x = 0, y = 0, vx = 0, vy = 0;
+    double speed = 0;  // ground speed (m/s): what the slot's energy is charged at
+    bool inside = true;
+  };
+  /// Position after lattice action `a` from (x, y), and whether it stays in the area (grid and
+  /// headings only).
   bool move(double x, double y, int a, double& nx, double& ny) const;
+  /// Where UAV n ends this slot under action a (continuous: primitive a, projected); arrived UAVs
+  /// hover where they are.
+  Landing landing(int n, int a) const;
+  /// Where UAV n ends this slot under velocity command (vx, vy) m/s (continuous model only):
+  /// projected onto what it can fly (MobilityModel::project), moved, cancelled if it would leave
+  /// the area, placed on its destination if it ends within trajectory.arrival_m of it.
+  Landing landing_velocity(int n, double vx, double vy) const;
+  /// The HOME command of UAV n (m/s) from its current state (continuous model).
+  void home_velocity(int n, double& vx, double& vy) const;
   /// Fewest slots from (x, y) to UAV n's destination under the mobility model (grid: Manhattan on
-  /// the D_fly grid; headings: breadth-first over UAV n's lattice, (x, y) on it).
+  /// the D_fly grid; headings: breadth-first over UAV n's lattice, (x, y) on it; continuous: the
+  /// HOME simulation from (x, y) at UAV n's current velocity). t_max + 1 when out of reach.
   int min_moves(int n, double x, double y) const;
+  /// The same from a landing (continuous: its velocity too).
+  int min_moves(int n, const Landing& l) const;
   /// True if `a` keeps UAV n in the area and its destination reachable in the moves left after
   /// it (T_max - (t + 1)). An arrived UAV may only hover (STAY).
   bool feasible(int n, int a) const;
   /// Positions after a joint action (boundary moves cancelled), without stepping.
   Positions next_positions(const std::vector<int>& actions) const;
+  /// Continuous model: one slot under velocity commands v (row n: UAV n's, m/s; arrived UAVs
+  /// hover whatever their row says). The discrete step() above flies the primitives' commands.
+  StepInfo step_velocities(const Positions& v);
+  /// Continuous model: the velocity commands (m/s) of a joint action of primitives.
+  Positions primitive_velocities(const std::vector<int>& actions) const;
+  /// UAV n's velocity in the last slot (m/s; 0 before the first step).
+  double velocity_x(int n) const { return vel_(n, 0); }
+  double velocity_y(int n) const { return vel_(n, 1); }
   /// Number of UAVs closer than D_min to another.
   int collisions(const Positions& p) const;
 
@@ -125,6 +153,9 @@ class UavEnv {
   /// the users / area, displacement to the destination / area, one-hot previous action (as wide
   /// as the action space: 5 under the grid model).
   void write_observation(int n, float* out) const;
+  /// The observations' previous-action field: one-hot (discrete models) or the last velocity /
+  /// v_max (continuous, 2 reals).
+  void write_previous_action(int n, float* out) const;
   std::vector<float> observation(int n) const;
   int observation_size() const { return spec_->paper_obs.size; }
   /// s[t] (spec().state) under env.state = "paper": all UAV positions, all user positions, all
@@ -197,6 +228,13 @@ class UavEnv {
   friend class VecEnv;
   /// Phase 1 of step(): moves, boundary and collision counts; returns the new positions.
   Positions begin_step(const std::vector<int>& actions, StepInfo& info);
+  /// The same for velocity commands (continuous model).
+  Positions begin_step_velocities(const Positions& v, StepInfo& info);
+  /// Phase 1's bookkeeping of UAV n landing at l (its energy, speed, velocity).
+  void land(int n, const Landing& l, StepInfo& info);
+  void check_step(std::size_t count) const;
+  /// Slots the HOME command takes from (x, y) at velocity (vx, vy) to UAV n's destination.
+  int home_slots(int n, double x, double y, double vx, double vy) const;
   /// Phase 2: arrival, R, reward, termination, given R at the new positions.
   void end_step(const Positions& next, double rate, StepInfo& info);
   /// Phi_n at slot t for UAV n at (x, y); updates T_min[t-1].
@@ -214,6 +252,7 @@ class UavEnv {
   };
   std::vector<Lattice> lattice_;
   std::vector<double> energy_, speed_, power_;
+  Positions vel_;  // velocity in the last slot (m/s)
   double energy_total_ = 0;
   double w_rate_, w_arr_, w_bud_, w_col_, w_fea_;
   std::shared_ptr<const MobilityModel> mobility_;
@@ -252,10 +291,15 @@ class VecEnv {
   /// given, sees environment i in its final state first (e.g. to record its last observation).
   std::vector<StepInfo> step(const std::vector<std::vector<int>>& actions,
                              const std::function<void(std::size_t)>& before_reset = {});
+  /// The continuous model's step: velocities[i] = environment i's commands (UavEnv::step_velocities).
+  std::vector<StepInfo> step_velocities(const std::vector<Positions>& velocities,
+                                        const std::function<void(std::size_t)>& before_reset = {});
   void reset();
 
  private:
   void reset_env(std::size_t i);
+  std::vector<StepInfo> finish(std::vector<Positions>& next, std::vector<StepInfo>& info,
+                               const std::function<void(std::size_t)>& before_reset);
   bool sampling() const;                 // a new training layout every episode
   Positions users_of(std::size_t i) const;  // environment i's users in its current episode
   Config cfg_;

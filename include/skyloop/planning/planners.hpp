@@ -120,6 +120,9 @@ class OptimalPlanner final : public Planner {
 /// Whether solve_optimal can run on this scenario: the joint grid (cells^N) within 5e6 states and
 /// the value table (states x T_max) within 2^27 entries.
 bool fits_optimal(const UavEnv& env);
+/// Refuses (InputError, naming `who`) the continuous mobility model, which the lattice searches
+/// (the optimal, brute-force and best-known planners) cannot represent.
+void require_lattice(const UavEnv& env, const std::string& who);
 
 struct BestKnownPlan {
   double objective = 0;                     // (1/T) sum_{t=1}^T R[t]

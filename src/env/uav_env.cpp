@@ -191,6 +191,7 @@ int UavEnv::home_slots(int n, double x, double y, double vx, double vy) const {
     double cx, cy;
     mobility_->home_command(dx - x, dy - y, cx, cy);
     const Landing l = fly(*mobility_, x, y, vx, vy, cx, cy, area_x_, area_y_, dx, dy);
+    if (!l.inside) break;  // HOME would hit the boundary: no way home that keeps a_max
     x = l.x, y = l.y, vx = l.vx, vy = l.vy;
   }
   return t_max_ + 1;

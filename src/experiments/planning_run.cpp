@@ -70,7 +70,7 @@ std::string trajectory_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t
         const auto i = static_cast<std::size_t>(n);
         const bool moved = t < r.actions.size();
         s += fmt::format("{},{},{},{},{},{},{},{},{}\n", seed, r.planner, t + 1, n, format_double(r.positions[t](n, 0)),
-                         format_double(r.positions[t](n, 1)), moved ? r.action_names.name(r.actions[t][i]) : "END",
+                         format_double(r.positions[t](n, 1)), !moved ? "END" : r.actions[t][i] < 0 ? "VELOCITY" : r.action_names.name(r.actions[t][i]),
                          moved && t < r.speeds.size() ? format_double(r.speeds[t][i]) : "",
                          moved && t < r.powers.size() ? format_double(r.powers[t][i]) : "");
       }

@@ -82,25 +82,57 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
     const auto named = std::find_if(n.begin(), n.end(), [](const std::string& a) { return a == "STAY" || a == "HOVER"; });
     impl->actions.hover = meta.value("hover", named == n.end() ? kStay : static_cast<int>(named - n.begin()));
   }
-  auto net = marl::MlpNet(q_based ? obs + meta.value("context_dim", uavs) : obs, hidden, impl->actions.count());
+  impl->actions.dims = meta.value("dims", 0);
+  if (impl->actions.dims < 0 || impl->actions.dims > 2 || (impl->actions.dims > 0 && q_based))
+    throw InputError("policy '" + path + "' names dims " + std::to_string(impl->actions.dims) + " for " + impl->algo +
+                     ": allowed 0 (discrete) or 2 (continuous, mappo and ippo)");
+  // The actor's outputs: one logit per action, or the squashed Gaussian's mean and log std per dimension.
+  const int width = impl->actions.continuous() ? 2 * impl->actions.dims : impl->actions.count();
+  auto net = marl::MlpNet(q_based ? obs + meta.value("context_dim", uavs) : obs, hidden, width);
   (q_based ? impl->nets.q : impl->nets.actor) = net;
   marl::load(path, impl->nets, nullptr);
   return std::unique_ptr<MarlPolicy>(new MarlPolicy(std::move(impl)));
 }
 
-std::vector<int> MarlPolicy::act(UavEnv& env) {
+namespace {
+/// The policy network's outputs [N x width] on the environment's observations, once the
+/// environment's action space is the one it was trained on.
+torch::Tensor network_outputs(MarlPolicy::Impl& impl, UavEnv& env) {
   torch::NoGradGuard ng;
-  auto& net = impl_->q_based ? impl_->nets.q : impl_->nets.actor;
-  const auto& enc = impl_->enc;
-  if (!(env.mobility().actions() == impl_->actions))
-    throw InputError("policy " + impl_->algo + " was trained with trajectory.mobility = \"" + impl_->mobility + "\" (" +
-                     std::to_string(impl_->actions.count()) + " actions) but the environment has trajectory.mobility = \"" +
+  auto& net = impl.q_based ? impl.nets.q : impl.nets.actor;
+  const auto& enc = impl.enc;
+  if (!(env.mobility().actions() == impl.actions))
+    throw InputError("policy " + impl.algo + " was trained with trajectory.mobility = \"" + impl.mobility + "\" (" +
+                     std::to_string(impl.actions.count()) + " actions) but the environment has trajectory.mobility = \"" +
                      env.mobility().name() + "\" (" + std::to_string(env.actions()) + " actions): allowed the mobility settings "
                      "it was trained with");
-  const int N = env.uavs(), D = enc.width(env), A = env.actions();
+  const int N = env.uavs(), D = enc.width(env);
   std::vector<float> in(static_cast<std::size_t>(N * D));
   for (int n = 0; n < N; ++n) enc.write(env, n, in.data() + static_cast<std::size_t>(n * D));
-  const auto out = net(torch::from_blob(in.data(), {N, D})).contiguous();
+  return net(torch::from_blob(in.data(), {N, D})).contiguous();
+}
+}  // namespace
+
+bool MarlPolicy::commands_velocities() const { return impl_->actions.continuous(); }
+
+Positions MarlPolicy::act_velocities(UavEnv& env) {
+  if (!impl_->actions.continuous()) return Planner::act_velocities(env);
+  const auto out = network_outputs(*impl_, env);
+  const auto o = out.accessor<float, 2>();
+  const int C = impl_->actions.dims;
+  // Deployed: the mean command u = tanh(mu) of each UAV, through the safety layer.
+  Positions wanted = Positions::Zero(env.uavs(), 2);
+  for (int n = 0; n < env.uavs(); ++n)
+    env.mobility().velocity(std::tanh(o[n][0]), C > 1 ? std::tanh(o[n][1]) : 0.0, wanted(n, 0), wanted(n, 1));
+  return safe_velocities(env, impl_->safety, wanted);
+}
+
+std::vector<int> MarlPolicy::act(UavEnv& env) {
+  if (impl_->actions.continuous())
+    throw std::logic_error("MarlPolicy::act: a continuous policy commands velocities (act_velocities)");
+  torch::NoGradGuard ng;
+  const auto out = network_outputs(*impl_, env);
+  const int N = env.uavs(), A = env.actions();
   const auto oa = out.accessor<float, 2>();
   std::vector<std::vector<float>> scores(static_cast<std::size_t>(N), std::vector<float>(static_cast<std::size_t>(A)));
   for (int n = 0; n < N; ++n)

@@ -82,9 +82,10 @@ void CriticReader::write(const UavEnv& e, int n, float* out, const float* observ
 
 // ---- storage -------------------------------------------------------------------------------------
 
-Rollout::Rollout(int steps, int envs, int agents, int obs, int critic, int action_count)
-    : T(steps), M(envs), N(agents), obs_width(obs), critic_width(critic), A(action_count) {
+Rollout::Rollout(int steps, int envs, int agents, int obs, int critic, int action_count, int dims)
+    : T(steps), M(envs), N(agents), obs_width(obs), critic_width(critic), A(action_count), C(dims) {
   const std::size_t S = samples();
+  raw_actions.resize(S * static_cast<std::size_t>(C));
   observations.resize(S * static_cast<std::size_t>(obs));
   critic_inputs.resize(S * static_cast<std::size_t>(critic));
   actions.resize(S);
@@ -109,7 +110,66 @@ void UpdateStats::add(const UpdateStats& o, double w) {
   grad_norm += w * o.grad_norm;
 }
 
+double tanh_log_jacobian(double z) {
+  // log(1 - tanh(z)^2) = 2 (log 2 - z - softplus(-2 z)); softplus(x) = max(x, 0) + log1p(exp(-|x|)).
+  const double x = -2 * z;
+  return 2 * (std::log(2.0) - z - (std::max(x, 0.0) + std::log1p(std::exp(-std::abs(x)))));
+}
+
 namespace {
+constexpr double kHalfLog2Pi = 0.91893853320467274178;  // log(2 pi) / 2
+double clamp_log_std(double ls) { return std::min(std::max(ls, kLogStdMin), kLogStdMax); }
+}  // namespace
+
+double squashed_gaussian_logprob(double z, double mu, double log_std) {
+  const double ls = clamp_log_std(log_std), e = (z - mu) / std::exp(ls);
+  return -0.5 * e * e - ls - kHalfLog2Pi - tanh_log_jacobian(z);
+}
+
+namespace {
+
+/// The clipped surrogate's derivative with respect to the ratio, ties split as autograd splits
+/// them, and the surrogate's statistics for one row of weight w.
+double surrogate(double log_ratio, double adv, double clip, double w, UpdateStats& u, double& ratio) {
+  ratio = std::exp(log_ratio);
+  const double lo = 1 - clip, hi = 1 + clip;
+  const double s1 = ratio * adv, s2 = std::min(std::max(ratio, lo), hi) * adv;
+  const double in_range = ratio >= lo && ratio <= hi ? 1.0 : 0.0;
+  const double dsurr = s1 < s2 ? adv : s1 > s2 ? adv * in_range : 0.5 * adv + 0.5 * adv * in_range;
+  u.policy_loss -= w * std::min(s1, s2);
+  u.old_approx_kl += w * -log_ratio;
+  u.approx_kl += w * ((ratio - 1) - log_ratio);
+  u.clipfrac += w * (std::abs(ratio - 1) > clip ? 1.0 : 0.0);
+  return dsurr;
+}
+
+/// The actor's part of ppo_loss_rows under the squashed Gaussian policy (ppo.hpp).
+void gaussian_actor_rows(const Minibatch& b, const PpoSettings& s, int first, int last, double per_active,
+                         const float* out, int stride, float* dout, UpdateStats& u) {
+  const int C = b.dims;
+  for (int i = first; i < last; ++i) {
+    const float* o = out + static_cast<std::size_t>(i - first) * stride;
+    float* d = dout + static_cast<std::size_t>(i - first) * stride;
+    const float* z = b.raw_actions.data() + static_cast<std::size_t>(i) * C;
+    double logp = 0, entropy = 0;
+    for (int k = 0; k < C; ++k) {
+      logp += squashed_gaussian_logprob(z[k], o[k], o[C + k]);
+      entropy += clamp_log_std(o[C + k]) + 0.5 + kHalfLog2Pi;
+    }
+    const double w = b.active[static_cast<std::size_t>(i)] * per_active;
+    double ratio;
+    const double dsurr = surrogate(logp - b.logprobs[static_cast<std::size_t>(i)], b.advantages[static_cast<std::size_t>(i)], s.clip, w, u, ratio);
+    const double dlogp = -w * dsurr * ratio;
+    u.entropy += w * entropy;
+    // d log N / d mu = e / sigma, d log N / d log sigma = e^2 - 1 (zero where the clamp holds), d H / d log sigma = 1.
+    for (int k = 0; k < C; ++k) {
+      const double ls = clamp_log_std(o[C + k]), sigma = std::exp(ls), e = (z[k] - o[k]) / sigma;
+      const bool free = o[C + k] >= kLogStdMin && o[C + k] <= kLogStdMax;
+      d[k] = static_cast<float>(dlogp * e / sigma);
+      d[C + k] = free ? static_cast<float>(dlogp * (e * e - 1) - s.entropy_coef * w) : 0.0f;
+    }
+  }
+}
 
 /// ppo_loss over the rows [first, last) of the minibatch, with the whole minibatch's normalisers
 /// (its active agents and its rows): the rows' share of the loss and of its gradient. The
@@ -120,8 +180,9 @@ UpdateStats ppo_loss_rows(const Minibatch& b, const PpoSettings& s, int first, i
   const int R = b.rows, A = b.action_count;
   UpdateStats u;
   std::vector<double> p(static_cast<std::size_t>(A)), logp(static_cast<std::size_t>(A));
-  // Actor: the clipped surrogate and the entropy over the allowed moves.
-  for (int i = first; i < last; ++i) {
+  // Actor: the clipped surrogate and the entropy over the allowed moves (or the Gaussian's).
+  if (b.dims > 0) gaussian_actor_rows(b, s, first, last, per_active, logits, logit_stride, dlogits, u);
+  for (int i = first; i < last && b.dims == 0; ++i) {
     const float* z = logits + static_cast<std::size_t>(i - first) * logit_stride;
     const float* allowed = b.allowed.data() + static_cast<std::size_t>(i) * A;
     double mx = -1e300;
@@ -138,22 +199,12 @@ UpdateStats ppo_loss_rows(const Minibatch& b, const PpoSettings& s, int first, i
       entropy -= p[k] * logp[k];
     }
     const auto a = static_cast<std::size_t>(b.actions[static_cast<std::size_t>(i)]);
-    const double adv = b.advantages[static_cast<std::size_t>(i)];
-    const double log_ratio = logp[a] - b.logprobs[static_cast<std::size_t>(i)];
-    const double ratio = std::exp(log_ratio);
-    const double lo = 1 - s.clip, hi = 1 + s.clip;
-    const double s1 = ratio * adv, s2 = std::min(std::max(ratio, lo), hi) * adv;
-    // d min(s1, s2) / d ratio, ties split as autograd splits them.
-    const double in_range = ratio >= lo && ratio <= hi ? 1.0 : 0.0;
-    const double dsurr = s1 < s2 ? adv : s1 > s2 ? adv * in_range : 0.5 * adv + 0.5 * adv * in_range;
     const double w = b.active[static_cast<std::size_t>(i)] * per_active;
-    u.policy_loss -= w * std::min(s1, s2);
-    u.entropy += w * entropy;
-    u.old_approx_kl += w * -log_ratio;
-    u.approx_kl += w * ((ratio - 1) - log_ratio);
-    u.clipfrac += w * (std::abs(ratio - 1) > s.clip ? 1.0 : 0.0);
+    double ratio;
+    const double dsurr = surrogate(logp[a] - b.logprobs[static_cast<std::size_t>(i)], b.advantages[static_cast<std::size_t>(i)], s.clip, w, u, ratio);
     // d/dz_k: -w dsurr ratio (1[k = a] - p_k) from the surrogate, -c2 w (-p_k (log p_k + H)) from the entropy.
     const double dlogp = -w * dsurr * ratio;
+    u.entropy += w * entropy;
     float* dz = dlogits + static_cast<std::size_t>(i - first) * logit_stride;
     for (std::size_t k = 0; k < static_cast<std::size_t>(A); ++k)
       dz[k] = static_cast<float>(dlogp * ((k == a ? 1.0 : 0.0) - p[k]) + s.entropy_coef * w * p[k] * (logp[k] + entropy));
@@ -221,11 +272,21 @@ class TorchPpo final : public PpoNetworks {
     };
     const auto active = blob(b.active, {R});
     const auto logp_old = blob(b.logprobs, {R});
-    const auto logp_all =
-        torch::log_softmax(masked_logits(nets_.actor(blob(b.observations, {R, b.obs_width})), blob(b.allowed, {R, b.action_count})), 1);
-    const auto actions = torch::from_blob(const_cast<std::int64_t*>(b.actions.data()), {R}, torch::kInt64).to(device_);
-    const auto logp = logp_all.gather(1, actions.unsqueeze(1)).squeeze(1);
-    const auto entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
+    const auto out = nets_.actor(blob(b.observations, {R, b.obs_width}));
+    torch::Tensor logp, entropy;
+    if (b.dims > 0) {  // the squashed Gaussian (ppo.hpp)
+      const int64_t C = b.dims;
+      const auto mu = out.narrow(1, 0, C), log_std = out.narrow(1, C, C).clamp(kLogStdMin, kLogStdMax);
+      const auto z = blob(b.raw_actions, {R, C});
+      const auto jacobian = 2 * (std::log(2.0) - z - torch::nn::functional::softplus(-2 * z));
+      logp = (-0.5 * ((z - mu) / log_std.exp()).pow(2) - log_std - kHalfLog2Pi - jacobian).sum(1);
+      entropy = masked_mean((log_std + 0.5 + kHalfLog2Pi).sum(1), active);
+    } else {
+      const auto logp_all = torch::log_softmax(masked_logits(out, blob(b.allowed, {R, b.action_count})), 1);
+      const auto actions = torch::from_blob(const_cast<std::int64_t*>(b.actions.data()), {R}, torch::kInt64).to(device_);
+      logp = logp_all.gather(1, actions.unsqueeze(1)).squeeze(1);
+      entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
+    }
     const auto policy_loss = -masked_mean(clipped_surrogate(logp, logp_old, blob(b.advantages, {R}), s.clip), active);
     const auto v = nets_.critic(blob(b.critic_inputs, {R, b.critic_width})).view({R});
     const auto value_loss = clipped_value_loss(v, blob(b.values, {R}), blob(b.returns, {R}), s.clip);
@@ -444,10 +505,12 @@ std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int o
 
 void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety, PpoNetworks& nets,
              const RunningStats& value_norm, Rng& rng, Rollout& r, EpisodeStats& stats) {
-  const int M = r.M, N = r.N, A = r.A;
+  const int M = r.M, N = r.N, A = r.A, C = r.C;
+  const int width = C > 0 ? 2 * C : A;  // the actor's output: logits, or mean and log std
   const std::size_t step_rows = static_cast<std::size_t>(M) * N;
-  std::vector<float> logits(step_rows * static_cast<std::size_t>(A));
+  std::vector<float> logits(step_rows * static_cast<std::size_t>(width));
   std::vector<std::vector<int>> actions(static_cast<std::size_t>(M));
+  std::vector<Positions> velocities(static_cast<std::size_t>(M));
   for (int t = 0; t < r.T; ++t) {
     float* obs = r.observations.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.obs_width);
     float* crit = r.critic_inputs.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.critic_width);
@@ -464,7 +527,31 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
     float* values = r.values.data() + r.at(t, 0, 0);
     nets.values(crit, static_cast<int>(step_rows), values);
     for (std::size_t i = 0; i < step_rows; ++i) values[i] = static_cast<float>(value_norm.denormalise(values[i]));
-    for (int e = 0; e < M; ++e) {
+    for (int e = 0; e < M && C > 0; ++e) {
+      // Each active UAV draws z ~ N(mu, sigma^2) per dimension and commands u = tanh(z) (ppo.hpp);
+      // the safety layer may fly another velocity. Arrived UAVs hover (inactive rows).
+      const UavEnv& env = vec.env(e);
+      Positions wanted = Positions::Zero(N, 2);
+      for (int n = 0; n < N; ++n) {
+        const std::size_t i = r.at(t, e, n);
+        float* raw = r.raw_actions.data() + i * static_cast<std::size_t>(C);
+        std::fill_n(raw, C, 0.0f);
+        if (env.arrived(n)) continue;
+        const float* o = logits.data() + static_cast<std::size_t>(e * N + n) * width;
+        double logp = 0, u[2] = {0, 0};
+        for (int k = 0; k < C; ++k) {
+          const double ls = std::min(std::max(static_cast<double>(o[C + k]), kLogStdMin), kLogStdMax);
+          const float z = static_cast<float>(o[k] + std::exp(ls) * rng.normal());
+          raw[k] = z;
+          logp += squashed_gaussian_logprob(z, o[k], o[C + k]);
+          u[k] = std::tanh(static_cast<double>(z));
+        }
+        r.logprobs[i] = static_cast<float>(logp);
+        env.mobility().velocity(u[0], u[1], wanted(n, 0), wanted(n, 1));
+      }
+      velocities[static_cast<std::size_t>(e)] = safe_velocities(env, safety, wanted);
+    }
+    for (int e = 0; e < M && C == 0; ++e) {
       // Each UAV samples from its policy restricted to its allowed moves (the reachability
       // mask and the shield against the UAVs already placed); arrived agents STAY.
       actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety, [&](int n, ActionSet allowed) {
@@ -496,7 +583,7 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
       });
       for (int n = 0; n < N; ++n) r.actions[r.at(t, e, n)] = actions[static_cast<std::size_t>(e)][static_cast<std::size_t>(n)];
     }
-    const auto infos = vec.step(actions);
+    const auto infos = C > 0 ? vec.step_velocities(velocities) : vec.step(actions);
     for (int e = 0; e < M; ++e) {
       const auto& info = infos[static_cast<std::size_t>(e)];
       r.rewards[static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)] = static_cast<float>(info.reward);
@@ -561,7 +648,8 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
 
   const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef, m.grad_clip};
   const int rows = static_cast<int>(std::max<std::size_t>(1, S / static_cast<std::size_t>(m.minibatches)));
-  b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width, b.action_count = r.A;
+  b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width, b.action_count = r.A, b.dims = r.C;
+  b.raw_actions.resize(static_cast<std::size_t>(rows) * r.C);
   b.observations.resize(static_cast<std::size_t>(rows) * r.obs_width);
   b.critic_inputs.resize(static_cast<std::size_t>(rows) * r.critic_width);
   b.allowed.resize(static_cast<std::size_t>(rows) * r.A);
@@ -582,6 +670,7 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
           std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
           std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
           std::copy_n(r.allowed.data() + i * r.A, r.A, b.allowed.data() + kk * r.A);
+          std::copy_n(r.raw_actions.data() + i * r.C, r.C, b.raw_actions.data() + kk * r.C);
           b.actions[kk] = r.actions[i];
           b.logprobs[kk] = r.logprobs[i];
           b.active[kk] = r.active[i];
@@ -608,9 +697,11 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   const CriticReader critic = CriticReader::of(cfg, encoder);
   const SafetyOptions safety = safety_of(cfg);
   const int N = vec.env(0).uavs(), M = vec.size(), obs_width = encoder.width(vec.env(0)), critic_width = critic.width(vec.env(0));
-  const int A = vec.env(0).actions();
+  // The continuous model: a squashed Gaussian over its command (C dimensions), else a softmax over the A actions.
+  const ActionSpec& spec = vec.env(0).mobility().actions();
+  const int C = spec.dims, A = C > 0 ? 0 : vec.env(0).actions();
   auto nets = make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed,
-                                cfg.run.threads, A);
+                                cfg.run.threads, C > 0 ? 2 * C : A);
   RunningStats value_norm;
 
   std::int64_t steps = 0, updates = 0;
@@ -619,7 +710,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
                           {"obs_dim", obs_width}, {"encoder", m.encoder}, {"backend", m.backend},
                           {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).mobility().actions().names},
-                          {"hover", vec.env(0).hover()},
+                          {"hover", vec.env(0).hover()}, {"dims", C},
                           {"critic_input", critic.name()}, {"critic_dim", critic_width},
                           {"hidden", m.hidden}, {"env_steps", steps}, {"updates", updates},
                           {"value_mean", value_norm.mean}, {"value_var", value_norm.var}, {"value_count", value_norm.count},
@@ -642,7 +733,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   if (opt.progress)
     bar = std::make_unique<Progress>(fmt::format("{} {} steps", m.algo, m.total_steps),
                                      static_cast<std::size_t>((m.total_steps - steps + per_update - 1) / per_update), *opt.progress, 10.0, 2.0);
-  Rollout rollout(m.rollout, M, N, obs_width, critic_width, A);
+  Rollout rollout(m.rollout, M, N, obs_width, critic_width, A, C);
   Minibatch scratch;
   EpisodeStats stats;
   while (steps < m.total_steps) {

@@ -38,8 +38,11 @@ struct CriticReader {
 /// One rollout: T steps of M environments with N agents. Per-agent arrays are [T, M, N, ...]
 /// row-major (index at(t, e, n)), per-environment ones [T, M].
 struct Rollout {
-  Rollout(int steps, int envs, int agents, int obs_width, int critic_width, int actions = kGridActions);
-  int T, M, N, obs_width, critic_width, A;  // A: the mobility model's actions
+  /// `dims` > 0: continuous actions of that size (the squashed Gaussian policy), `actions` = 0.
+  Rollout(int steps, int envs, int agents, int obs_width, int critic_width, int actions = kGridActions, int dims = 0);
+  int T, M, N, obs_width, critic_width, A;  // A: the mobility model's actions (0 when continuous)
+  int C = 0;                           // continuous: the command's size
+  std::vector<float> raw_actions;      // [T, M, N, C]: the Gaussian sample z before tanh (continuous)
   std::vector<float> observations;     // [T, M, N, obs_width]: what the actor read
   std::vector<float> critic_inputs;    // [T, M, N, critic_width]
   std::vector<std::int64_t> actions;   // [T, M, N]
@@ -61,7 +64,8 @@ struct Rollout {
 /// values in the critic's normalised units).
 struct Minibatch {
   int rows = 0, obs_width = 0, critic_width = 0, action_count = kGridActions;
-  std::vector<float> observations, critic_inputs, logprobs, advantages, returns, values, active, allowed;
+  int dims = 0;  // continuous: the command's size; the actor's output is then [mean (dims), log std (dims)]
+  std::vector<float> observations, critic_inputs, logprobs, advantages, returns, values, active, allowed, raw_actions;
   std::vector<std::int64_t> actions;
 };
 
@@ -76,6 +80,19 @@ struct UpdateStats {
   double policy_loss = 0, value_loss = 0, entropy = 0, old_approx_kl = 0, approx_kl = 0, clipfrac = 0, grad_norm = 0;
   void add(const UpdateStats& o, double w);
 };
+
+/// The squashed Gaussian policy of continuous actions (the continuous mobility model): the actor
+/// outputs a mean mu and a log standard deviation (clamped to [kLogStdMin, kLogStdMax]) per
+/// dimension; z ~ N(mu, sigma^2), the command u = tanh(z) in (-1, 1). Its log-probability with
+/// the change of variables: log pi(u) = sum_k [log N(z_k; mu_k, sigma_k) - log(1 - tanh(z_k)^2)],
+/// log(1 - tanh(z)^2) = 2 (log 2 - z - softplus(-2 z)) (stable for large |z|). PPO's ratio uses z, as
+/// stored; the entropy bonus is the Gaussian's, sum_k (log sigma_k + (1 + log 2 pi) / 2) (the
+/// squashed distribution's has no closed form).
+constexpr double kLogStdMin = -5.0, kLogStdMax = 1.0;
+/// log pi(tanh(z)) for one dimension given the actor's mu and log sigma (clamped here).
+double squashed_gaussian_logprob(double z, double mu, double log_std);
+/// log(1 - tanh(z)^2), computed stably.
+double tanh_log_jacobian(double z);
 
 /// The loss of eq:total_loss (see PpoNetworks::step) on a minibatch from the networks' outputs
 /// (logits [rows x logit_stride], first batch.action_count columns; values [rows x value_stride], first
@@ -104,12 +121,15 @@ class PpoNetworks : public Learned {
 /// the same weights). backend: "fast" | "torch". `threads` (run.threads; 0 = every core): the fast
 /// backend computes each minibatch in two fixed halves, on up to two threads, with the same
 /// numbers for any thread count; LibTorch's threads are set by the run.
+/// `actions` is the actor's output width: the discrete actions, or 2 x the continuous command's size.
 std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
                                                double learning_rate, const torch::Device& device, std::uint64_t seed,
                                                int threads = 1, int actions = kGridActions);
 
 /// Fills the rollout with T steps of every environment: each active UAV samples from its policy
 /// among the moves its safety settings allow (sequential_safe_actions); arrived UAVs STAY.
+/// Continuous (rollout.C > 0): each active UAV samples a command from its squashed Gaussian; the
+/// safety layer (safe_velocities) may replace the velocity flown, the sample stays as drawn.
 /// Finished episodes go to `stats`. Leaves next_values for the bootstrap.
 void collect(VecEnv& envs, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety,
              PpoNetworks& nets, const RunningStats& value_norm, Rng& rng, Rollout& rollout, EpisodeStats& stats);

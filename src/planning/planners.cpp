@@ -544,6 +544,8 @@ double brute_force_optimum(UavEnv& env) {
   return found ? best : std::numeric_limits<double>::quiet_NaN();
 }
 
+Positions Planner::act_velocities(UavEnv& env) { return env.primitive_velocities(act(env)); }
+
 EpisodeRecord run_episode(UavEnv& env, Planner& planner) {
   env.reset();
   planner.reset(env);
@@ -552,10 +554,18 @@ EpisodeRecord run_episode(UavEnv& env, Planner& planner) {
   r.action_names = env.mobility().actions();
   r.positions.push_back(env.positions());
   while (!env.done()) {
-    auto a = planner.act(env);
-    for (int n = 0; n < env.uavs(); ++n)
-      if (env.arrived(n)) a[static_cast<std::size_t>(n)] = env.hover();
-    const StepInfo info = env.step(a);
+    std::vector<int> a;
+    StepInfo info;
+    if (planner.commands_velocities()) {
+      const Positions v = planner.act_velocities(env);
+      for (int n = 0; n < env.uavs(); ++n) a.push_back(env.arrived(n) ? env.hover() : -1);
+      info = env.step_velocities(v);
+    } else {
+      a = planner.act(env);
+      for (int n = 0; n < env.uavs(); ++n)
+        if (env.arrived(n)) a[static_cast<std::size_t>(n)] = env.hover();
+      info = env.step(a);
+    }
     r.actions.push_back(a);
     r.steps.push_back(info);
     r.positions.push_back(env.positions());

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 
 namespace skyloop {
 
@@ -119,6 +120,85 @@ std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions&
     placed.x.push_back(x), placed.y.push_back(y);
   }
   return actions;
+}
+
+Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const Positions& wanted) {
+  // Each UAV's candidates in order of preference: its command if the mask lets it fly it, then the
+  // allowed primitives by how near their flown velocity is to the one asked for.
+  struct Candidate {
+    double vx, vy, x, y;
+  };
+  const auto order = shield_order(env);
+  std::vector<std::vector<Candidate>> candidates;
+  const int left_after = env.t_max() - (env.t() + 1);
+  for (const int n : order) {
+    const UavEnv::Landing want = env.landing_velocity(n, wanted(n, 0), wanted(n, 1));
+    const int slack_now = left_after + 1 - env.min_moves(n, env.positions()(n, 0), env.positions()(n, 1));
+    const int keep = std::max(0, std::min(safety.margin, slack_now));
+    const bool reach = !safety.mask || (want.inside && env.min_moves(n, want) <= left_after - keep);
+    std::vector<Candidate> c;
+    if (reach) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y});
+    if (!reach || safety.shield) {
+      ActionSet options = allowed_moves(env, n, safety);
+      if (safety.mask && safety.margin > 0) options |= reachable_moves(env, n, 0);  // the shield may spend the margin
+      std::vector<std::pair<double, int>> near;
+      for (int a = 0; a < env.actions(); ++a)
+        if (options >> a & 1u) {
+          const UavEnv::Landing l = env.landing(n, a);
+          near.emplace_back(std::hypot(l.vx - want.vx, l.vy - want.vy) + (safety.mask && env.min_moves(n, l) > left_after - keep ? 1e6 : 0.0), a);
+        }
+      std::stable_sort(near.begin(), near.end());
+      std::vector<int> actions(static_cast<std::size_t>(env.uavs()), env.hover());
+      for (const auto& [d, a] : near) {
+        actions[static_cast<std::size_t>(n)] = a;
+        const Positions v = env.primitive_velocities(actions);
+        const UavEnv::Landing l = env.landing(n, a);
+        c.push_back({v(n, 0), v(n, 1), l.x, l.y});
+      }
+    }
+    if (c.empty()) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y});  // nothing allowed: as asked
+    candidates.push_back(std::move(c));
+  }
+  Positions out = Positions::Zero(env.uavs(), 2);
+  std::vector<std::size_t> pick(order.size(), 0);
+  if (safety.shield) {
+    // Depth first over the UAVs in shield order, each its candidates best first: the first joint
+    // choice in which no two UAVs end within D_min (bounded; else each UAV its first candidate).
+    Placed placed = arrived_uavs(env);
+    const std::size_t base = placed.x.size();
+    long nodes = 0;
+    std::function<bool(std::size_t)> dfs = [&](std::size_t i) {
+      if (i == order.size()) return true;
+      for (std::size_t k = 0; k < candidates[i].size(); ++k) {
+        if (++nodes > 20000) return false;
+        const Candidate& c = candidates[i][k];
+        if (!placed.clear(c.x, c.y, env.d_min())) continue;
+        placed.x.push_back(c.x), placed.y.push_back(c.y);
+        pick[i] = k;
+        if (dfs(i + 1)) return true;
+        placed.x.pop_back(), placed.y.pop_back();
+      }
+      return false;
+    };
+    if (!dfs(0)) {
+      std::fill(pick.begin(), pick.end(), 0);
+      placed.x.resize(base), placed.y.resize(base);
+      // Sequentially: each UAV its first candidate clear of those placed, else its first.
+      for (std::size_t i = 0; i < order.size(); ++i) {
+        for (std::size_t k = 0; k < candidates[i].size(); ++k)
+          if (placed.clear(candidates[i][k].x, candidates[i][k].y, env.d_min())) {
+            pick[i] = k;
+            break;
+          }
+        placed.x.push_back(candidates[i][pick[i]].x), placed.y.push_back(candidates[i][pick[i]].y);
+      }
+    }
+  }
+  for (std::size_t i = 0; i < order.size(); ++i) {
+    const Candidate& c = candidates[i][pick[i]];
+    out(order[i], 0) = c.vx, out(order[i], 1) = c.vy;
+  }
+  return out;
 }
 
 namespace {

@@ -144,7 +144,7 @@ TEST(Mobility, BadSettingsAreRefusedInOneLine) {
             std::string::npos);
   EXPECT_NE(refused({"trajectory.mobility=headings", "trajectory.speeds_mps=[100]"}).find("tip speed"), std::string::npos);
   EXPECT_NE(refused({"trajectory.speeds_mps=[]"}).find("trajectory.speeds_mps"), std::string::npos);
-  EXPECT_NE(refused({"trajectory.mobility=walk"}).find("allowed one of grid, headings"), std::string::npos);
+  EXPECT_NE(refused({"trajectory.mobility=walk"}).find("allowed one of grid, headings, continuous"), std::string::npos);
   EXPECT_NE(refused({"env.objective=joules"}).find("env.objective"), std::string::npos);
   // Only two-step moves: the paper's destination (160 m along x, 80 m along y from its start) is out of reach.
   const std::string parity = error_of([] {

@@ -31,7 +31,8 @@
 //    lattice, exact for any speed set); continuous: the slots the HOME command takes from the
 //    UAV's position and velocity (a simulation of the same dynamics: an upper bound on the fewest,
 //    and one the UAV can always keep to, so masks and shield built on it keep every destination
-//    reachable);
+//    reachable); out of reach if HOME would meet the boundary on the way (a UAV too fast towards
+//    an edge to turn within a_max);
 //  - collision: two UAVs closer than D_min at the end of a slot (positions are sampled per slot);
 //  - energy: the UAV's propulsion power at its ground speed (skyloop/env/energy.hpp) times delta_t.
 #include <string>

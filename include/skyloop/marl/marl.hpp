@@ -42,6 +42,10 @@ class MarlPolicy final : public Planner {
   ~MarlPolicy() override;
   std::string name() const override;
   std::vector<int> act(UavEnv& env) override;
+  /// Policies trained on the continuous model command velocities: the mean of their squashed
+  /// Gaussian, tanh(mu), through the safety layer (safe_velocities).
+  bool commands_velocities() const override;
+  Positions act_velocities(UavEnv& env) override;
   /// The configuration the policy was trained with.
   const std::string& config_toml() const;
   /// Safety at execution (skyloop/planning/safety.hpp): as trained (marl.action_mask,

@@ -20,6 +20,11 @@ class Planner {
   virtual void reset(UavEnv& env) {}
   /// Joint action for the current slot.
   virtual std::vector<int> act(UavEnv& env) = 0;
+  /// True for planners that command velocities (trajectory.mobility = continuous): run_episode
+  /// then steps with act_velocities().
+  virtual bool commands_velocities() const { return false; }
+  /// Velocity commands for the current slot (m/s; row n = UAV n).
+  virtual Positions act_velocities(UavEnv& env);
 };
 
 /// Uniform over each UAV's feasible actions (in the area, destination still reachable in the
@@ -169,7 +174,7 @@ struct EpisodeRecord {
   std::string planner;
   ActionSpec action_names;                  // the mobility model's actions (names of `actions`)
   std::vector<Positions> positions;         // slots 1..T
-  std::vector<std::vector<int>> actions;    // slots 1..T-1 (as executed: arrived UAVs hover)
+  std::vector<std::vector<int>> actions;    // slots 1..T-1 (as executed: arrived UAVs hover; -1: a velocity command)
   std::vector<std::vector<double>> speeds;  // [slot 1..T-1][UAV] ground speed flown (m/s)
   std::vector<std::vector<double>> powers;  // [slot 1..T-1][UAV] propulsion power (W; energy / delta_t)
   std::vector<StepInfo> steps;              // after each action

@@ -15,6 +15,13 @@
 //    its margin-keeping moves avoids a collision. Two UAVs
 //    with no slack left on one line cannot pass each other; with a margin one of them can wait.
 //
+//  - continuous model (safe_velocities): the UAVs choose in shield order; a UAV keeps its velocity
+//    command if, projected and flown, it leaves the area untouched and the destination reachable
+//    (the HOME simulation, UavEnv::min_moves) and, with the shield, lands D_min clear of the UAVs
+//    placed; else it flies the allowed primitive (HOME, HOVER, the headings) whose flown velocity is
+//    nearest to the one it asked for (the shielded primitives first). HOME is always allowed from a
+//    state the mask led to, so the mask brings every UAV home by T_max under any commands.
+//
 // Training samples through sequential_safe_actions (each UAV's allowed set is its action mask in
 // the PPO / Q-learning update); execution uses shielded_argmax, which searches the joint action
 // depth first so that a collision is never chosen when any joint action of allowed moves avoids one.
@@ -57,6 +64,10 @@ std::vector<int> shield_order(const UavEnv& env);
 std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
                                          const std::function<int(int n, ActionSet allowed)>& choose,
                                          std::vector<ActionSet>* allowed_out = nullptr);
+
+/// Continuous model: the velocity commands (m/s; row n = UAV n) that replace `wanted` where the
+/// mask or the shield refuses it (above). Arrived UAVs' rows are 0.
+Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const Positions& wanted);
 
 /// The deployed joint action of a learned planner from per-UAV action scores (scores[n][a], one
 /// per action of the environment's mobility model; higher is better):

@@ -1,0 +1,228 @@
+// The continuous mobility model (skyloop/env/mobility.hpp): the command map, the projection onto
+// what a UAV can fly, arrival and reachability by the HOME simulation, the safety layer over
+// velocity commands (skyloop/planning/safety.hpp), the energy bookkeeping, and the planners on it.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numeric>
+
+#include "skyloop/beamforming/linear.hpp"
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/env/energy.hpp"
+#include "skyloop/env/mobility.hpp"
+#include "skyloop/planning/planners.hpp"
+#include "skyloop/planning/safety.hpp"
+
+#include "test_util.hpp"
+
+using namespace skyloop;
+using skyloop::test::error_of;
+
+namespace {
+
+Config continuous(double v_max = 20, double a_max = 5) {
+  Config c;
+  c.trajectory.mobility = "continuous";
+  c.trajectory.v_max_mps = v_max;
+  c.trajectory.a_max_mps2 = a_max;
+  validate(c);
+  return c;
+}
+
+std::unique_ptr<UavEnv> make_env(const Config& cfg, std::uint64_t seed = 1) {
+  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, cfg.scenario.users, seed));
+  return std::make_unique<UavEnv>(cfg, oracle);
+}
+
+/// Commands uniform in [-1, 1]^2 for every UAV, as velocities.
+Positions random_commands(const UavEnv& env, Rng& rng) {
+  Positions v(env.uavs(), 2);
+  for (int n = 0; n < env.uavs(); ++n)
+    env.mobility().velocity(2 * rng.uniform() - 1, 2 * rng.uniform() - 1, v(n, 0), v(n, 1));
+  return v;
+}
+
+}  // namespace
+
+TEST(Continuous, CommandsMapOneToOneOntoTheDisc) {
+  const Config c = continuous();
+  const MobilityModel m(c);
+  ASSERT_TRUE(m.continuous());
+  EXPECT_EQ(m.actions().dims, 2);
+  EXPECT_EQ(m.actions().names.back(), "HOVER");
+  EXPECT_EQ(m.actions().names[static_cast<std::size_t>(m.home())], "HOME");
+  EXPECT_EQ(m.count(), 18);  // 8 headings at v_max / 2 and v_max, HOME, HOVER
+  double vx, vy;
+  m.velocity(1, 0, vx, vy);  // the square's edge midpoints and corners land on the rim
+  EXPECT_NEAR(vx, 20, 1e-12);
+  EXPECT_NEAR(vy, 0, 1e-12);
+  m.velocity(1, 1, vx, vy);
+  EXPECT_NEAR(vx, 20 / std::sqrt(2.0), 1e-12);
+  EXPECT_NEAR(vy, 20 / std::sqrt(2.0), 1e-12);
+  m.velocity(0.5, -0.25, vx, vy);  // |u|_inf = 0.5: half the top speed
+  EXPECT_NEAR(std::hypot(vx, vy), 10, 1e-12);
+  EXPECT_NEAR(std::atan2(vy, vx), std::atan2(-0.25, 0.5), 1e-12);
+  m.velocity(0, 0, vx, vy);
+  EXPECT_EQ(vx, 0);
+  EXPECT_EQ(vy, 0);
+  Rng rng(3);
+  for (int i = 0; i < 1000; ++i) {
+    const double u0 = 2 * rng.uniform() - 1, u1 = 2 * rng.uniform() - 1;
+    m.velocity(u0, u1, vx, vy);
+    EXPECT_LE(std::hypot(vx, vy), 20 + 1e-9);
+    double b0, b1;
+    m.command(vx, vy, b0, b1);
+    EXPECT_NEAR(b0, u0, 1e-9);
+    EXPECT_NEAR(b1, u1, 1e-9);
+  }
+}
+
+TEST(Continuous, ProjectionIsTheNearestVelocityTheUavCanFly) {
+  // The nearest point of {|V| <= v_max} n {|V - V_prev| <= a_max delta_t} (v_max = 20, a_max
+  // delta_t = 10 m/s), against a search over a fine grid of the feasible set.
+  const Config c = continuous();
+  const MobilityModel m(c);
+  Rng rng(5);
+  for (int i = 0; i < 300; ++i) {
+    const double r = 20 * std::sqrt(rng.uniform()), th = 6.283185307179586 * rng.uniform();
+    const double px = r * std::cos(th), py = r * std::sin(th);
+    const double qx = 80 * rng.uniform() - 40, qy = 80 * rng.uniform() - 40;
+    double ox, oy;
+    m.project(qx, qy, px, py, ox, oy);
+    EXPECT_LE(std::hypot(ox, oy), 20 + 1e-7);
+    EXPECT_LE(std::hypot(ox - px, oy - py), 10 + 1e-7);
+    double best = 1e300;
+    for (double gx = -20; gx <= 20; gx += 0.05)
+      for (double gy = -20; gy <= 20; gy += 0.05)
+        if (std::hypot(gx, gy) <= 20 && std::hypot(gx - px, gy - py) <= 10) best = std::min(best, std::hypot(gx - qx, gy - qy));
+    EXPECT_LE(std::hypot(ox - qx, oy - qy), best + 1e-9) << "case " << i;
+    EXPECT_GE(std::hypot(ox - qx, oy - qy), best - 0.08) << "case " << i;  // the grid's spacing
+    double ax, ay;  // a feasible velocity projects to itself
+    m.project(ox, oy, px, py, ax, ay);
+    EXPECT_NEAR(ax, ox, 1e-9);
+    EXPECT_NEAR(ay, oy, 1e-9);
+  }
+}
+
+TEST(Continuous, HomeFliesInTheSlotsReachabilityCounts) {
+  // From rest, the HOME primitive alone brings each UAV home in exactly min_moves slots, and the
+  // count falls by one each slot (the simulation is the dynamics').
+  const Config c = continuous();
+  auto env = make_env(c);
+  const int N = env->uavs();
+  std::vector<int> need(static_cast<std::size_t>(N));
+  for (int n = 0; n < N; ++n) {
+    need[static_cast<std::size_t>(n)] = env->min_moves(n, env->positions()(n, 0), env->positions()(n, 1));
+    // At least the straight-line distance at v_max (the paper scenario's 160 m at 40 m a slot: 4).
+    const double d = std::hypot(env->destinations()(n, 0) - env->starts()(n, 0), env->destinations()(n, 1) - env->starts()(n, 1));
+    EXPECT_GE(need[static_cast<std::size_t>(n)], static_cast<int>(std::ceil(d / 40.0 - 1e-9)));
+    EXPECT_LT(need[static_cast<std::size_t>(n)], c.trajectory.t_max);
+  }
+  const std::vector<int> home(static_cast<std::size_t>(N), env->mobility().home());
+  while (!env->done()) {
+    for (int n = 0; n < N; ++n)
+      if (!env->arrived(n)) EXPECT_EQ(env->min_moves(n, env->positions()(n, 0), env->positions()(n, 1)), need[static_cast<std::size_t>(n)] - (env->t() - 1));
+    env->step(home);
+  }
+  for (int n = 0; n < N; ++n) EXPECT_TRUE(env->arrived(n));
+  EXPECT_EQ(env->t(), 1 + *std::max_element(need.begin(), need.end()));
+}
+
+TEST(Continuous, MaskBringsEveryUavHomeUnderAnyCommands) {
+  // Random commands through safe_velocities: every mission complete by T_max, no boundary event,
+  // every flown velocity within v_max and within a_max delta_t of the last one; with the shield,
+  // no collision that a joint choice of allowed primitives would have avoided.
+  for (const bool shield : {false, true}) {
+    int collisions = 0;
+    for (std::uint64_t seed = 1; seed <= 12; ++seed) {
+      Config c = continuous(seed % 3 == 0 ? 25 : 20, seed % 2 == 0 ? 2 : 5);
+      c.trajectory.t_max = seed % 4 == 0 ? 14 : 24;  // little slack: the mask must act
+      auto env = make_env(c, seed);
+      Rng rng(seed);
+      const SafetyOptions safety{true, shield, 0};
+      while (!env->done()) {
+        Positions last(env->uavs(), 2);
+        for (int n = 0; n < env->uavs(); ++n) last(n, 0) = env->velocity_x(n), last(n, 1) = env->velocity_y(n);
+        std::vector<bool> was(static_cast<std::size_t>(env->uavs()));
+        for (int n = 0; n < env->uavs(); ++n) was[static_cast<std::size_t>(n)] = env->arrived(n);
+        const Positions v = safe_velocities(*env, safety, random_commands(*env, rng));
+        // A collision counts against the shield only if a joint choice of allowed primitives avoids it.
+        Positions next(env->uavs(), 2);
+        for (int n = 0; n < env->uavs(); ++n) {
+          const auto l = env->arrived(n) ? env->landing(n, env->hover()) : env->landing_velocity(n, v(n, 0), v(n, 1));
+          next(n, 0) = l.x, next(n, 1) = l.y;
+        }
+        if (env->collisions(next) > 0) {
+          const int A = env->actions();
+          bool avoidable = false;
+          for (int j = 0; j < A * A * A && !avoidable; ++j) {
+            const std::vector<int> b{j % A, j / A % A, j / A / A};
+            bool ok = true;
+            for (int n = 0; n < 3; ++n) ok = ok && (allowed_moves(*env, n, safety) >> b[static_cast<std::size_t>(n)] & 1u);
+            avoidable = ok && env->collisions(env->next_positions(b)) == 0;
+          }
+          collisions += avoidable;
+        }
+        const auto info = env->step_velocities(v);
+        EXPECT_EQ(info.boundary, 0);
+        for (int n = 0; n < env->uavs(); ++n) {
+          if (was[static_cast<std::size_t>(n)]) continue;
+          const double vx = env->velocity_x(n), vy = env->velocity_y(n);
+          EXPECT_LE(std::hypot(vx, vy), c.trajectory.v_max_mps + 1e-7);
+          EXPECT_LE(std::hypot(vx - last(n, 0), vy - last(n, 1)), c.trajectory.a_max_mps2 * c.trajectory.slot_s + 1e-7);
+        }
+      }
+      EXPECT_TRUE(env->arrived(0) && env->arrived(1) && env->arrived(2)) << "seed " << seed << ", shield " << shield;
+    }
+    if (shield) EXPECT_EQ(collisions, 0);
+  }
+}
+
+TEST(Continuous, EnergyBookkeepingAddsUp) {
+  const Config c = continuous();
+  auto env = make_env(c, 2);
+  RandomPlanner random(5);
+  const auto r = run_episode(*env, random);
+  ASSERT_EQ(r.powers.size(), static_cast<std::size_t>(r.T - 1));
+  const PropulsionModel p(c.energy);
+  double total = 0;
+  for (int n = 0; n < 3; ++n) {
+    double e = 0;
+    for (std::size_t t = 0; t < r.powers.size(); ++t) {
+      const auto i = static_cast<std::size_t>(n);
+      e += r.powers[t][i] * c.trajectory.slot_s;
+      EXPECT_NEAR(r.powers[t][i], p.power(r.speeds[t][i]), 1e-9);
+      // The speed charged is the distance flown over the slot (arrival may place a UAV up to
+      // arrival_m nearer).
+      const double flown = std::hypot(r.positions[t + 1](n, 0) - r.positions[t](n, 0), r.positions[t + 1](n, 1) - r.positions[t](n, 1));
+      EXPECT_NEAR(r.speeds[t][i] * c.trajectory.slot_s, flown, c.trajectory.arrival_m + 1e-9);
+    }
+    EXPECT_NEAR(e, r.uav_energy_j[static_cast<std::size_t>(n)], 1e-6);
+    total += e;
+  }
+  EXPECT_NEAR(total, r.energy_j, 1e-6);
+}
+
+TEST(Continuous, PlannersFlyItAndLatticeSearchesRefuseIt) {
+  const Config c = continuous();
+  auto env = make_env(c, 3);
+  RandomPlanner random(1);
+  GreedyPlanner greedy;
+  SequentialGreedyPlanner seq;
+  for (Planner* p : std::initializer_list<Planner*>{&random, &greedy, &seq}) {
+    const auto r = run_episode(*env, *p);
+    EXPECT_TRUE(r.success) << p->name();
+  }
+  EXPECT_NE(error_of([&] { solve_optimal(*env); }).find("trajectory.mobility = \"continuous\""), std::string::npos);
+  EXPECT_NE(error_of([&] { brute_force_optimum(*env); }).find("allowed trajectory.mobility = grid or headings"), std::string::npos);
+  // Bad settings: one line naming the field, the value and what is allowed.
+  Config bad = continuous();
+  bad.trajectory.v_max_mps = 130;
+  EXPECT_NE(error_of([&] { validate(bad); }).find("trajectory.v_max_mps = 130"), std::string::npos);
+  Config none;
+  const std::string a_max = error_of([&] { apply_override(none, "trajectory.a_max_mps2=0"); });
+  EXPECT_NE(a_max.find("trajectory.a_max_mps2"), std::string::npos) << a_max;
+  EXPECT_EQ(a_max.find('\n'), std::string::npos) << a_max;
+  EXPECT_NE(error_of([&] { apply_override(none, "trajectory.mobility=smooth"); }).find("continuous"), std::string::npos);
+}

@@ -5,18 +5,22 @@ Every size, bound and action count is read from the environment's spec (``VecEnv
 - ``ParallelEnv``: PettingZoo's Parallel API (a subclass of ``pettingzoo.ParallelEnv`` when
   pettingzoo is importable, the same methods otherwise); agents "uav_0" .. "uav_{N-1}"; each
   observation is ``{"observation": float32[obs], "action_mask": int8[A]}`` (PettingZoo's
-  documented action-mask convention); ``state()`` is s[t].
+  documented action-mask convention; the continuous model's carries no mask); ``state()`` is s[t].
 - ``MappoEnv``: what the MAPPO reference implementation's shared SMAC-style runner reads:
   ``reset() -> (obs, share_obs, available_actions)``, ``step(actions) -> (obs, share_obs, rewards,
   dones, infos, available_actions)``, arrays [M, N, ...], ``infos[env][agent]`` dicts with
   ``bad_transition`` and ``won``.
+- Under ``trajectory.mobility = "continuous"`` the action spaces of ``ParallelEnv``, ``MappoEnv`` and
+  ``GymVectorEnv`` are velocity commands, Box(-1, 1, (2,)) per agent (``spec["dims"]``), flown
+  through the safety layer of ``marl.action_mask`` / ``marl.shield``; ``SmacEnv`` (EPyMARL is
+  discrete) takes the model's primitives, ``spec["actions"]``, with their action mask.
 - ``SmacEnv``: EPyMARL's current ``MultiAgentEnv`` (its episode and parallel runners):
   ``reset(seed, options) -> (obs, info)``, ``step(actions) -> (obs, reward, terminated, truncated,
   info)``, ``get_obs``, ``get_state``, ``get_avail_actions``, ``get_env_info``, ``get_stats``; built
   with EPyMARL's ``common_reward`` and ``reward_scalarisation`` arguments.
 - ``GymVectorEnv``: a Gymnasium vector environment for single-policy learners: every
   environment's N agents flattened into one observation (N * obs) and a MultiDiscrete([A] * N)
-  action; same-step auto-reset with ``final_obs`` / ``final_info`` and episode statistics in
+  action (continuous model: a Box of N * 2 commands); same-step auto-reset with ``final_obs`` / ``final_info`` and episode statistics in
   ``infos["episode"]`` (what CleanRL's PPO and Gymnasium's RecordEpisodeStatistics give).
 
 Spaces are Gymnasium's when gymnasium is importable, else the minimal ``Box`` / ``Discrete`` /
@@ -139,6 +143,15 @@ def _mask_box(num_actions):
     return Box(0, 1, shape=(num_actions,), dtype=np.int8)
 
 
+def _action_space(spec, repeat: int = 1):
+    """One agent's action space (``repeat`` agents flattened): Discrete over the mobility model's
+    actions, or under ``trajectory.mobility = "continuous"`` (``spec["dims"]`` > 0) the velocity
+    command Box(-1, 1, (dims,))."""
+    if spec["dims"] > 0:
+        return Box(-1.0, 1.0, shape=(repeat * spec["dims"],), dtype=np.float32)
+    return Discrete(spec["num_actions"]) if repeat == 1 else MultiDiscrete([spec["num_actions"]] * repeat)
+
+
 try:  # pragma: no cover - pettingzoo is not packaged in Debian
     from pettingzoo import ParallelEnv as _ParallelBase  # type: ignore
 except ImportError:
@@ -161,8 +174,11 @@ class ParallelEnv(_ParallelBase):
         self.possible_agents = [f"uav_{i}" for i in range(n)]
         self.agents: list[str] = []
         spec = self._vec.spec
-        self._obs_space = Dict({"observation": _row_box(spec["obs"]), "action_mask": _mask_box(spec["num_actions"])})
-        self._act_space = Discrete(spec["num_actions"])
+        self._act_space = _action_space(spec)
+        self._dims = spec["dims"]
+        # A Box action takes no mask: the continuous model's observations carry none (the safety layer acts).
+        self._obs_space = Dict({"observation": _row_box(spec["obs"])} if self._dims else
+                               {"observation": _row_box(spec["obs"]), "action_mask": _mask_box(spec["num_actions"])})
         self.state_space = _row_box(spec["state"])
         self._stay = spec["hover"]
         self.render_mode = None
@@ -183,6 +199,8 @@ class ParallelEnv(_ParallelBase):
         return len(self.possible_agents)
 
     def _per_agent(self, obs, mask):
+        if self._dims:
+            return {a: {"observation": obs[0, i].copy()} for i, a in enumerate(self.possible_agents)}
         return {a: {"observation": obs[0, i].copy(), "action_mask": mask[0, i].copy()}
                 for i, a in enumerate(self.possible_agents)}
 
@@ -197,9 +215,12 @@ class ParallelEnv(_ParallelBase):
             raise RuntimeError("step() after the episode ended: call reset() first")
         missing = [a for a in self.agents if a not in actions]
         if missing:
-            raise InputError(f"actions are missing for {missing}: allowed one action in "
-                             f"0..{self._act_space.n - 1} per live agent")
-        joint = np.array([[int(actions[a]) for a in self.possible_agents]], dtype=np.int64)
+            allowed = (f"a command in [-1, 1]^{self._dims}" if self._dims else f"one action in 0..{self._act_space.n - 1}")
+            raise InputError(f"actions are missing for {missing}: allowed {allowed} per live agent")
+        if self._dims:
+            joint = np.array([[np.asarray(actions[a], dtype=np.float64).reshape(-1) for a in self.possible_agents]])
+        else:
+            joint = np.array([[int(actions[a]) for a in self.possible_agents]], dtype=np.int64)
         r = self._vec.step(joint)
         done = bool(r.terminated[0] or r.truncated[0])
         obs = r.info["final_obs"] if done else r.obs
@@ -237,7 +258,8 @@ class MappoEnv:
     vectorised envs: ``reset() -> (obs, share_obs, available_actions)``; ``step(actions) -> (obs,
     share_obs, rewards, dones, infos, available_actions)`` with obs [M, N, obs], share_obs
     [M, N, agent_state] (the agent-specific global state), rewards [M, N, 1] (the team reward),
-    dones bool [M, N] (the episode's end, for every agent), available_actions [M, N, A], and infos a
+    dones bool [M, N] (the episode's end, for every agent), available_actions [M, N, A] (None under
+    the continuous model, whose action space is a Box as the reference's MPE runs use), and infos a
     list of M lists of N dicts: the environment's step statistics plus ``bad_transition`` (the
     episode hit T_max: a time limit, not a terminal state) and ``won`` (every UAV home).
     ``actions`` may be [M, N] or [M, N, 1]. Auto-reset as VecEnv."""
@@ -248,14 +270,18 @@ class MappoEnv:
         spec = self.env.spec
         self.observation_space = [_row_box(spec["obs"]) for _ in range(self.num_agents)]
         self.share_observation_space = [_row_box(spec["agent_state"]) for _ in range(self.num_agents)]
-        self.action_space = [Discrete(spec["num_actions"]) for _ in range(self.num_agents)]
+        self.action_space = [_action_space(spec) for _ in range(self.num_agents)]
 
     def seed(self, seed: int):
         self.env.reset(seed)
 
     def reset(self, seed: Optional[int] = None):
         o = self.env.reset(seed)
-        return o.obs, o.agent_state, o.action_mask
+        return o.obs, o.agent_state, self._available(o.action_mask)
+
+    def _available(self, mask):
+        # The reference's buffer keeps available_actions for Discrete spaces only (None otherwise).
+        return None if self.env.action_dims else mask
 
     def step(self, actions):
         a = np.asarray(actions)
@@ -272,7 +298,7 @@ class MappoEnv:
             stats["bad_transition"] = bool(r.truncated[i])
             stats["won"] = bool(r.terminated[i])
             infos.append([dict(stats) for _ in range(N)])
-        return r.obs, r.agent_state, rewards, dones, infos, r.action_mask
+        return r.obs, r.agent_state, rewards, dones, infos, self._available(r.action_mask)
 
     def close(self):
         pass
@@ -418,11 +444,15 @@ class GymVectorEnv:
         self.num_envs = self.env.num_envs
         spec, n = self.env.spec, self.env.num_agents
         self.single_observation_space = _row_box(spec["obs"], n)
-        self.single_action_space = MultiDiscrete([spec["num_actions"]] * n)
+        self.single_action_space = _action_space(spec, n)
+        self._dims = spec["dims"]
         low, high = _bounds(spec["obs"], n)
         self.observation_space = Box(np.tile(low, (self.num_envs, 1)), np.tile(high, (self.num_envs, 1)),
                                      shape=(self.num_envs, n * spec["obs"]["size"]), dtype=np.float32)
-        self.action_space = MultiDiscrete(np.full((self.num_envs, n), spec["num_actions"]))
+        if self._dims:
+            self.action_space = Box(-1.0, 1.0, shape=(self.num_envs, n * self._dims), dtype=np.float32)
+        else:
+            self.action_space = MultiDiscrete(np.full((self.num_envs, n), spec["num_actions"]))
         self.closed = False
         self._return = np.zeros(self.num_envs)
         self._length = np.zeros(self.num_envs, dtype=np.int64)
@@ -442,6 +472,8 @@ class GymVectorEnv:
 
     def step(self, actions):
         import time
+        if self._dims:  # [M, N * dims] flattened commands -> [M, N, dims]
+            actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, self.env.num_agents, self._dims)
         r = self.env.step(actions)
         M = self.num_envs
         done = r.terminated | r.truncated

@@ -3,7 +3,7 @@
 ``VecEnv(config, num_envs, seed)`` holds M copies of the paper's trajectory environment (N UAVs
 flying from their starts to their destinations over K ground users, one move per slot of the
 mobility model: the paper's UP, DOWN, LEFT, RIGHT, STAY, or ``trajectory.mobility = "headings"``;
-``spec["actions"]`` names them), stepped as one batch in C++ with the GIL released; every environment's
+``spec["actions"]`` names them; ``"continuous"``: velocity commands, ``spec["dims"]`` = 2), stepped as one batch in C++ with the GIL released; every environment's
 sum rate R[t] comes from one batched beamformer call (``env.oracle``, default the paper's GNN).
 
 Environment i draws its K users from ``derive_seed(seed, i)``; with ``env.resample_users`` each
@@ -71,6 +71,7 @@ class VecEnv:
         self.state_size = self.spec["state"]["size"]
         self.agent_state_size = self.spec["agent_state"]["size"]
         self.num_actions = self.spec["num_actions"]
+        self.action_dims = self.spec["dims"]  # continuous commands' size (0: discrete)
         self.config = self._env.config
 
     def field(self, array: np.ndarray, array_name: str, field: str) -> np.ndarray:
@@ -93,7 +94,10 @@ class VecEnv:
         return Observation(d["obs"], d["state"], d["agent_state"], d["action_mask"])
 
     def step(self, actions) -> StepResult:
-        """``actions``: integer array [M, N] with values 0..num_actions-1 (``spec["actions"]``)."""
+        """``actions``: integer array [M, N] with values 0..num_actions-1 (``spec["actions"]``); under
+        ``trajectory.mobility = "continuous"`` (``spec["dims"]`` = 2) also a float array [M, N, 2] of
+        velocity commands in [-1, 1] (stretched onto the disc of v_max, projected onto what each
+        UAV can fly, then through the safety layer of marl.action_mask and marl.shield)."""
         from . import InputError
         try:
             a = np.asarray(actions)

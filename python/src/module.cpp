@@ -19,6 +19,7 @@
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
 #include "skyloop/core/paths.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/uav_env.hpp"
@@ -102,6 +103,8 @@ py::dict env_spec_dict(const EnvSpec& e) {
   d["num_actions"] = e.action.count();
   d["actions"] = py::tuple(py::cast(e.action.names));
   d["hover"] = e.action.hover;  // the action that stays in place (an arrived UAV's only one)
+  // The continuous model: commands in [-1, 1]^dims (the actions above are its primitives); 0: discrete.
+  d["dims"] = e.action.dims;
   d["observation_kind"] = to_string(e.observation_kind), d["state_kind"] = to_string(e.state_kind);
   d["obs"] = array_spec_dict(e.obs, e.agents);
   d["state"] = array_spec_dict(e.state, e.agents);
@@ -148,11 +151,17 @@ class PyVecEnv {
   }
 
   py::dict step(const py::array& actions_in) {
-    const int M = num_envs_, N = agents(), A = spec_->action.count();
+    const int M = num_envs_, N = agents(), A = spec_->action.count(), C = spec_->action.dims;
     const char kind = actions_in.dtype().kind();
-    const std::string allowed = "allowed an integer array of shape [" + std::to_string(M) + ", " + std::to_string(N) +
-                                "] (num_envs, agents) with values 0.." + std::to_string(A - 1) + " (" + action_list() + ")";
-    if (kind != 'i' && kind != 'u') throw InputError("actions have dtype " + py::str(actions_in.dtype()).cast<std::string>() + ": " + allowed);
+    std::string allowed = "allowed an integer array of shape [" + std::to_string(M) + ", " + std::to_string(N) +
+                          "] (num_envs, agents) with values 0.." + std::to_string(A - 1) + " (" + action_list() + ")";
+    if (C > 0)
+      allowed += " or a float array of shape [" + std::to_string(M) + ", " + std::to_string(N) + ", " + std::to_string(C) +
+                 "] with values in [-1, 1] (velocity commands)";
+    std::vector<Positions> velocities;
+    if (kind == 'f' && C > 0) velocities = commands_of(actions_in, allowed);
+    else if (kind != 'i' && kind != 'u') throw InputError("actions have dtype " + py::str(actions_in.dtype()).cast<std::string>() + ": " + allowed);
+    if (!velocities.empty()) return advance({}, velocities);
     const auto a = Array<std::int64_t>::ensure(actions_in);
     if (a.ndim() != 2 || a.shape(0) != M || a.shape(1) != N) throw InputError("actions have shape " + shape_of(actions_in) + ": " + allowed);
     std::vector<std::vector<int>> joint(static_cast<std::size_t>(M), std::vector<int>(static_cast<std::size_t>(N)));
@@ -166,6 +175,33 @@ class PyVecEnv {
         // An arrived UAV is locked to hover (its mask allows only spec["hover"]); any other action is taken as hover.
         joint[static_cast<std::size_t>(i)][static_cast<std::size_t>(n)] = static_cast<int>(v);
       }
+    return advance(joint, {});
+  }
+
+  /// Continuous commands [M, N, C] in [-1, 1] as velocities (m/s), through the safety layer of
+  /// marl.action_mask and marl.shield (safe_velocities) once stepped.
+  std::vector<Positions> commands_of(const py::array& in, const std::string& allowed) const {
+    const int M = num_envs_, N = agents(), C = spec_->action.dims;
+    const auto a = Array<double>::ensure(in);
+    if (a.ndim() != 3 || a.shape(0) != M || a.shape(1) != N || a.shape(2) != C)
+      throw InputError("actions have shape " + shape_of(in) + ": " + allowed);
+    const auto r = a.unchecked<3>();
+    std::vector<Positions> v(static_cast<std::size_t>(M), Positions::Zero(N, 2));
+    const MobilityModel& mob = vec_->env(0).mobility();
+    for (int i = 0; i < M; ++i)
+      for (int n = 0; n < N; ++n) {
+        for (int k = 0; k < C; ++k)
+          if (!(r(i, n, k) >= -1.0 && r(i, n, k) <= 1.0))
+            throw InputError("actions[" + std::to_string(i) + ", " + std::to_string(n) + ", " + std::to_string(k) + "] = " +
+                             format_double(r(i, n, k)) + " is invalid: allowed a command in [-1, 1]");
+        mob.velocity(r(i, n, 0), r(i, n, 1), v[static_cast<std::size_t>(i)](n, 0), v[static_cast<std::size_t>(i)](n, 1));
+      }
+    return v;
+  }
+
+  /// One step of every environment: discrete `joint` actions, or velocity commands.
+  py::dict advance(const std::vector<std::vector<int>>& joint, std::vector<Positions> velocities) {
+    const int M = num_envs_, N = agents();
     auto out = allocate();
     const std::size_t O = static_cast<std::size_t>(N) * static_cast<std::size_t>(spec_->obs.size);
     const std::size_t S = static_cast<std::size_t>(spec_->state.size);
@@ -175,12 +211,20 @@ class PyVecEnv {
     {
       py::gil_scoped_release nogil;
       std::lock_guard<std::mutex> lock(mutex_);
-      info = vec_->step(joint, [&](std::size_t i) {
+      auto final_view = [&](std::size_t i) {
         if (fo.empty()) fo.assign(static_cast<std::size_t>(M) * O, 0.0f), fs.assign(static_cast<std::size_t>(M) * S, 0.0f);
         const UavEnv& e = vec_->env(static_cast<int>(i));
         for (int n = 0; n < N; ++n) e.write_obs(n, fo.data() + i * O + static_cast<std::size_t>(n) * static_cast<std::size_t>(spec_->obs.size));
         e.write_state(fs.data() + i * S);
-      });
+      };
+      if (!velocities.empty()) {
+        const SafetyOptions safety{cfg_.marl.action_mask, cfg_.marl.shield, cfg_.marl.slack_margin};
+        for (int i = 0; i < M; ++i)
+          velocities[static_cast<std::size_t>(i)] = safe_velocities(vec_->env(i), safety, velocities[static_cast<std::size_t>(i)]);
+        info = vec_->step_velocities(velocities, final_view);
+      } else {
+        info = vec_->step(joint, final_view);
+      }
       fill(out);
     }
     py::array final_obs, final_state;

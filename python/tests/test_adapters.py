@@ -21,6 +21,10 @@ def parallel_api_test(env, num_cycles=200):
     for _ in range(num_cycles):
         actions = {}
         for a in env.agents:
+            if not (isinstance(obs[a], dict) and "action_mask" in obs[a]):  # sampled without a mask
+                actions[a] = env.action_space(a).sample()
+                assert env.action_space(a).contains(actions[a])
+                continue
             mask = obs[a]["action_mask"]
             assert env.action_space(a).contains(int(np.flatnonzero(mask)[0]))
             actions[a] = env.action_space(a).sample(mask.astype(np.int8)) if _accepts_mask(env.action_space(a)) \
@@ -60,6 +64,10 @@ def _accepts_mask(space):
 def test_parallel_env_conformance():
     env = ParallelEnv(CFG, seed=1)
     parallel_api_test(env, num_cycles=300)
+    # The continuous model: Box actions, observations without an action mask (a Box takes none).
+    env = ParallelEnv(dict(CFG, **{"trajectory.mobility": "continuous"}), seed=1)
+    parallel_api_test(env, num_cycles=100)
+    assert set(env.observation_space("uav_0").spaces) == {"observation"}
 
 
 def test_parallel_env_seeding_and_errors():
@@ -89,16 +97,23 @@ def mappo_shared_runner(envs, episode_length, rng):
     """What onpolicy/runner/shared/smac_runner.py reads (warmup, collect, insert, log, eval)."""
     num_agents, M = envs.num_agents, envs.num_envs
     obs_space, share_space, act_space = envs.observation_space[0], envs.share_observation_space[0], envs.action_space[0]
-    assert act_space.__class__.__name__ == "Discrete" and obs_space.__class__.__name__ == "Box"
+    assert act_space.__class__.__name__ in ("Discrete", "Box") and obs_space.__class__.__name__ == "Box"
+    discrete = act_space.__class__.__name__ == "Discrete"  # Box: a DiagGaussian head of act_space.shape[0]
     obs, share_obs, available_actions = envs.reset()  # warmup
     buf_obs = np.zeros((episode_length + 1, M, num_agents, *obs_space.shape), np.float32)
     buf_share = np.zeros((episode_length + 1, M, num_agents, *share_space.shape), np.float32)
-    buf_avail = np.ones((episode_length + 1, M, num_agents, act_space.n), np.float32)
-    buf_obs[0], buf_share[0], buf_avail[0] = obs.copy(), share_obs.copy(), available_actions.copy()
+    # The shared buffer keeps available actions for Discrete spaces only (None otherwise).
+    buf_avail = np.ones((episode_length + 1, M, num_agents, act_space.n), np.float32) if discrete else None
+    buf_obs[0], buf_share[0] = obs.copy(), share_obs.copy()
+    if available_actions is not None:
+        buf_avail[0] = available_actions.copy()
     bad, won, finished = [], 0, 0
     for step in range(episode_length):
-        avail = np.concatenate(buf_avail[step])  # collect: [M * N, A]
-        actions = np.array([rng.choice(np.flatnonzero(a)) for a in avail]).reshape(M, num_agents, 1)
+        if discrete:
+            avail = np.concatenate(buf_avail[step])  # collect: [M * N, A]
+            actions = np.array([rng.choice(np.flatnonzero(a)) for a in avail]).reshape(M, num_agents, 1)
+        else:
+            actions = np.clip(rng.normal(size=(M, num_agents, act_space.shape[0])), act_space.low, act_space.high)
         obs, share_obs, rewards, dones, infos, available_actions = envs.step(actions)
         # insert
         dones_env = np.all(dones, axis=1)
@@ -110,7 +125,9 @@ def mappo_shared_runner(envs, episode_length, rng):
         bad_masks = np.array([[[0.0] if info[agent_id]["bad_transition"] else [1.0] for agent_id in range(num_agents)]
                               for info in infos])
         assert bad_masks.shape == (M, num_agents, 1) and rewards.shape == (M, num_agents, 1)
-        buf_obs[step + 1], buf_share[step + 1], buf_avail[step + 1] = obs, share_obs, available_actions
+        buf_obs[step + 1], buf_share[step + 1] = obs, share_obs
+        if available_actions is not None:
+            buf_avail[step + 1] = available_actions
         for i, info in enumerate(infos):  # log (StarCraft2 names) and eval
             "battles_won" in info[0].keys()
             if dones_env[i]:
@@ -133,6 +150,11 @@ def test_mappo_reference_runner_reads_every_field():
     # A finished episode is a time limit (bad transition) exactly when it was not won.
     assert sum(bad) == finished - won
     # Hovering never arrives: every episode ends at T_max, a bad transition for every agent.
+    # The continuous model: a Box action space, available_actions None (what the reference's buffer expects).
+    cont = MappoEnv(dict(CFG, **{"trajectory.mobility": "continuous"}), num_envs=2, seed=2)
+    assert cont.action_space[0].__class__.__name__ == "Box" and cont.action_space[0].shape == (2,)
+    finished, won, bad = mappo_shared_runner(cont, 40, np.random.default_rng(1))
+    assert finished >= 2 and won == finished  # the safety layer brings every UAV home
     env = MappoEnv(CFG, num_envs=2, seed=2)
     env.reset()
     for _ in range(23):

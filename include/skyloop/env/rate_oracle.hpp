@@ -38,6 +38,7 @@ class RateOracle {
 
   const Positions& users() const { return users_; }
   const Beamformer& beamformer() const { return *beamformer_; }
+  std::shared_ptr<const Beamformer> beamformer_ptr() const { return beamformer_; }
   const SystemModel& model() const { return model_; }
   const OracleStats& stats() const { return stats_; }
   std::size_t cache_size() const { return cache_.size() + joint_cache_.size(); }

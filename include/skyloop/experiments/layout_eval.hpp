@@ -58,8 +58,13 @@ struct LayoutSummary {
 /// of environment i, in the order the environments started them (i fastest).
 std::vector<std::uint64_t> training_layouts_of(const Config& run, int count);
 
-/// The reference planner for a scenario: "optimal" where the joint DP fits, else "bestknown".
+/// The reference planner for a scenario: "optimal" where the joint DP fits, else "bestknown";
+/// "optimal-headings" under the continuous model (the optimum of lattice_twin).
 std::string layout_reference(const UavEnv& env);
+/// The continuous model's lattice twin: trajectory.mobility = headings at speeds 0, v_max / 2
+/// and v_max (no acceleration limit), the reference that evaluations of continuous missions
+/// measure against (refused in one line where those speeds leave the D_fly lattice).
+Config lattice_twin(const Config& cfg);
 
 /// Rows in layout order, each layout's planners in the order given, policies next, the reference last.
 std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptions& opt, const BeamformerRegistry& registry,

@@ -324,3 +324,46 @@ TEST(Marl, BadPoliciesAreRejected) {
   write_file_atomic(dir + "/policy.pt", good);
   EXPECT_NO_THROW(MarlPolicy::load(dir));
 }
+
+// Continuous-action MAPPO (the squashed Gaussian, ppo.hpp) on the small scenario under the
+// continuous model, energy efficiency, the objective reward, the mask and the shield, no entropy
+// bonus: 2e5 steps on three seeds. The deployed policy, tanh(mu) through the safety layer, is judged
+// on its training users (a learning test, not a generalisation one) against the untrained policy
+// and Random (primitives, mask): every mission completes (the safety layer's guarantee) and the
+// learned policy beats Random by 5%. Measured (kbit/J), seeds 1-3: ATen default 197.4 / 192.4 /
+// 191.3, avx2 and avx512 201.6 / 224.6 / 209.4; untrained 152.8, Random 170.2 (so the bound,
+// 178.7, sits 12.6 below the worst run).
+TEST(Marl, ContinuousMappoLearnsEnergyEfficientFlight) {
+  Config cfg = small_scenario("mappo", 200000);
+  cfg.trajectory.mobility = "continuous";
+  cfg.marl.entropy_coef = 0;
+  cfg.env.objective = "energy-efficiency";
+  cfg.env.reward = "objective";
+  validate(cfg);
+  auto oracle = std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, cfg.marl.users_seed));
+  UavEnv env(cfg, oracle);
+  double random = 0;
+  for (std::uint64_t s = 0; s < 5; ++s) {
+    RandomPlanner p(s);
+    random += run_episode(env, p).objective / 5;
+  }
+  Config untrained = cfg;
+  untrained.marl.total_steps = 1;
+  MarlTrainOptions u;
+  u.out_dir = fresh("continuous_untrained");
+  u.registry = &zf_registry();
+  const double before = train_marl(untrained, u).evaluation.objective;
+  for (std::uint64_t seed : {1, 2, 3}) {
+    cfg.run.seed = seed;
+    MarlTrainOptions opt;
+    opt.out_dir = fresh("continuous_s" + std::to_string(seed));
+    opt.registry = &zf_registry();
+    const auto r = train_marl(cfg, opt);
+    EXPECT_TRUE(r.evaluation.success) << "seed " << seed;
+    EXPECT_GT(r.evaluation.objective, before) << "seed " << seed;
+    EXPECT_GE(r.evaluation.objective, 1.05 * random) << "seed " << seed << ": untrained " << before;
+    auto policy = MarlPolicy::load(opt.out_dir);
+    EXPECT_TRUE(policy->commands_velocities());
+    EXPECT_EQ(run_episode(env, *policy).objective, r.evaluation.objective) << "the saved policy replays its evaluation";
+  }
+}

@@ -380,3 +380,115 @@ TEST(PpoCore, UpdateRaisesTheProbabilityOfAdvantageousActions) {
     EXPECT_GT(mean_p_east(after), mean_p_east(before) + 0.05) << backend;
   }
 }
+
+// ---- the squashed Gaussian policy (continuous mobility) -------------------------------------------
+
+// log pi(tanh(z)) = log N(z; mu, sigma^2) - log(1 - tanh(z)^2) at points computed by hand from that
+// formula (double precision, outside skyloop): (z, mu, log sigma) = (0.5, 0.2, -0.3): -0.4607048653;
+// (-1.3, 0.4, 0.5): -0.5935293029; (0, 0, 0): -0.9189385332 (= -log(2 pi) / 2). The Jacobian term
+// at z = 20, 2 (log 2 - 20 - log1p(e^-40)) = -38.6137056389, where 1 - tanh^2 underflows in float.
+TEST(PpoCore, SquashedGaussianLogProbabilityAtHandComputedPoints) {
+  EXPECT_NEAR(squashed_gaussian_logprob(0.5, 0.2, -0.3), -0.4607048653, 1e-9);
+  EXPECT_NEAR(squashed_gaussian_logprob(-1.3, 0.4, 0.5), -0.5935293029, 1e-9);
+  EXPECT_NEAR(squashed_gaussian_logprob(0.0, 0.0, 0.0), -0.9189385332, 1e-9);
+  EXPECT_NEAR(tanh_log_jacobian(20.0), -38.6137056389, 1e-9);
+  EXPECT_NEAR(tanh_log_jacobian(-20.0), -38.6137056389, 1e-9);  // even in z
+  // log sigma is clamped to [kLogStdMin, kLogStdMax].
+  EXPECT_EQ(squashed_gaussian_logprob(0.5, 0.2, 3.0), squashed_gaussian_logprob(0.5, 0.2, kLogStdMax));
+  EXPECT_EQ(squashed_gaussian_logprob(0.5, 0.2, -9.0), squashed_gaussian_logprob(0.5, 0.2, kLogStdMin));
+  // A density on (-1, 1): exp(log pi(u)) integrates to 1 (midpoint rule in u, z = atanh(u)).
+  for (const auto& [mu, ls] : {std::pair<double, double>{0.3, -0.5}, {-1.5, 0.2}, {2.0, -1.0}}) {
+    const int n = 200000;
+    double mass = 0;
+    for (int i = 0; i < n; ++i) {
+      const double u = -1 + (i + 0.5) * 2.0 / n;
+      mass += std::exp(squashed_gaussian_logprob(std::atanh(u), mu, ls)) * 2.0 / n;
+    }
+    EXPECT_NEAR(mass, 1.0, 2e-3) << "mu " << mu << ", log sigma " << ls;
+  }
+}
+
+namespace {
+/// A continuous minibatch: samples z near and far from the actor's means, old log-probabilities
+/// spread so the ratio meets the clip on both sides.
+Minibatch gaussian_minibatch(int rows, int obs_width, int critic_width, std::uint64_t seed) {
+  Minibatch b = random_minibatch(rows, obs_width, critic_width, seed);
+  std::mt19937_64 g(seed + 100);
+  std::normal_distribution<float> n(0, 1);
+  b.dims = 2, b.action_count = 0;
+  b.allowed.clear(), b.actions.assign(static_cast<std::size_t>(rows), 0);
+  b.raw_actions.clear();
+  for (int i = 0; i < rows * 2; ++i) b.raw_actions.push_back(1.5f * n(g));
+  for (int i = 0; i < rows; ++i) b.logprobs[static_cast<std::size_t>(i)] = -2.0f + 0.6f * n(g);
+  return b;
+}
+
+/// eq:total_loss with the squashed Gaussian, in LibTorch, written independently of the backend:
+/// log(1 - tanh(z)^2) directly (fine in float64 for these z), the clamp by min / max.
+torch::Tensor torch_gaussian_loss(const Minibatch& b, const PpoSettings& s, const torch::Tensor& out, const torch::Tensor& v) {
+  const int64_t R = b.rows;
+  auto t = [&](const std::vector<float>& x, std::vector<int64_t> shape) {
+    return torch::from_blob(const_cast<float*>(x.data()), shape).to(torch::kDouble);
+  };
+  const auto active = t(b.active, {R});
+  const auto mu = out.narrow(1, 0, 2), ls = torch::min(torch::max(out.narrow(1, 2, 2), torch::tensor(kLogStdMin, torch::kDouble)),
+                                                       torch::tensor(kLogStdMax, torch::kDouble));
+  const auto z = t(b.raw_actions, {R, 2});
+  const auto logp = (-0.5 * ((z - mu) / ls.exp()).pow(2) - ls - 0.5 * std::log(2 * M_PI) - torch::log(1 - z.tanh().pow(2))).sum(1);
+  const auto entropy = masked_mean((ls + 0.5 + 0.5 * std::log(2 * M_PI)).sum(1), active);
+  const auto policy = -masked_mean(clipped_surrogate(logp, t(b.logprobs, {R}), t(b.advantages, {R}), s.clip), active);
+  const auto value = clipped_value_loss(v.view({R}), t(b.values, {R}), t(b.returns, {R}), s.clip);
+  return policy + s.value_coef * value - s.entropy_coef * entropy;
+}
+}  // namespace
+
+TEST(PpoCore, GaussianLossGradientMatchesAutograd) {
+  const PpoSettings s{0.2, 0.5, 0.03, 10.0};
+  for (std::uint64_t seed : {1, 2, 3}) {
+    auto b = gaussian_minibatch(400, 1, 1, seed);
+    torch::manual_seed(seed);
+    // Means near the samples, log sigma across the clamp (some rows outside [-5, 1]).
+    auto o = torch::randn({b.rows, 4});
+    o.narrow(1, 2, 2).mul_(2.5).sub_(1.0);
+    const auto out = o.to(torch::kDouble).requires_grad_(true);
+    {  // old log-probabilities within a factor of about e^0.6 of the current ones: ratios on both sides of the clip
+      const auto ov = as_vector(o);
+      std::mt19937_64 g(seed);
+      std::uniform_real_distribution<double> d(-0.6, 0.6);
+      for (int i = 0; i < b.rows; ++i) {
+        double lp = 0;
+        for (int k = 0; k < 2; ++k)
+          lp += squashed_gaussian_logprob(b.raw_actions[static_cast<std::size_t>(2 * i + k)], ov[static_cast<std::size_t>(4 * i + k)],
+                                          ov[static_cast<std::size_t>(4 * i + 2 + k)]);
+        b.logprobs[static_cast<std::size_t>(i)] = static_cast<float>(lp + d(g));
+      }
+    }
+    const auto values = torch::randn({b.rows, 1}).to(torch::kDouble).requires_grad_(true);
+    torch_gaussian_loss(b, s, out, values).backward();
+    const auto o32 = as_vector(out), v32 = as_vector(values);
+    std::vector<float> dl(o32.size(), 0.0f), dv(v32.size(), 0.0f);
+    const auto u = ppo_loss(b, s, o32.data(), 4, v32.data(), 1, dl.data(), dv.data());
+    const auto dl_t = torch::from_blob(dl.data(), {b.rows, 4});
+    const double gl = out.grad().abs().max().item<double>();
+    EXPECT_LE(max_error(dl_t, out.grad()), 1e-6 * gl + 1e-9) << "seed " << seed;
+    const auto total = u.policy_loss + s.value_coef * u.value_loss - s.entropy_coef * u.entropy;
+    EXPECT_NEAR(total, torch_gaussian_loss(b, s, out.detach(), values.detach()).item<double>(), 1e-6) << "seed " << seed;
+    EXPECT_GT(u.clipfrac, 0.05) << "the minibatch should exercise the clip";
+    EXPECT_LT(u.clipfrac, 0.95);
+  }
+}
+
+TEST(PpoCore, BackendsTakeTheSameGaussianSteps) {
+  const PpoSettings s{0.2, 0.5, 0.0, 0.1};
+  const auto b = gaussian_minibatch(512, 8, 37, 5);
+  auto fast = make_ppo_networks("fast", 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
+  auto ref = make_ppo_networks("torch", 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
+  for (int step = 0; step < 10; ++step) {
+    const auto uf = fast->step(b, s), ur = ref->step(b, s);
+    const double tol = step == 0 ? 1e-5 : 1e-3;
+    EXPECT_NEAR(uf.policy_loss, ur.policy_loss, tol * (1 + std::abs(ur.policy_loss))) << "step " << step;
+    EXPECT_NEAR(uf.entropy, ur.entropy, tol * (1 + std::abs(ur.entropy))) << "step " << step;
+    EXPECT_NEAR(uf.approx_kl, ur.approx_kl, tol) << "step " << step;
+    EXPECT_NEAR(uf.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
+  }
+}

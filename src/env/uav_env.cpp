@@ -139,8 +139,8 @@ UavEnv::Landing UavEnv::landing(int n, int a) const {
   l.x = pos_(n, 0), l.y = pos_(n, 1);
   if (arrived(n)) return l;
   if (mobility_->continuous()) {
-    double vx = mobility_->primitive_vx(a), vy = mobility_->primitive_vy(a);
-    if (a == mobility_->home()) home_velocity(n, vx, vy);
+    double vx, vy;
+    primitive_velocity(n, a, vx, vy);
     return landing_velocity(n, vx, vy);
   }
   double nx, ny;
@@ -232,13 +232,14 @@ Positions UavEnv::next_positions(const std::vector<int>& actions) const {
   return next;
 }
 
+void UavEnv::primitive_velocity(int n, int a, double& vx, double& vy) const {
+  if (a == mobility_->home()) home_velocity(n, vx, vy);
+  else vx = mobility_->primitive_vx(a), vy = mobility_->primitive_vy(a);
+}
+
 Positions UavEnv::primitive_velocities(const std::vector<int>& actions) const {
   Positions v = Positions::Zero(n_, 2);
-  for (int n = 0; n < n_; ++n) {
-    const int a = actions[static_cast<std::size_t>(n)];
-    if (a == mobility_->home()) home_velocity(n, v(n, 0), v(n, 1));
-    else v(n, 0) = mobility_->primitive_vx(a), v(n, 1) = mobility_->primitive_vy(a);
-  }
+  for (int n = 0; n < n_; ++n) primitive_velocity(n, actions[static_cast<std::size_t>(n)], v(n, 0), v(n, 1));
   return v;
 }
 

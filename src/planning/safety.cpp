@@ -148,12 +148,12 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
           near.emplace_back(std::hypot(l.vx - want.vx, l.vy - want.vy) + (safety.mask && env.min_moves(n, l) > left_after - keep ? 1e6 : 0.0), a);
         }
       std::stable_sort(near.begin(), near.end());
-      std::vector<int> actions(static_cast<std::size_t>(env.uavs()), env.hover());
       for (const auto& [d, a] : near) {
-        actions[static_cast<std::size_t>(n)] = a;
-        const Positions v = env.primitive_velocities(actions);
+        Candidate k{};
+        env.primitive_velocity(n, a, k.vx, k.vy);
         const UavEnv::Landing l = env.landing(n, a);
-        c.push_back({v(n, 0), v(n, 1), l.x, l.y});
+        k.x = l.x, k.y = l.y;
+        c.push_back(k);
       }
     }
     if (c.empty()) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y});  // nothing allowed: as asked

@@ -138,6 +138,8 @@ class UavEnv {
   StepInfo step_velocities(const Positions& v);
   /// Continuous model: the velocity commands (m/s) of a joint action of primitives.
   Positions primitive_velocities(const std::vector<int>& actions) const;
+  /// Continuous model: UAV n's velocity command (m/s) for primitive a.
+  void primitive_velocity(int n, int a, double& vx, double& vy) const;
   /// UAV n's velocity in the last slot (m/s; 0 before the first step).
   double velocity_x(int n) const { return vel_(n, 0); }
   double velocity_y(int n) const { return vel_(n, 1); }

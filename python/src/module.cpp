@@ -218,7 +218,7 @@ class PyVecEnv {
         e.write_state(fs.data() + i * S);
       };
       if (!velocities.empty()) {
-        const SafetyOptions safety{cfg_.marl.action_mask, cfg_.marl.shield, cfg_.marl.slack_margin};
+        const SafetyOptions safety = safety_options(cfg_);
         for (int i = 0; i < M; ++i)
           velocities[static_cast<std::size_t>(i)] = safe_velocities(vec_->env(i), safety, velocities[static_cast<std::size_t>(i)]);
         info = vec_->step_velocities(velocities, final_view);
@@ -452,7 +452,11 @@ class PyVecEnv {
         const std::size_t row = static_cast<std::size_t>(i) * static_cast<std::size_t>(N) + static_cast<std::size_t>(n);
         e.write_obs(n, po + row * O);
         e.write_agent_state(n, pa + row * A);
-        const ActionSet allowed = allowed_moves(e, n, SafetyOptions{cfg_.marl.action_mask, false, cfg_.marl.slack_margin});
+        const ActionSet allowed = allowed_moves(e, n, [&] {
+          SafetyOptions s = safety_options(cfg_);
+          s.shield = false;
+          return s;
+        }());
         for (std::size_t a = 0; a < K; ++a) pm[row * K + a] = (allowed >> a & 1u) ? 1 : 0;
       }
     }

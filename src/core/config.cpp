@@ -343,6 +343,11 @@ std::vector<Field> make_fields() {
                       "slots of slack the reachability mask keeps in reserve; the collision shield may spend them to let a UAV "
                       "wait or step aside (0 = none)",
                       0, 1000, [](Config& c) -> int& { return c.marl.slack_margin; }));
+  f.push_back(text("marl.mask_clearance",
+                   "what the reachability mask counts the moves home around: none = nothing (through every UAV); parked = the "
+                   "UAVs that have arrived (they hover at their destinations); destinations = every other UAV's destination, "
+                   "then the parked UAVs, where the slots left allow it (lattice models)",
+                   {"none", "parked", "destinations"}, [](Config& c) -> std::string& { return c.marl.mask_clearance; }));
   f.push_back(text("marl.backend",
                    "PPO learners' network library: fast = fused float32 passes on the CPU (the default); torch = LibTorch's "
                    "autograd (the reference; needed for nn.device = cuda)",

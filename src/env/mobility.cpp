@@ -144,7 +144,7 @@ int LatticeFrame::cell(double x, double y) const {
   return static_cast<int>(std::lround((y - oy) / pitch)) * nx + static_cast<int>(std::lround((x - ox) / pitch));
 }
 
-std::vector<int> MobilityModel::slots_to(int nx, int ny, int to) const {
+std::vector<int> MobilityModel::slots_to(int nx, int ny, int to, const std::vector<char>* closed) const {
   std::vector<int> dist(static_cast<std::size_t>(nx) * static_cast<std::size_t>(ny), -1);
   std::deque<int> queue{to};
   dist[static_cast<std::size_t>(to)] = 0;
@@ -157,6 +157,7 @@ std::vector<int> MobilityModel::slots_to(int nx, int ny, int to) const {
       const int jx = ix + s.dx, jy = iy + s.dy;
       if ((s.dx == 0 && s.dy == 0) || jx < 0 || jy < 0 || jx >= nx || jy >= ny) continue;
       auto& d = dist[static_cast<std::size_t>(jy * nx + jx)];
+      if (closed && (*closed)[static_cast<std::size_t>(jy * nx + jx)]) continue;
       if (d < 0) d = dist[static_cast<std::size_t>(c)] + 1, queue.push_back(jy * nx + jx);
     }
   }

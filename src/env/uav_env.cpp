@@ -102,6 +102,9 @@ void UavEnv::reset() {
   pos_ = start_;
   t_ = 1;
   arrived_.assign(static_cast<std::size_t>(n_), false);
+  parked_ = 0;
+  clear_tables_[static_cast<int>(ClearOf::Parked)].assign(static_cast<std::size_t>(n_), ClearTable{});
+  clear_tables_[static_cast<int>(ClearOf::Destinations)].resize(static_cast<std::size_t>(n_));  // fixed destinations: kept
   prev_action_.assign(static_cast<std::size_t>(n_), hover());
   energy_.assign(static_cast<std::size_t>(n_), 0.0);
   speed_.assign(static_cast<std::size_t>(n_), 0.0);
@@ -115,6 +118,7 @@ void UavEnv::reset() {
                                                 ? std::hypot(pos_(n, 0) - dest_(n, 0), pos_(n, 1) - dest_(n, 1)) <= mobility_->arrival_m()
                                                 : same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1));
     all = all && arrived_[static_cast<std::size_t>(n)];
+    parked_ += arrived_[static_cast<std::size_t>(n)] ? 1 : 0;
     const double d = std::hypot(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1));
     prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / mobility_->reach() - 1e-9));
   }
@@ -214,6 +218,41 @@ int UavEnv::min_moves(int n, double x, double y) const {
 int UavEnv::min_moves(int n, const Landing& l) const {
   if (mobility_->continuous()) return home_slots(n, l.x, l.y, l.vx, l.vy);
   return min_moves(n, l.x, l.y);
+}
+
+int UavEnv::min_moves_around(int n, const Landing& l, ClearOf what) const {
+  const bool parked = what == ClearOf::Parked;
+  if (mobility_->continuous() || n_ == 1 || (parked && (parked_ == 0 || (parked_ == 1 && arrived(n))))) return min_moves(n, l);
+  ClearTable& table = clear_tables_[static_cast<int>(what)][static_cast<std::size_t>(n)];
+  const int version = parked ? parked_ : 0;
+  if (table.version != version) {
+    table.version = version;
+    table.frame = mobility_->is_grid() ? LatticeFrame(start_(n, 0), start_(n, 1), area_x_, area_y_, d_fly_)
+                                       : lattice_[static_cast<std::size_t>(n)].frame;
+    const LatticeFrame& f = table.frame;
+    closed_.assign(static_cast<std::size_t>(f.cells()), 0);
+    // The lattice points strictly within D_min of the other UAVs' destinations or parked
+    // positions (collisions()' rule).
+    const int r = static_cast<int>(std::ceil(d_min_ / d_fly_)) + 1;
+    for (int m = 0; m < n_; ++m) {
+      if (m == n || (parked && !arrived(m))) continue;
+      const double px = parked ? pos_(m, 0) : dest_(m, 0), py = parked ? pos_(m, 1) : dest_(m, 1);
+      const long cx = std::lround((px - f.ox) / d_fly_), cy = std::lround((py - f.oy) / d_fly_);
+      for (long iy = std::max(0L, cy - r); iy <= std::min<long>(f.ny - 1, cy + r); ++iy)
+        for (long ix = std::max(0L, cx - r); ix <= std::min<long>(f.nx - 1, cx + r); ++ix)
+          if (std::hypot(f.ox + d_fly_ * static_cast<double>(ix) - px, f.oy + d_fly_ * static_cast<double>(iy) - py) < d_min_ - 1e-9)
+            closed_[static_cast<std::size_t>(iy * f.nx + ix)] = 1;
+    }
+    const int to = f.cell(dest_(n, 0), dest_(n, 1));
+    closed_[static_cast<std::size_t>(to)] = 0;
+    table.slots = mobility_->slots_to(f.nx, f.ny, to, &closed_);
+  }
+  const LatticeFrame& f = table.frame;
+  const long ix = std::lround((l.x - f.ox) / d_fly_), iy = std::lround((l.y - f.oy) / d_fly_);
+  const int far = t_max_ + 1;
+  if (ix < 0 || iy < 0 || ix >= f.nx || iy >= f.ny) return far;
+  const int d = table.slots[static_cast<std::size_t>(iy * f.nx + ix)];
+  return d < 0 ? far : d;
 }
 
 bool UavEnv::feasible(int n, int a) const {
@@ -317,6 +356,7 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
     if (!arrived_n && same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1))) {
       arrived_n = true;
       ++info.arrivals;
+      ++parked_;
     }
     all = all && arrived_n;
     info.feasibility += feasibility_indicator(n, pos_(n, 0), pos_(n, 1), t_);

@@ -112,7 +112,6 @@ Encoder encoder_of(const Config& cfg, bool context) {
   return e;
 }
 
-SafetyOptions safety_of(const Config& cfg) { return SafetyOptions{cfg.marl.action_mask, cfg.marl.shield, cfg.marl.slack_margin}; }
 
 void RunningStats::update(const float* x, std::size_t count_x) {
   if (count_x == 0) return;

@@ -32,7 +32,6 @@ struct Encoder {
   void write(const UavEnv& env, int n, float* out) const;
 };
 Encoder encoder_of(const Config& cfg, bool context);
-SafetyOptions safety_of(const Config& cfg);
 
 /// A learner's networks and optimiser as the run's archives see them (last.pt, policy.pt).
 class Learned {

@@ -58,7 +58,7 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   } catch (const InputError&) {
     // A policy written by another version may name fields this one lacks: defaults.
   }
-  impl->safety = marl::safety_of(trained);
+  impl->safety = safety_options(trained);
   const int hidden = meta.value("hidden", 0), obs = meta.value("obs_dim", 0), uavs = meta.value("uavs", 0);
   const std::string encoder = meta.value("encoder", "mlp");
   if (encoder != "mlp" && encoder != "set")

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <functional>
 
+#include "skyloop/core/config.hpp"
+
 namespace skyloop {
 
 namespace {
@@ -18,9 +20,33 @@ void landing(const UavEnv& env, int n, int a, double& x, double& y) {
   x = l.x, y = l.y;
 }
 
+/// The counts of the moves still needed under a clearance, strictest first.
+std::vector<UavEnv::ClearOf> counts_of(Clearance c) {
+  switch (c) {
+    case Clearance::Destinations: return {UavEnv::ClearOf::Destinations, UavEnv::ClearOf::Parked};
+    case Clearance::Parked: return {UavEnv::ClearOf::Parked};
+    default: return {};
+  }
+}
+
+/// Moves UAV n still needs from a landing: the strictest count of the clearance that gets it home
+/// in the slots left, else as if nothing were to be kept clear of (UavEnv::min_moves_around).
+int moves_needed(const UavEnv& env, int n, const UavEnv::Landing& l, Clearance clearance) {
+  for (const auto what : counts_of(clearance)) {
+    const int d = env.min_moves_around(n, l, what);
+    if (d <= env.t_max() - env.t()) return d;
+  }
+  return env.min_moves(n, l);
+}
+int moves_needed_now(const UavEnv& env, int n, Clearance clearance) {
+  UavEnv::Landing here;
+  here.x = env.positions()(n, 0), here.y = env.positions()(n, 1);
+  return moves_needed(env, n, here, clearance);
+}
+
 /// UAV n's slack after action a: slots left after the move less the moves it still needs.
-int slack_after(const UavEnv& env, int n, int a) {
-  return env.t_max() - (env.t() + 1) - env.min_moves(n, env.landing(n, a));
+int slack_after(const UavEnv& env, int n, int a, Clearance clearance) {
+  return env.t_max() - (env.t() + 1) - moves_needed(env, n, env.landing(n, a), clearance);
 }
 
 /// Placed UAVs' end positions for the shield.
@@ -58,7 +84,7 @@ ActionSet clear_moves(const UavEnv& env, int n, ActionSet allowed, const Placed&
 ActionSet shielded(const UavEnv& env, int n, ActionSet allowed, const Placed& placed, const SafetyOptions& safety) {
   if (const ActionSet safe = clear_moves(env, n, allowed, placed)) return safe;
   if (safety.mask && safety.margin > 0)
-    if (const ActionSet wider = clear_moves(env, n, reachable_moves(env, n, 0), placed)) return wider;
+    if (const ActionSet wider = clear_moves(env, n, reachable_moves(env, n, 0, safety.clearance), placed)) return wider;
   return allowed;
 }
 
@@ -66,36 +92,62 @@ ActionSet shielded(const UavEnv& env, int n, ActionSet allowed, const Placed& pl
 
 ActionSet all_actions(const UavEnv& env) { return env.actions() >= 64 ? ~ActionSet{0} : action_bit(env.actions()) - 1; }
 
-ActionSet reachable_moves(const UavEnv& env, int n, int margin) {
-  if (env.arrived(n)) return action_bit(env.hover());
-  ActionSet m = 0, inside = 0;
+namespace {
+
+/// reachable_moves under one count; `inside` receives the moves that stay in the area.
+/// (`count` null: through everything.)
+ActionSet reachable_counted(const UavEnv& env, int n, int margin, const UavEnv::ClearOf* count, ActionSet& inside) {
+  ActionSet m = 0;
+  inside = 0;
   const auto& p = env.positions();
   const int left_after = env.t_max() - (env.t() + 1);
+  auto needed = [&](const UavEnv::Landing& l) { return count ? env.min_moves_around(n, l, *count) : env.min_moves(n, l); };
   // The slack a move must leave: the margin, or all the UAV still has if the shield spent some
   // (a move towards the destination keeps the slack; STAY and moves away spend one or two).
-  const int slack_now = left_after + 1 - env.min_moves(n, p(n, 0), p(n, 1));
+  UavEnv::Landing here;
+  here.x = p(n, 0), here.y = p(n, 1);
+  const int slack_now = left_after + 1 - needed(here);
   const int keep = std::max(0, std::min(margin, slack_now));
   for (int a = 0; a < env.actions(); ++a) {
     const UavEnv::Landing l = env.landing(n, a);
     if (!l.inside) continue;
     inside |= action_bit(a);
-    const int needed = env.min_moves(n, l);
-    if (needed <= left_after && left_after - needed >= keep) m |= action_bit(a);
+    const int d = needed(l);
+    if (d <= left_after && left_after - d >= keep) m |= action_bit(a);
   }
-  if (!m && margin > 0) return reachable_moves(env, n, 0);
-  return m ? m : inside;
+  if (!m && margin > 0) return reachable_counted(env, n, 0, count, inside);
+  return m;
+}
+
+}  // namespace
+
+SafetyOptions safety_options(const Config& cfg) {
+  const auto& m = cfg.marl;
+  const Clearance c = m.mask_clearance == "destinations" ? Clearance::Destinations
+                      : m.mask_clearance == "parked"     ? Clearance::Parked
+                                                         : Clearance::None;
+  return SafetyOptions{m.action_mask, m.shield, m.slack_margin, c};
+}
+
+ActionSet reachable_moves(const UavEnv& env, int n, int margin, Clearance clearance) {
+  if (env.arrived(n)) return action_bit(env.hover());
+  ActionSet inside = 0;
+  for (const auto& what : counts_of(clearance))
+    if (const ActionSet m = reachable_counted(env, n, margin, &what, inside)) return m;
+  if (const ActionSet m = reachable_counted(env, n, margin, nullptr, inside)) return m;
+  return inside;
 }
 
 ActionSet allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety) {
   if (env.arrived(n)) return action_bit(env.hover());
-  return safety.mask ? reachable_moves(env, n, safety.margin) : all_actions(env);
+  return safety.mask ? reachable_moves(env, n, safety.margin, safety.clearance) : all_actions(env);
 }
 
-std::vector<int> shield_order(const UavEnv& env) {
+std::vector<int> shield_order(const UavEnv& env, Clearance clearance) {
   std::vector<std::pair<int, int>> key;
   const int left = env.t_max() - env.t();
   for (int n = 0; n < env.uavs(); ++n)
-    if (!env.arrived(n)) key.emplace_back(left - env.min_moves(n, env.positions()(n, 0), env.positions()(n, 1)), n);
+    if (!env.arrived(n)) key.emplace_back(left - moves_needed_now(env, n, clearance), n);
   std::sort(key.begin(), key.end());
   std::vector<int> order;
   for (const auto& k : key) order.push_back(k.second);
@@ -109,7 +161,7 @@ std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions&
   std::vector<int> actions(static_cast<std::size_t>(N), env.hover());
   if (allowed_out) allowed_out->assign(static_cast<std::size_t>(N), action_bit(env.hover()));
   Placed placed = arrived_uavs(env);
-  for (const int n : shield_order(env)) {
+  for (const int n : shield_order(env, safety.clearance)) {
     ActionSet allowed = allowed_moves(env, n, safety);
     if (safety.shield) allowed = shielded(env, n, allowed, placed, safety);
     const int a = choose(n, allowed);
@@ -128,7 +180,7 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
   struct Candidate {
     double vx, vy, x, y;
   };
-  const auto order = shield_order(env);
+  const auto order = shield_order(env, safety.clearance);
   std::vector<std::vector<Candidate>> candidates;
   const int left_after = env.t_max() - (env.t() + 1);
   for (const int n : order) {
@@ -140,7 +192,7 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
     if (reach) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y});
     if (!reach || safety.shield) {
       ActionSet options = allowed_moves(env, n, safety);
-      if (safety.mask && safety.margin > 0) options |= reachable_moves(env, n, 0);  // the shield may spend the margin
+      if (safety.mask && safety.margin > 0) options |= reachable_moves(env, n, 0, safety.clearance);  // the shield may spend the margin
       std::vector<std::pair<double, int>> near;
       for (int a = 0; a < env.actions(); ++a)
         if (options >> a & 1u) {
@@ -246,7 +298,7 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
     });
   };
   if (!safety.shield) return sequential();
-  const auto order = shield_order(env);
+  const auto order = shield_order(env, safety.clearance);
   std::vector<int> actions(static_cast<std::size_t>(env.uavs()), env.hover());
   // Each UAV's moves best first, those that keep the slack margin before those that spend it: the
   // first collision-free joint move spends margin only where a collision demands it.
@@ -266,7 +318,9 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
     auto c = best_first(keep);
     // Moves that spend slack: the least spent first (STAY spends one slot, a move away two).
     auto spend = best_first(allowed_moves(env, n, plain) & ~keep);
-    std::stable_sort(spend.begin(), spend.end(), [&](int a, int b) { return slack_after(env, n, a) > slack_after(env, n, b); });
+    std::stable_sort(spend.begin(), spend.end(), [&](int a, int b) {
+      return slack_after(env, n, a, safety.clearance) > slack_after(env, n, b, safety.clearance);
+    });
     c.insert(c.end(), spend.begin(), spend.end());
     s.candidates.push_back(std::move(c));
   }

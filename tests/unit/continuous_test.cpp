@@ -121,8 +121,9 @@ TEST(Continuous, HomeFliesInTheSlotsReachabilityCounts) {
   }
   const std::vector<int> home(static_cast<std::size_t>(N), env->mobility().home());
   while (!env->done()) {
-    for (int n = 0; n < N; ++n)
+    for (int n = 0; n < N; ++n) {
       if (!env->arrived(n)) EXPECT_EQ(env->min_moves(n, env->positions()(n, 0), env->positions()(n, 1)), need[static_cast<std::size_t>(n)] - (env->t() - 1));
+    }
     env->step(home);
   }
   for (int n = 0; n < N; ++n) EXPECT_TRUE(env->arrived(n));
@@ -175,7 +176,9 @@ TEST(Continuous, MaskBringsEveryUavHomeUnderAnyCommands) {
       }
       EXPECT_TRUE(env->arrived(0) && env->arrived(1) && env->arrived(2)) << "seed " << seed << ", shield " << shield;
     }
-    if (shield) EXPECT_EQ(collisions, 0);
+    if (shield) {
+      EXPECT_EQ(collisions, 0);
+    }
   }
 }
 

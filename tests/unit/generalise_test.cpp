@@ -317,3 +317,59 @@ TEST(Safety, ASlackMarginAvoidsHeadOnMeetings) {
   EXPECT_GT(collided[0], 0) << "without a margin the two should sometimes meet with no slack left";
   EXPECT_EQ(collided[1], 0);
 }
+
+// UAV 1 parks at (100, 100), on UAV 0's straight way from (0, 100) to (200, 100) (D_fly 20 m,
+// D_min 25 m: the parked UAV closes its own point and the four at 20 m). By hand: through it, 10
+// moves; around it, UAV 0 must cross x = 100 at y = 60 or 140 (|dy| >= 40 there), 4 moves more.
+TEST(Safety, MovesAroundAParkedUavCountTheDetour) {
+  Config cfg;
+  cfg.scenario.area_x_m = cfg.scenario.area_y_m = 200;
+  cfg.trajectory.starts = {{0, 100}, {100, 140}};
+  cfg.trajectory.destinations = {{200, 100}, {100, 100}};
+  cfg.trajectory.t_max = 15;  // 10 moves + 1, and 4 slots of slack for the detour
+  UavEnv env = make_env(cfg, layout_users(cfg, 1));
+  auto at = [](double x, double y) {
+    UavEnv::Landing l;
+    l.x = x, l.y = y;
+    return l;
+  };
+  using C = UavEnv::ClearOf;
+  EXPECT_EQ(env.min_moves(0, 0, 100), 10);
+  EXPECT_EQ(env.min_moves_around(0, at(0, 100), C::Parked), 10) << "nobody has arrived yet";
+  EXPECT_EQ(env.min_moves_around(0, at(0, 100), C::Destinations), 14);
+  EXPECT_EQ(env.min_moves_around(0, at(80, 100), C::Destinations), 16) << "a closed point: out of reach (t_max + 1)";
+  EXPECT_EQ(env.min_moves_around(0, at(0, 140), C::Destinations), 12);
+  EXPECT_EQ(env.min_moves_around(1, at(100, 140), C::Destinations), 2) << "its own destination stays open";
+  // Under the destinations clearance UAV 0 has no slack beyond the detour's: it may not wait
+  // (STAY); without it, it may (4 slots of slack through the parked point).
+  EXPECT_EQ(reachable_moves(env, 0, 0, Clearance::Destinations), action_bit(kUp) | action_bit(kDown) | action_bit(kRight));
+  EXPECT_EQ(reachable_moves(env, 0, 0, Clearance::None), action_bit(kUp) | action_bit(kDown) | action_bit(kRight) | action_bit(kStay));
+  // UAV 1 parks; the Parked count now sees it.
+  env.step({kStay, kDown});
+  env.step({kStay, kDown});
+  ASSERT_TRUE(env.arrived(1));
+  EXPECT_EQ(env.min_moves_around(0, at(0, 100), C::Parked), 14);
+  EXPECT_EQ(env.min_moves_around(0, at(0, 100), C::Destinations), 14);
+  // Out of slack for the detour (2 slots spent above): the count falls back to going through.
+  EXPECT_EQ(reachable_moves(env, 0, 0, Clearance::Destinations), reachable_moves(env, 0, 0, Clearance::None));
+
+  // Under random scores, without the clearance the scores spend UAV 0's slack before it reaches
+  // the parked UAV, which it then meets on its only way home; with it, no episode collides.
+  int collided[2] = {0, 0};
+  for (const Clearance clearance : {Clearance::None, Clearance::Destinations})
+    for (std::uint64_t episode = 0; episode < 50; ++episode) {
+      Rng rng(episode);
+      env.reset();
+      while (!env.done()) {
+        std::vector<std::vector<float>> scores(2, std::vector<float>(kGridActions));
+        for (auto& s : scores)
+          for (auto& x : s) x = static_cast<float>(rng.normal());
+        const auto a = shielded_argmax(env, SafetyOptions{true, true, 0, clearance}, scores);
+        collided[clearance == Clearance::None ? 0 : 1] += env.collisions(env.next_positions(a)) > 0;
+        env.step(a);
+      }
+      EXPECT_TRUE(env.positions().isApprox(env.destinations())) << "episode " << episode;
+    }
+  EXPECT_GT(collided[0], 0) << "without the clearance UAV 0 should sometimes meet the parked UAV with no slack left";
+  EXPECT_EQ(collided[1], 0);
+}

@@ -116,8 +116,9 @@ class MobilityModel {
   /// The HOME primitive's index.
   int home() const { return home_; }
   /// Fewest slots from every cell of an nx x ny lattice to cell `to`, moving inside the lattice
-  /// (breadth-first over the model's moves; -1 where unreachable). Cell = iy * nx + ix.
-  std::vector<int> slots_to(int nx, int ny, int to) const;
+  /// (breadth-first over the model's moves; -1 where unreachable). Cell = iy * nx + ix. With
+  /// `closed` (one entry per cell, nonzero = closed), moves never land on a closed cell.
+  std::vector<int> slots_to(int nx, int ny, int to, const std::vector<char>* closed = nullptr) const;
 
  private:
   std::string name_;

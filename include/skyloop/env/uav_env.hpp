@@ -128,6 +128,16 @@ class UavEnv {
   int min_moves(int n, double x, double y) const;
   /// The same from a landing (continuous: its velocity too).
   int min_moves(int n, const Landing& l) const;
+  /// What min_moves_around keeps clear of: the lattice points within D_min of every other UAV's
+  /// destination (where each will hover once it arrives, until the mission ends), or of the UAVs
+  /// that have arrived (parked) so far.
+  enum class ClearOf { Destinations, Parked };
+  /// min_moves over the lattice points clear of `what` (UAV n's own destination stays open), for
+  /// the safety layer (skyloop/planning/safety.hpp); t_max + 1 where (x, y) is not clear or cut off.
+  /// Equal to min_moves for the continuous model and while nothing is to be kept clear of.
+  /// Breadth-first over UAV n's lattice: once per environment (Destinations) or once per arrival
+  /// (Parked), made when first asked.
+  int min_moves_around(int n, const Landing& l, ClearOf what) const;
   /// True if `a` keeps UAV n in the area and its destination reachable in the moves left after
   /// it (T_max - (t + 1)). An arrived UAV may only hover (STAY).
   bool feasible(int n, int a) const;
@@ -268,6 +278,16 @@ class UavEnv {
   Positions start_, dest_, pos_;
   std::shared_ptr<RateOracle> oracle_;
   std::vector<bool> arrived_;
+  int parked_ = 0;  // arrived UAVs so far this episode: the version of the Parked tables
+  // min_moves_around's tables, per UAV and ClearOf: the version they were made for (-1: none yet),
+  // the lattice and the slots from each point. A cache of a pure function of the state.
+  struct ClearTable {
+    int version = -1;
+    LatticeFrame frame;
+    std::vector<int> slots;
+  };
+  mutable std::vector<ClearTable> clear_tables_[2];
+  mutable std::vector<char> closed_;  // scratch for the tables
   std::vector<int> prev_action_, prev_tmin_;
   std::vector<double> rates_;
   double rate_sum_ = 0;

@@ -5,7 +5,13 @@
 //  - reachability mask: UAV n may take action a only if a keeps it in the area and its
 //    destination reachable in the slots left (UavEnv::feasible). An arrived UAV may only hover.
 //    Flown from the start, the mask brings every UAV home by T_max: a UAV with no slack left can
-//    only move towards its destination.
+//    only move towards its destination. With marl.mask_clearance the moves still needed are
+//    counted, strictest first while the slots left allow it, around the other UAVs' destinations
+//    ("destinations"), around the UAVs parked so far ("parked"), then through them ("none", the
+//    only count without it; UavEnv::min_moves_around). An arrived UAV hovers at its destination
+//    until the mission ends, closing the lattice points within D_min of it to the others;
+//    counting around it keeps the slack for the detour, where counting through it lets a UAV with
+//    no slack left meet it on its only way home (the 64-UAV fleet's collisions).
 //  - collision shield: the UAVs choose one after another, least slack first (ties by index); a
 //    move that brings a UAV within D_min of a UAV already placed (arrived UAVs are placed first)
 //    is masked whenever one of its other allowed moves avoids that.
@@ -33,11 +39,18 @@
 
 namespace skyloop {
 
+/// What the reachability mask counts the moves home around (marl.mask_clearance): nothing; the
+/// parked UAVs; the other UAVs' destinations, then the parked UAVs (where the slots left allow).
+enum class Clearance { None, Parked, Destinations };
+
 struct SafetyOptions {
   bool mask = true;    // reachability mask
   bool shield = true;  // collision shield
   int margin = 0;      // slots of slack the mask keeps for the shield (marl.slack_margin)
+  Clearance clearance = Clearance::None;  // marl.mask_clearance
 };
+/// The safety settings of a configuration: marl.action_mask, shield, slack_margin, mask_clearance.
+SafetyOptions safety_options(const Config& cfg);
 
 /// A set of actions, bit a = action a (the mobility models have at most 64 actions).
 using ActionSet = std::uint64_t;
@@ -50,13 +63,13 @@ ActionSet all_actions(const UavEnv& env);
 /// of at least `margin`, or of all the slack it has if that is less (with no such move, the
 /// margin-0 set). Never empty: if no move keeps the destination reachable (a state the mask itself never
 /// leads to), the moves that stay in the area; an arrived UAV: hover only.
-ActionSet reachable_moves(const UavEnv& env, int n, int margin = 0);
+ActionSet reachable_moves(const UavEnv& env, int n, int margin = 0, Clearance clearance = Clearance::None);
 /// Moves of UAV n allowed before the shield: reachable_moves (with safety.margin) with the mask,
 /// else every action (hover only once arrived).
 ActionSet allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety);
 /// The order in which not-yet-arrived UAVs choose: least slack (moves left minus moves needed)
 /// first, ties by index.
-std::vector<int> shield_order(const UavEnv& env);
+std::vector<int> shield_order(const UavEnv& env, Clearance clearance = Clearance::None);
 
 /// Joint action chosen one UAV at a time in shield order: choose(n, allowed) returns UAV n's
 /// action given its allowed set (the shield applied against the UAVs placed so far).

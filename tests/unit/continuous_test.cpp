@@ -122,7 +122,9 @@ TEST(Continuous, HomeFliesInTheSlotsReachabilityCounts) {
   const std::vector<int> home(static_cast<std::size_t>(N), env->mobility().home());
   while (!env->done()) {
     for (int n = 0; n < N; ++n) {
-      if (!env->arrived(n)) EXPECT_EQ(env->min_moves(n, env->positions()(n, 0), env->positions()(n, 1)), need[static_cast<std::size_t>(n)] - (env->t() - 1));
+      if (!env->arrived(n)) {
+        EXPECT_EQ(env->min_moves(n, env->positions()(n, 0), env->positions()(n, 1)), need[static_cast<std::size_t>(n)] - (env->t() - 1));
+      }
     }
     env->step(home);
   }

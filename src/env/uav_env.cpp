@@ -220,6 +220,13 @@ int UavEnv::min_moves(int n, const Landing& l) const {
   return min_moves(n, l.x, l.y);
 }
 
+UavEnv::Landing UavEnv::current(int n) const {
+  Landing l;
+  l.x = pos_(n, 0), l.y = pos_(n, 1), l.vx = vel_(n, 0), l.vy = vel_(n, 1);
+  l.speed = speed_[static_cast<std::size_t>(n)];
+  return l;
+}
+
 int UavEnv::min_moves_around(int n, const Landing& l, ClearOf what) const {
   const bool parked = what == ClearOf::Parked;
   if (mobility_->continuous() || n_ == 1 || (parked && (parked_ == 0 || (parked_ == 1 && arrived(n))))) return min_moves(n, l);

@@ -38,11 +38,7 @@ int moves_needed(const UavEnv& env, int n, const UavEnv::Landing& l, Clearance c
   }
   return env.min_moves(n, l);
 }
-int moves_needed_now(const UavEnv& env, int n, Clearance clearance) {
-  UavEnv::Landing here;
-  here.x = env.positions()(n, 0), here.y = env.positions()(n, 1);
-  return moves_needed(env, n, here, clearance);
-}
+int moves_needed_now(const UavEnv& env, int n, Clearance clearance) { return moves_needed(env, n, env.current(n), clearance); }
 
 /// UAV n's slack after action a: slots left after the move less the moves it still needs.
 int slack_after(const UavEnv& env, int n, int a, Clearance clearance) {
@@ -99,14 +95,11 @@ namespace {
 ActionSet reachable_counted(const UavEnv& env, int n, int margin, const UavEnv::ClearOf* count, ActionSet& inside) {
   ActionSet m = 0;
   inside = 0;
-  const auto& p = env.positions();
   const int left_after = env.t_max() - (env.t() + 1);
   auto needed = [&](const UavEnv::Landing& l) { return count ? env.min_moves_around(n, l, *count) : env.min_moves(n, l); };
   // The slack a move must leave: the margin, or all the UAV still has if the shield spent some
   // (a move towards the destination keeps the slack; STAY and moves away spend one or two).
-  UavEnv::Landing here;
-  here.x = p(n, 0), here.y = p(n, 1);
-  const int slack_now = left_after + 1 - needed(here);
+  const int slack_now = left_after + 1 - needed(env.current(n));
   const int keep = std::max(0, std::min(margin, slack_now));
   for (int a = 0; a < env.actions(); ++a) {
     const UavEnv::Landing l = env.landing(n, a);

@@ -113,6 +113,8 @@ class UavEnv {
   /// Position after lattice action `a` from (x, y), and whether it stays in the area (grid and
   /// headings only).
   bool move(double x, double y, int a, double& nx, double& ny) const;
+  /// UAV n as it is now: its position and its velocity (and speed) in the last slot.
+  Landing current(int n) const;
   /// Where UAV n ends this slot under action a (continuous: primitive a, projected); arrived UAVs
   /// hover where they are.
   Landing landing(int n, int a) const;

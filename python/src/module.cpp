@@ -535,6 +535,7 @@ py::dict plan(const Config& cfg, const std::string& planner, std::uint64_t users
     PlannerArgs args;
     // The random planner's stream: as `skyloop plan --seed S` (derive_seed(S, "RAND")) unless given.
     args.seed = planner_seed ? *planner_seed : derive_seed(users_seed, 0x52414e44ULL);
+    args.safety = safety_options(cfg);
     p = builtin_planners().create(planner, args);
   }
 #ifdef SKYLOOP_HAS_TORCH

@@ -172,6 +172,7 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
     for (const auto& name : names) {
       PlannerArgs args;
       args.seed = derive_seed(seed, 0x52414e44ULL);
+      args.safety = safety_options(cfg);
       auto p = builtin_planners().create(name, args);
       timed(*p, name);
     }

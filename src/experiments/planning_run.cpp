@@ -26,6 +26,7 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
   for (const auto& p : opt.planners) {
     PlannerArgs args;
     args.seed = derive_seed(opt.seed, 0x52414e44ULL), args.progress = progress, args.memo_key = memo;
+    args.safety = safety_options(cfg);
     planners.push_back(builtin_planners().create(p, args));  // InputError naming the known planners
   }
   planners.insert(planners.end(), opt.extra.begin(), opt.extra.end());

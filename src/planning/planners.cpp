@@ -90,6 +90,17 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
   }
   std::stable_sort(order.begin(), order.end(),
                    [&](int a, int b) { return slack[static_cast<std::size_t>(a)] < slack[static_cast<std::size_t>(b)]; });
+  // The moves the mask allows (with the default safety: UavEnv::feasible's), and those the
+  // collision search may add by spending the slack margin.
+  const bool plain = safety_.margin == 0 && safety_.clearance == Clearance::None;
+  std::vector<ActionSet> allowed(static_cast<std::size_t>(n), 0), spend(static_cast<std::size_t>(n), 0);
+  for (int i = 0; i < n && !plain; ++i) {
+    if (env.arrived(i)) continue;
+    allowed[static_cast<std::size_t>(i)] = allowed_moves(env, i, safety_);
+    if (safety_.margin > 0)
+      spend[static_cast<std::size_t>(i)] = reachable_moves(env, i, 0, safety_.clearance) & ~allowed[static_cast<std::size_t>(i)];
+  }
+  auto may = [&](int i, int k) { return plain ? env.feasible(i, k) : (allowed[static_cast<std::size_t>(i)] >> k & 1u) != 0; };
   std::vector<int> a(static_cast<std::size_t>(n), env.hover());
   // Each UAV's feasible moves in the order the greedy pass prefers them (its choice first).
   std::vector<std::vector<int>> ranked(static_cast<std::size_t>(n), std::vector<int>{env.hover()});
@@ -101,7 +112,7 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
     std::vector<Positions> next;
     std::vector<char> clear;
     for (int k = 0; k < env.actions(); ++k) {
-      if (!env.feasible(i, k)) continue;
+      if (!may(i, k)) continue;
       Positions p = placed;
       const UavEnv::Landing l = env.landing(i, k);
       const double nx = l.x, ny = l.y;
@@ -139,6 +150,9 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
   // Search the UAVs' ranked moves depth-first, in the same order, for a collision-free joint move:
   // the first found deviates least from the greedy choices. Bounded; the greedy move otherwise.
   std::vector<double> x(static_cast<std::size_t>(n)), y(static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i)  // after its ranked moves, the ones that spend margin
+    for (int k = 0; k < env.actions(); ++k)
+      if (spend[static_cast<std::size_t>(i)] >> k & 1u) ranked[static_cast<std::size_t>(i)].push_back(k);
   std::vector<std::vector<std::pair<double, double>>> target(static_cast<std::size_t>(n));
   for (int i = 0; i < n; ++i)
     for (int k : ranked[static_cast<std::size_t>(i)]) {

@@ -51,8 +51,9 @@ PlannerRegistry& builtin_planners() {
           [](const PlannerArgs& a) { return std::make_unique<RandomPlanner>(a.seed); });
     r.add("greedy", "best next-slot sum rate over all 5^N joint moves, collision-free first (the paper's Greedy; N <= 8)",
           [](const PlannerArgs&) { return std::make_unique<GreedyPlanner>(); });
-    r.add("seqgreedy", "greedy one UAV at a time (least slack first), with a search for a collision-free joint move; linear in N",
-          [](const PlannerArgs&) { return std::make_unique<SequentialGreedyPlanner>(); });
+    r.add("seqgreedy", "greedy one UAV at a time (least slack first), with a search for a collision-free joint move; linear in N; the "
+          "mask keeps marl.slack_margin and marl.mask_clearance",
+          [](const PlannerArgs& a) { return std::make_unique<SequentialGreedyPlanner>(a.safety); });
     r.add("bestknown", "each UAV's exact trajectory given the others', iterated until no UAV improves (scales to large N)",
           [](const PlannerArgs& a) { return std::make_unique<BestKnownPlanner>(a.progress); });
     r.add("optimal", "the exact optimum of P2.2 by dynamic programming over the joint grid state (small N)",

@@ -9,6 +9,7 @@
 
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/uav_env.hpp"
+#include "skyloop/planning/safety.hpp"
 
 namespace skyloop {
 
@@ -67,8 +68,15 @@ class GreedyPlanner final : public Planner {
 class SequentialGreedyPlanner final : public Planner {
  public:
   static constexpr long kSearchBudget = 2000000;
+  /// Its moves: the reachability mask with `safety`'s slack margin and clearance (safety.hpp; the
+  /// mask always, whatever safety.mask); the collision search may spend the margin. The defaults
+  /// are UavEnv::feasible's moves.
+  explicit SequentialGreedyPlanner(const SafetyOptions& safety = {}) : safety_(safety) { safety_.mask = true, safety_.shield = false; }
   std::string name() const override { return "seqgreedy"; }
   std::vector<int> act(UavEnv& env) override;
+
+ private:
+  SafetyOptions safety_;
 };
 
 struct OptimalPlan {

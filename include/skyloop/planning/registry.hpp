@@ -22,6 +22,7 @@ struct PlannerArgs {
   std::uint64_t seed = 0;           // randomised planners
   std::ostream* progress = nullptr; // long-running planners report here
   std::string memo_key;             // optimal: plans kept for the process under this key (OptimalPlanner)
+  SafetyOptions safety;             // seqgreedy: the slack margin and clearance its mask keeps (safety_options(cfg))
 };
 
 using PlannerFactory = std::function<std::unique_ptr<Planner>(const PlannerArgs&)>;

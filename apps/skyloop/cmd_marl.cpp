@@ -138,6 +138,7 @@ void add_marl_commands(CLI::App& app, Action& action) {
       if (!v->planners.empty()) opt.planners = split_methods(v->planners, "--planner");
       opt.seed = v->seed.empty() ? cfg.marl.users_seed : parse_seed("--seed", v->seed);
       opt.out_dir = v->out;
+      policy->set_reserve_slack(cfg.marl.reserve_slack);  // an execution setting: the evaluation's
       opt.extra.push_back(std::shared_ptr<Planner>(std::move(policy)));
       std::vector<double> seconds;
       const auto recs = run_planners(cfg, opt, builtin_beamformers(), &std::cerr, &seconds);

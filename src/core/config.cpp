@@ -348,6 +348,10 @@ std::vector<Field> make_fields() {
                    "UAVs that have arrived (they hover at their destinations); destinations = every other UAV's destination, "
                    "then the parked UAVs, where the slots left allow it (lattice models)",
                    {"none", "parked", "destinations"}, [](Config& c) -> std::string& { return c.marl.mask_clearance; }));
+  f.push_back(integer("marl.reserve_slack",
+                      "a UAV with at most this much slack left reserves its way home in space and time, and the UAVs after it in "
+                      "the shield's order plan around the ways reserved (lattice models; -1 = none)",
+                      -1, 1000, [](Config& c) -> int& { return c.marl.reserve_slack; }));
   f.push_back(text("marl.backend",
                    "PPO learners' network library: fast = fused float32 passes on the CPU (the default); torch = LibTorch's "
                    "autograd (the reference; needed for nn.device = cuda)",
@@ -598,6 +602,9 @@ void validate_mobility(const Config& c) {
     return;
   }
   if (t.mobility == "continuous") {
+    if (c.marl.reserve_slack >= 0)
+      throw InputError("marl.reserve_slack = " + std::to_string(c.marl.reserve_slack) +
+                       " is not allowed with trajectory.mobility = continuous: allowed -1 (ways home are planned on the lattice of grid and headings)");
     if (c.energy.model != "none" && t.v_max_mps >= c.energy.u_tip_mps)
       throw InputError("trajectory.v_max_mps = " + format_double(t.v_max_mps) + " is at or above energy.u_tip_mps = " +
                        format_double(c.energy.u_tip_mps) + ": allowed a ground speed below the tip speed (the power model's range)");

@@ -178,6 +178,7 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
     }
     for (std::size_t k = 0; k < labels.size(); ++k) {
       auto policy = MarlPolicy::load(opt.policies[k]);
+      policy->set_reserve_slack(cfg.marl.reserve_slack);  // an execution setting: the evaluation's
       timed(*policy, labels[k]);
       if (opt.unsafe) {
         policy->set_safety(false, false);

@@ -31,6 +31,7 @@ struct MarlPolicy::Impl {
   SafetyOptions safety;
   ActionSpec actions;    // the action space it was trained on
   std::string mobility;  // trajectory.mobility it was trained with
+  WaysMemory ways;       // the ways home reserved, slot to slot (marl.reserve_slack)
 };
 
 MarlPolicy::MarlPolicy(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -42,6 +43,14 @@ bool MarlPolicy::shield() const { return impl_->safety.shield; }
 void MarlPolicy::set_safety(bool action_mask, bool shield) {
   impl_->safety.mask = action_mask;
   impl_->safety.shield = shield;
+}
+int MarlPolicy::reserve_slack() const { return impl_->safety.reserve; }
+void MarlPolicy::set_reserve_slack(int slack) {
+  if (slack < -1) throw InputError("marl.reserve_slack = " + std::to_string(slack) + ": allowed -1 (none) or a slack >= 0");
+  if (slack >= 0 && impl_->actions.continuous())
+    throw InputError("marl.reserve_slack = " + std::to_string(slack) + " for a policy trained on continuous mobility: allowed -1 "
+                     "(ways home are reserved on the lattice models)");
+  impl_->safety.reserve = slack;
 }
 
 std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
@@ -137,7 +146,9 @@ std::vector<int> MarlPolicy::act(UavEnv& env) {
   std::vector<std::vector<float>> scores(static_cast<std::size_t>(N), std::vector<float>(static_cast<std::size_t>(A)));
   for (int n = 0; n < N; ++n)
     for (int a = 0; a < A; ++a) scores[static_cast<std::size_t>(n)][static_cast<std::size_t>(a)] = oa[n][a];
-  return shielded_argmax(env, impl_->safety, scores);
+  return shielded_argmax(env, impl_->safety, scores, &impl_->ways);
 }
+
+void MarlPolicy::reset(UavEnv&) { impl_->ways = WaysMemory{}; }
 
 }  // namespace skyloop

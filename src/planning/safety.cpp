@@ -3,8 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <optional>
 
 #include "skyloop/core/config.hpp"
+#include "skyloop/planning/ways_home.hpp"
 
 namespace skyloop {
 
@@ -81,6 +83,9 @@ ActionSet shielded(const UavEnv& env, int n, ActionSet allowed, const Placed& pl
   if (const ActionSet safe = clear_moves(env, n, allowed, placed)) return safe;
   if (safety.mask && safety.margin > 0)
     if (const ActionSet wider = clear_moves(env, n, reachable_moves(env, n, 0, safety.clearance), placed)) return wider;
+  // Last, the clearance: its moves home through the others' destinations and parked UAVs.
+  if (safety.mask && safety.clearance != Clearance::None)
+    if (const ActionSet plain = clear_moves(env, n, reachable_moves(env, n, 0, Clearance::None), placed)) return plain;
   return allowed;
 }
 
@@ -119,7 +124,7 @@ SafetyOptions safety_options(const Config& cfg) {
   const Clearance c = m.mask_clearance == "destinations" ? Clearance::Destinations
                       : m.mask_clearance == "parked"     ? Clearance::Parked
                                                          : Clearance::None;
-  return SafetyOptions{m.action_mask, m.shield, m.slack_margin, c};
+  return SafetyOptions{m.action_mask, m.shield, m.slack_margin, c, m.reserve_slack};
 }
 
 ActionSet reachable_moves(const UavEnv& env, int n, int margin, Clearance clearance) {
@@ -136,34 +141,139 @@ ActionSet allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety) {
   return safety.mask ? reachable_moves(env, n, safety.margin, safety.clearance) : all_actions(env);
 }
 
-std::vector<int> shield_order(const UavEnv& env, Clearance clearance) {
+namespace {
+
+/// (slack, UAV) of the UAVs not arrived, least slack first, ties by index: the shield order.
+std::vector<std::pair<int, int>> by_slack(const UavEnv& env, Clearance clearance) {
   std::vector<std::pair<int, int>> key;
   const int left = env.t_max() - env.t();
   for (int n = 0; n < env.uavs(); ++n)
     if (!env.arrived(n)) key.emplace_back(left - moves_needed_now(env, n, clearance), n);
   std::sort(key.begin(), key.end());
+  return key;
+}
+
+/// The move of `set` after which UAV n needs the fewest moves home (lowest index on ties).
+int towards_home(const UavEnv& env, int n, ActionSet set) {
+  int pick = -1, fewest = 0;
+  for (int a = 0; a < env.actions(); ++a)
+    if (set >> a & 1u) {
+      const int d = env.min_moves(n, env.landing(n, a));
+      if (pick < 0 || d < fewest) pick = a, fewest = d;
+    }
+  return pick;
+}
+
+/// Whether the UAVs at or below safety.reserve slack reserve their ways home (lattice models).
+bool reserving(const UavEnv& env, const SafetyOptions& safety) {
+  return safety.reserve >= 0 && !env.mobility().continuous();
+}
+
+/// The order in which the UAVs choose when the UAVs with at most safety.reserve slack reserve
+/// their ways home, and a way for each. First the UAVs that carry a way from the slot before
+/// (`memory`), least slack first (ties by index): they keep it. Then the other UAVs with at most
+/// safety.reserve slack, each planned around the ways reserved before it with its move towards
+/// home (the fewest moves still needed) standing in for its choice; while some of them find no
+/// way, those are moved to the front of them and all planned again (at most kReorders times; the
+/// order in which fewest find none). Then the others in shield order. `urgent` receives how many
+/// lead the order, `ways` their ways.
+std::vector<int> reserve_order(const UavEnv& env, const SafetyOptions& safety, const std::vector<std::pair<int, int>>& slacks,
+                               const WaysMemory* memory, std::size_t& urgent_out, std::optional<WaysHome>& ways_out) {
+  constexpr int kReorders = 8;
+  const WaysHome carried = memory ? WaysHome(env, *memory) : WaysHome(env);
+  std::vector<int> holding, urgent, rest, best;
+  for (const auto& [slack, n] : slacks) (carried.holds(n) ? holding : slack <= safety.reserve ? urgent : rest).push_back(n);
+  std::size_t best_failed = urgent.size() + 1;
+  ways_out.emplace(carried);
+  for (int round = 0; round <= kReorders && !urgent.empty(); ++round) {
+    WaysHome ways(carried);
+    std::vector<int> failed, found;
+    for (const int n : urgent) {
+      const ActionSet way = ways.moves(n);
+      if (!way) {
+        failed.push_back(n);
+        continue;
+      }
+      found.push_back(n);
+      ways.reserve(n, towards_home(env, n, way));
+    }
+    if (failed.size() < best_failed) {
+      best_failed = failed.size();
+      best = found;
+      best.insert(best.end(), failed.begin(), failed.end());
+      ways_out.reset();
+      ways_out.emplace(ways);
+    }
+    if (failed.empty() || failed.size() == urgent.size()) break;
+    urgent = failed;
+    urgent.insert(urgent.end(), found.begin(), found.end());
+  }
+  best.insert(best.begin(), holding.begin(), holding.end());
+  urgent_out = best.size();
+  best.insert(best.end(), rest.begin(), rest.end());
+  return best;
+}
+
+/// The moves of `set` that do not park UAV n while a reserved way still passes its destination
+/// (all of `set` if that leaves none).
+ActionSet unless_blocking(const UavEnv& env, int n, ActionSet set, const WaysHome& ways) {
+  if (ways.may_park(n)) return set;
+  ActionSet out = 0;
+  for (int a = 0; a < env.actions(); ++a) {
+    if (!(set >> a & 1u)) continue;
+    const UavEnv::Landing l = env.landing(n, a);
+    if (std::hypot(l.x - env.destinations()(n, 0), l.y - env.destinations()(n, 1)) > 1e-9) out |= action_bit(a);
+  }
+  return out ? out : set;
+}
+
+}  // namespace
+
+std::vector<int> shield_order(const UavEnv& env, Clearance clearance) {
   std::vector<int> order;
-  for (const auto& k : key) order.push_back(k.second);
+  for (const auto& k : by_slack(env, clearance)) order.push_back(k.second);
   return order;
 }
 
 std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
                                          const std::function<int(int, ActionSet)>& choose,
-                                         std::vector<ActionSet>* allowed_out) {
+                                         std::vector<ActionSet>* allowed_out, WaysMemory* memory) {
   const int N = env.uavs();
   std::vector<int> actions(static_cast<std::size_t>(N), env.hover());
   if (allowed_out) allowed_out->assign(static_cast<std::size_t>(N), action_bit(env.hover()));
   Placed placed = arrived_uavs(env);
-  for (const int n : shield_order(env, safety.clearance)) {
+  const bool reserve = reserving(env, safety);
+  std::optional<WaysHome> ways;
+  std::size_t urgent = 0;
+  const auto slacks = by_slack(env, safety.clearance);
+  std::vector<int> order;
+  if (reserve) {
+    order = reserve_order(env, safety, slacks, memory, urgent, ways);
+  } else {
+    for (const auto& k : slacks) order.push_back(k.second);
+  }
+  for (std::size_t i = 0; i < order.size(); ++i) {
+    const int n = order[i];
     ActionSet allowed = allowed_moves(env, n, safety);
-    if (safety.shield) allowed = shielded(env, n, allowed, placed, safety);
+    // A UAV with little slack left: its moves that keep a way home clear of the ways reserved
+    // before it (those the mask allows, if any), clear of the UAVs placed without one.
+    ActionSet way = i < urgent ? ways->moves(n) : 0;
+    if (way) way = clear_moves(env, n, (allowed & way) ? (allowed & way) : way, placed);
+    if (way) {
+      allowed = way;
+    } else {
+      if (reserve) allowed = unless_blocking(env, n, allowed, *ways);
+      if (safety.shield) allowed = shielded(env, n, allowed, placed, safety);
+    }
     const int a = choose(n, allowed);
+    if (way) ways->reserve(n, a);
     actions[static_cast<std::size_t>(n)] = a;
     if (allowed_out) (*allowed_out)[static_cast<std::size_t>(n)] = allowed;
     double x, y;
     landing(env, n, a, x, y);
     placed.x.push_back(x), placed.y.push_back(y);
   }
+  if (memory) *memory = reserve ? ways->memory() : WaysMemory{};
   return actions;
 }
 
@@ -284,21 +394,31 @@ struct Search {
 }  // namespace
 
 std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
-                                 const std::vector<std::vector<float>>& scores) {
+                                 const std::vector<std::vector<float>>& scores, WaysMemory* memory) {
   auto sequential = [&] {
-    return sequential_safe_actions(env, safety, [&](int n, ActionSet allowed) {
-      return best_of(scores[static_cast<std::size_t>(n)], allowed, env.hover());
-    });
+    return sequential_safe_actions(
+        env, safety, [&](int n, ActionSet allowed) { return best_of(scores[static_cast<std::size_t>(n)], allowed, env.hover()); },
+        nullptr, memory);
   };
   if (!safety.shield) return sequential();
-  const auto order = shield_order(env, safety.clearance);
+  const bool reserve = reserving(env, safety);
+  const auto slacks = by_slack(env, safety.clearance);
+  std::size_t urgent = 0;
+  std::vector<int> order;
+  std::optional<WaysHome> ways;
+  if (reserve) {
+    order = reserve_order(env, safety, slacks, memory, urgent, ways);
+  } else {
+    for (const auto& k : slacks) order.push_back(k.second);
+  }
   std::vector<int> actions(static_cast<std::size_t>(env.uavs()), env.hover());
   // Each UAV's moves best first, those that keep the slack margin before those that spend it: the
   // first collision-free joint move spends margin only where a collision demands it.
   Search s{env, order, {}, actions, arrived_uavs(env)};
   SafetyOptions plain = safety;
   plain.margin = 0;
-  for (const int n : order) {
+  for (std::size_t i = 0; i < order.size(); ++i) {
+    const int n = order[i];
     const auto& sc = scores[static_cast<std::size_t>(n)];
     auto best_first = [&](ActionSet set) {
       std::vector<int> c;
@@ -315,9 +435,39 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
       return slack_after(env, n, a, safety.clearance) > slack_after(env, n, b, safety.clearance);
     });
     c.insert(c.end(), spend.begin(), spend.end());
+    // Last, moves that give up the clearance (counted home through the others' destinations and
+    // parked UAVs): a detour kept clear of them is worth less than a collision now.
+    if (safety.mask && safety.clearance != Clearance::None) {
+      auto through = best_first(reachable_moves(env, n, 0, Clearance::None) & ~(keep | allowed_moves(env, n, plain)));
+      std::stable_sort(through.begin(), through.end(), [&](int a, int b) {
+        return slack_after(env, n, a, Clearance::None) > slack_after(env, n, b, Clearance::None);
+      });
+      c.insert(c.end(), through.begin(), through.end());
+    }
+    if (reserve) {
+      // Little slack left: its best move that keeps a way home clear of the ways reserved before
+      // it, reserved, and no other (if it has none, every move as above). Else: not parking while
+      // a reserved way passes its destination.
+      const ActionSet way = i < urgent ? ways->moves(n) : 0;
+      const ActionSet keep_out = way ? 0 : ~unless_blocking(env, n, all_actions(env), *ways);
+      std::vector<int> kept;
+      for (const int a : c)
+        if (way ? (way >> a & 1u) : !(keep_out >> a & 1u)) kept.push_back(a);
+      if (way && kept.empty())  // a way home the mask would refuse (the margin or clearance)
+        for (int a = 0; a < env.actions(); ++a)
+          if (way >> a & 1u) kept.push_back(a);
+      if (way) {
+        kept.resize(1);
+        ways->reserve(n, kept[0]);
+      }
+      if (!kept.empty()) c = std::move(kept);
+    }
     s.candidates.push_back(std::move(c));
   }
-  if (s.dfs(0)) return actions;
+  if (s.dfs(0)) {
+    if (memory) *memory = reserve ? ways->memory() : WaysMemory{};
+    return actions;
+  }
   return sequential();
 }
 

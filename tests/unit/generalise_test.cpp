@@ -1,13 +1,16 @@
 // Layouts that a policy never saw, the safety masks, and the set observation.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <set>
+#include <stdexcept>
 
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/env/layouts.hpp"
 #include "skyloop/planning/planners.hpp"
 #include "skyloop/planning/safety.hpp"
+#include "skyloop/planning/ways_home.hpp"
 
 using namespace skyloop;
 
@@ -372,4 +375,120 @@ TEST(Safety, MovesAroundAParkedUavCountTheDetour) {
     }
   EXPECT_GT(collided[0], 0) << "without the clearance UAV 0 should sometimes meet the parked UAV with no slack left";
   EXPECT_EQ(collided[1], 0);
+}
+
+// Ways home reserved in space and time (ways_home.hpp). Two UAVs whose straight ways cross at
+// (100, 100) in the same slot: UAV 0 from (0, 100) to (200, 100), UAV 1 from (100, 0) to (100, 200),
+// 10 moves each (D_fly 20 m, D_min 25 m). By hand: UAV 0 passes (80, 100), (100, 100), (120, 100)
+// at the end of slots 4, 5, 6; UAV 1 keeps 25 m from it only at (100, 60) or lower at slot 5 and
+// (100, 80) or lower at slot 6, so waiting costs UAV 1 two slots of slack (a detour, 2 moves more,
+// no less).
+namespace {
+Config crossing(int t_max) {
+  Config cfg;
+  cfg.scenario.area_x_m = cfg.scenario.area_y_m = 200;
+  cfg.trajectory.starts = {{0, 100}, {100, 0}};
+  cfg.trajectory.destinations = {{200, 100}, {100, 200}};
+  cfg.trajectory.t_max = t_max;  // 10 moves + 1, and t_max - 11 slots of slack
+  finalise(cfg);
+  return cfg;
+}
+}  // namespace
+
+TEST(WaysHome, TheSecondUavPlansAroundTheFirstsReservedWay) {
+  {
+    // No slack: UAV 0's only way is straight; reserved, it leaves UAV 1 none.
+    const Config cfg = crossing(11);
+    UavEnv env = make_env(cfg, layout_users(cfg, 1));
+    WaysHome ways(env);
+    EXPECT_EQ(ways.moves(0), action_bit(kRight));
+    ways.reserve(0, kRight);
+    EXPECT_EQ(ways.reserved_at(env.t() + 5), (std::vector<std::pair<double, double>>{{100, 100}})) << "after 5 moves";
+    EXPECT_EQ(ways.moves(1), 0u);
+  }
+  {
+    // One slot of slack: still none (waiting costs two).
+    const Config cfg = crossing(12);
+    UavEnv env = make_env(cfg, layout_users(cfg, 1));
+    WaysHome ways(env);
+    ways.moves(0);
+    ways.reserve(0, kRight);
+    EXPECT_EQ(ways.moves(1), 0u);
+  }
+  // Two slots: UAV 1 has a way, and the two ways keep D_min apart in every slot.
+  const Config cfg = crossing(13);
+  UavEnv env = make_env(cfg, layout_users(cfg, 1));
+  WaysHome ways(env);
+  ASSERT_NE(ways.moves(0) & action_bit(kRight), 0u);
+  ways.reserve(0, kRight);
+  const ActionSet second = ways.moves(1);
+  ASSERT_NE(second, 0u);
+  EXPECT_EQ(second & ~reachable_moves(env, 1, 0), 0u) << "a way home is a way home of the mask";
+  const int a = (second & action_bit(kUp)) ? kUp : kStay;
+  ASSERT_NE(second & action_bit(a), 0u);
+  ways.reserve(1, a);
+  for (int tau = env.t() + 1; tau <= env.t_max(); ++tau) {
+    const auto at = ways.reserved_at(tau);
+    ASSERT_EQ(at.size(), 2u) << "slot " << tau << ": both ways run (parked at the end) to T_max";
+    EXPECT_GE(std::hypot(at[0].first - at[1].first, at[0].second - at[1].second), env.d_min() - 1e-9) << "slot " << tau;
+  }
+  EXPECT_EQ(ways.reserved_at(env.t_max()), (std::vector<std::pair<double, double>>{{200, 100}, {100, 200}}));
+  // Not parked yet, UAV 0's destination is clear of UAV 1's way: it may park.
+  EXPECT_TRUE(ways.may_park(0));
+  EXPECT_THROW(
+      {
+        Config c = crossing(13);
+        c.trajectory.mobility = "continuous";
+        finalise(c);
+        UavEnv e = make_env(c, layout_users(c, 1));
+        WaysHome w(e);
+      },
+      std::logic_error);
+}
+
+// Under random scores with the shield alone, the two spend their slack and meet at the crossing
+// with none left; with the ways reserved (from the start: reserve_slack 2) and carried from slot to
+// slot (WaysMemory, as a deployed policy carries them), no episode collides and both are home by
+// T_max.
+TEST(WaysHome, ReservedWaysAvoidACrossingTheShieldCannotSee) {
+  const Config cfg = crossing(13);
+  UavEnv env = make_env(cfg, layout_users(cfg, 1));
+  int collided[2] = {0, 0};
+  for (const int reserve : {-1, 2})
+    for (std::uint64_t episode = 0; episode < 50; ++episode) {
+      Rng rng(episode);
+      env.reset();
+      WaysMemory memory;
+      while (!env.done()) {
+        std::vector<std::vector<float>> scores(2, std::vector<float>(kGridActions));
+        for (auto& s : scores)
+          for (auto& x : s) x = static_cast<float>(rng.normal());
+        SafetyOptions safety{true, true};
+        safety.reserve = reserve;
+        const auto a = shielded_argmax(env, safety, scores, &memory);
+        for (int n = 0; n < 2; ++n) ASSERT_TRUE(reachable_moves(env, n, 0) >> a[static_cast<std::size_t>(n)] & 1u);
+        collided[reserve < 0 ? 0 : 1] += env.collisions(env.next_positions(a)) > 0;
+        env.step(a);
+      }
+      EXPECT_TRUE(env.positions().isApprox(env.destinations())) << "reserve " << reserve << ", episode " << episode;
+    }
+  EXPECT_GT(collided[0], 0) << "without reserved ways the two should sometimes meet at the crossing with no slack left";
+  EXPECT_EQ(collided[1], 0) << collided[0] << " without";
+}
+
+TEST(WaysHome, DefaultsReserveNothingAndTheContinuousModelIsRefused) {
+  Config cfg;
+  finalise(cfg);
+  EXPECT_EQ(safety_options(cfg).reserve, -1);
+  cfg.marl.reserve_slack = 4;
+  EXPECT_EQ(safety_options(cfg).reserve, 4);
+  cfg.trajectory.mobility = "continuous";
+  try {
+    finalise(cfg);
+    FAIL() << "reserve_slack with continuous mobility should be refused";
+  } catch (const InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("marl.reserve_slack = 4"), std::string::npos) << what;
+    EXPECT_EQ(what.find('\n'), std::string::npos) << "one line: " << what;
+  }
 }

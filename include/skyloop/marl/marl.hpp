@@ -41,6 +41,8 @@ class MarlPolicy final : public Planner {
   static std::unique_ptr<MarlPolicy> load(const std::string& path);
   ~MarlPolicy() override;
   std::string name() const override;
+  /// Forgets the ways home reserved (marl.reserve_slack) in the episode before.
+  void reset(UavEnv& env) override;
   std::vector<int> act(UavEnv& env) override;
   /// Policies trained on the continuous model command velocities: the mean of their squashed
   /// Gaussian, tanh(mu), through the safety layer (safe_velocities).
@@ -54,6 +56,10 @@ class MarlPolicy final : public Planner {
   bool action_mask() const;
   bool shield() const;
   void set_safety(bool action_mask, bool shield);
+  /// marl.reserve_slack at execution (safety.hpp; -1: none): as trained unless set here. An
+  /// execution-only setting: a policy trained without it may fly with it.
+  int reserve_slack() const;
+  void set_reserve_slack(int slack);
 
   struct Impl;
 

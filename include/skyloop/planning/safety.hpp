@@ -48,8 +48,10 @@ struct SafetyOptions {
   bool shield = true;  // collision shield
   int margin = 0;      // slots of slack the mask keeps for the shield (marl.slack_margin)
   Clearance clearance = Clearance::None;  // marl.mask_clearance
+  int reserve = -1;  // marl.reserve_slack: UAVs with at most this slack reserve their ways home (-1: none; ways_home.hpp)
 };
-/// The safety settings of a configuration: marl.action_mask, shield, slack_margin, mask_clearance.
+/// The safety settings of a configuration: marl.action_mask, shield, slack_margin, mask_clearance,
+/// reserve_slack.
 SafetyOptions safety_options(const Config& cfg);
 
 /// A set of actions, bit a = action a (the mobility models have at most 64 actions).
@@ -71,12 +73,26 @@ ActionSet allowed_moves(const UavEnv& env, int n, const SafetyOptions& safety);
 /// first, ties by index.
 std::vector<int> shield_order(const UavEnv& env, Clearance clearance = Clearance::None);
 
+/// A point of a way home reserved (ways_home.hpp): UAV `uav` at (x, y) in slot tau.
+struct ReservedPoint {
+  int uav, tau;
+  double x, y;
+};
+/// The ways home reserved in one slot (marl.reserve_slack), carried to the next by a caller that
+/// plans a whole episode (a deployed policy): a UAV that followed its way keeps it, and the UAVs
+/// planned around it keep theirs, so that two reserved UAVs never meet. Memory from another slot,
+/// or a UAV that left its way, is dropped: a stale memory costs only the carrying.
+struct WaysMemory {
+  int t = -1;  // the slot it was planned in
+  std::vector<ReservedPoint> points;
+};
+
 /// Joint action chosen one UAV at a time in shield order: choose(n, allowed) returns UAV n's
 /// action given its allowed set (the shield applied against the UAVs placed so far).
 /// `allowed_out[n]`, when given, receives each UAV's allowed set (arrived UAVs: hover only).
 std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
                                          const std::function<int(int n, ActionSet allowed)>& choose,
-                                         std::vector<ActionSet>* allowed_out = nullptr);
+                                         std::vector<ActionSet>* allowed_out = nullptr, WaysMemory* memory = nullptr);
 
 /// Continuous model: the velocity commands (m/s; row n = UAV n) that replace `wanted` where the
 /// mask or the shield refuses it (above). Arrived UAVs' rows are 0.
@@ -87,7 +103,9 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
 /// each UAV its best allowed move, and with the shield the first joint action, depth first over
 /// the UAVs in shield order and each UAV's allowed moves best first, in which no two UAVs end
 /// within D_min; if none exists (or the search passes its node budget), the sequential choice.
+/// `memory`: the ways reserved, carried from slot to slot (WaysMemory; nullptr: planned afresh
+/// each slot).
 std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
-                                 const std::vector<std::vector<float>>& scores);
+                                 const std::vector<std::vector<float>>& scores, WaysMemory* memory = nullptr);
 
 }  // namespace skyloop

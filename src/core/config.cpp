@@ -350,7 +350,8 @@ std::vector<Field> make_fields() {
                    {"none", "parked", "destinations"}, [](Config& c) -> std::string& { return c.marl.mask_clearance; }));
   f.push_back(integer("marl.reserve_slack",
                       "a UAV with at most this much slack left reserves its way home in space and time, and the UAVs after it in "
-                      "the shield's order plan around the ways reserved (lattice models; -1 = none)",
+                      "the shield's order plan around the ways reserved; an execution setting: validation, eval and deployment fly "
+                      "it, training samples without it (lattice models; -1 = none)",
                       -1, 1000, [](Config& c) -> int& { return c.marl.reserve_slack; }));
   f.push_back(text("marl.backend",
                    "PPO learners' network library: fast = fused float32 passes on the CPU (the default); torch = LibTorch's "

@@ -695,7 +695,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   VecEnv& vec = run.vec;
   const Encoder encoder = encoder_of(cfg, false);
   const CriticReader critic = CriticReader::of(cfg, encoder);
-  const SafetyOptions safety = safety_options(cfg);
+  const SafetyOptions safety = training_safety_options(cfg);
   const int N = vec.env(0).uavs(), M = vec.size(), obs_width = encoder.width(vec.env(0)), critic_width = critic.width(vec.env(0));
   // The continuous model: a squashed Gaussian over its command (C dimensions), else a softmax over the A actions.
   const ActionSpec& spec = vec.env(0).mobility().actions();

@@ -63,7 +63,7 @@ class ValueDecompositionCore {
         N_(vec.env(0).uavs()),
         Tm_(vec.env(0).t_max()),
         encoder_(encoder_of(cfg, true)),
-        safety_(safety_options(cfg)),
+        safety_(training_safety_options(cfg)),
         D_(encoder_.width(vec.env(0))),
         S_(vec.env(0).state_size()),
         A_(vec.env(0).actions()),

@@ -127,6 +127,12 @@ SafetyOptions safety_options(const Config& cfg) {
   return SafetyOptions{m.action_mask, m.shield, m.slack_margin, c, m.reserve_slack};
 }
 
+SafetyOptions training_safety_options(const Config& cfg) {
+  SafetyOptions s = safety_options(cfg);
+  s.reserve = -1;
+  return s;
+}
+
 ActionSet reachable_moves(const UavEnv& env, int n, int margin, Clearance clearance) {
   if (env.arrived(n)) return action_bit(env.hover());
   ActionSet inside = 0;

@@ -476,12 +476,13 @@ TEST(WaysHome, ReservedWaysAvoidACrossingTheShieldCannotSee) {
   EXPECT_EQ(collided[1], 0) << collided[0] << " without";
 }
 
-TEST(WaysHome, DefaultsReserveNothingAndTheContinuousModelIsRefused) {
+TEST(WaysHome, DefaultsReserveNothingTrainingSamplesWithoutAndTheContinuousModelIsRefused) {
   Config cfg;
   finalise(cfg);
   EXPECT_EQ(safety_options(cfg).reserve, -1);
   cfg.marl.reserve_slack = 4;
   EXPECT_EQ(safety_options(cfg).reserve, 4);
+  EXPECT_EQ(training_safety_options(cfg).reserve, -1) << "an execution setting: training samples without it";
   cfg.trajectory.mobility = "continuous";
   try {
     finalise(cfg);

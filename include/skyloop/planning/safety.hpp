@@ -53,6 +53,10 @@ struct SafetyOptions {
 /// The safety settings of a configuration: marl.action_mask, shield, slack_margin, mask_clearance,
 /// reserve_slack.
 SafetyOptions safety_options(const Config& cfg);
+/// The safety the learners sample under in training: safety_options without reserve_slack, an
+/// execution setting (the ways reserved are the deployed policy's, carried from slot to slot;
+/// validation and deployment fly them).
+SafetyOptions training_safety_options(const Config& cfg);
 
 /// A set of actions, bit a = action a (the mobility models have at most 64 actions).
 using ActionSet = std::uint64_t;

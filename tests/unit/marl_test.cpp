@@ -276,6 +276,20 @@ TEST(Marl, EveryLearnerTrainsAndFliesTheHeadingsModel) {
     const auto a = policy->act(env);
     for (int n = 0; n < env.uavs(); ++n)
       EXPECT_TRUE(allowed_moves(env, n, SafetyOptions{}) >> a[static_cast<std::size_t>(n)] & 1u) << algo;
+    // Flown with ways home reserved (an execution setting, as `skyloop eval --set
+    // marl.reserve_slack=S` sets it): every UAV home, each move among the mask's.
+    EXPECT_EQ(policy->reserve_slack(), -1);
+    policy->set_reserve_slack(1000);
+    policy->reset(env);
+    env.reset();
+    while (!env.done()) {
+      const auto b = policy->act(env);
+      for (int n = 0; n < env.uavs(); ++n)
+        ASSERT_TRUE(reachable_moves(env, n) >> b[static_cast<std::size_t>(n)] & 1u) << algo << ", t = " << env.t();
+      env.step(b);
+    }
+    EXPECT_TRUE(env.positions().isApprox(env.destinations())) << algo;
+    EXPECT_THROW(policy->set_reserve_slack(-2), InputError);
     Config grid = cfg;
     grid.trajectory.mobility = "grid";
     UavEnv genv(grid, std::make_shared<RateOracle>(grid, zf_registry().create("zf", grid), make_users(grid, 6, 3)));

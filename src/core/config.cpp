@@ -269,6 +269,9 @@ std::vector<Field> make_fields() {
                       [](Config& c) -> int& { return c.nn.hidden; }));
   f.push_back(integer("nn.layers", "message-passing layers L_g (GNN)", 1, 16, [](Config& c) -> int& { return c.nn.layers; }));
   f.push_back(real("nn.learning_rate", "Adam learning rate", 1e-7, 1, [](Config& c) -> double& { return c.nn.learning_rate; }));
+  f.push_back(text("nn.lr_schedule",
+                   "learning rate over training: constant (the paper) or cosine (from nn.learning_rate per step down to 1% of it at the last epoch)",
+                   {"constant", "cosine"}, [](Config& c) -> std::string& { return c.nn.lr_schedule; }));
   f.push_back(real("nn.weight_decay", "Adam weight decay (L2)", 0, 1, [](Config& c) -> double& { return c.nn.weight_decay; }));
   f.push_back(integer("nn.epochs", "training epochs E_gnn", 1, 100000, [](Config& c) -> int& { return c.nn.epochs; }));
   f.push_back(integer("nn.batch_samples", "snapshots per mini-batch (all their clusters form the batch)", 1, 1000000,

@@ -130,6 +130,8 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   const std::size_t samples = train.samples();
   const std::size_t batch = static_cast<std::size_t>(cfg.nn.batch_samples);
   const std::size_t steps_per_epoch = (samples + batch - 1) / batch;
+  const bool cosine = cfg.nn.lr_schedule == "cosine";
+  const std::int64_t total_steps = std::max<std::int64_t>(1, static_cast<std::int64_t>(steps_per_epoch) * cfg.nn.epochs);
   const auto t_start = Clock::now();
   std::int64_t clusters_seen = 0;
   double train_seconds = 0;
@@ -163,6 +165,13 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
         throw std::runtime_error(fmt::format("training diverged: the loss is {} at epoch {}, step {}; "
                                              "lower nn.learning_rate (now {}) or set nn.grad_clip",
                                              value, epoch + 1, state.step + 1, cfg.nn.learning_rate));
+      if (cosine) {
+        // Cosine decay per step from the configured rate to 1% of it at the last step of the
+        // last epoch (a function of the step alone, so --resume continues the same curve).
+        const double progress = static_cast<double>(state.step) / static_cast<double>(total_steps);
+        const double lr = cfg.nn.learning_rate * (0.01 + 0.99 * 0.5 * (1.0 + std::cos(3.14159265358979323846 * std::min(1.0, progress))));
+        for (auto& group : adam.param_groups()) static_cast<torch::optim::AdamOptions&>(group.options()).lr(lr);
+      }
       adam.zero_grad();
       loss.backward();
       if (cfg.nn.grad_clip > 0) torch::nn::utils::clip_grad_norm_(model->parameters(), cfg.nn.grad_clip);

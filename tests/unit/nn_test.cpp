@@ -164,6 +164,44 @@ TEST(Learned, ResumeGivesTheSameModelAsAnUninterruptedRun) {
   EXPECT_EQ(a->info().epoch, 2);
 }
 
+// nn.lr_schedule = cosine: its first step is the configured rate's (the same model as constant's
+// after one step), later steps take smaller ones (the models part), and the rate is a function of
+// the step, so a run cut off at an epoch's end and resumed lands on the uninterrupted model.
+TEST(Learned, CosineScheduleStartsAtTheRateDecaysAndResumesOnItsCurve) {
+  Config constant = tiny_config("gnn");
+  constant.nn.epochs = 3;
+  Config cosine = constant;
+  cosine.nn.lr_schedule = "cosine";
+  const auto run = [](const Config& c, const std::string& name, int max_steps) {
+    TrainOptions o;
+    o.out_dir = fresh_dir(name);
+    o.max_steps = max_steps;
+    train_beamformer(c, o);
+    return LearnedBeamformer::load(o.out_dir + "/last.pt", c);
+  };
+  const auto probe = test::clusters_of_size(constant, 4, 5, 9);
+  {
+    const auto a = run(constant, "lr_constant_1", 1), b = run(cosine, "lr_cosine_1", 1);
+    for (const auto& c : probe) EXPECT_EQ(a->design(c), b->design(c));
+  }
+  const auto straight = run(cosine, "lr_cosine_straight", -1);
+  const auto flat = run(constant, "lr_constant_straight", -1);
+  double apart = 0;
+  for (const auto& c : probe) apart += (straight->design(c) - flat->design(c)).norm();
+  EXPECT_GT(apart, 0.0) << "the cosine schedule trained the same model as the constant rate";
+
+  TrainOptions part;
+  part.out_dir = fresh_dir("lr_cosine_resumed");
+  part.max_steps = 5;  // one epoch: 40 snapshots in batches of 8
+  train_beamformer(cosine, part);
+  part.max_steps = -1;
+  part.resume = true;
+  train_beamformer(cosine, part);
+  const auto resumed = LearnedBeamformer::load(part.out_dir + "/last.pt", cosine);
+  EXPECT_EQ(resumed->info().epoch, 3);
+  for (const auto& c : probe) EXPECT_EQ(straight->design(c), resumed->design(c));
+}
+
 TEST(Learned, SameSeedSameModel) {
   const Config cfg = tiny_config("deepsets");
   TrainOptions a, b;

@@ -195,6 +195,7 @@ struct NnConfig {                   // [nn] learned beamformers (Section IV and 
   int hidden = 128;                 // d_gnn (GNN embedding size); baselines use 2x, see README
   int layers = 3;                   // L_g message-passing layers (GNN)
   double learning_rate = 1e-3;      // Adam
+  std::string lr_schedule = "constant";  // constant (the paper) | cosine (decays per step to 1% at the last epoch)
   double weight_decay = 1e-6;       // Adam L2 penalty
   int epochs = 25;                  // E_gnn
   int batch_samples = 64;           // snapshots per mini-batch (all their clusters)

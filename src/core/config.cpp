@@ -287,6 +287,9 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.nn.grad_clip; }));
   f.push_back(text("nn.readout", "per-user output: direct = 2L reals (the paper), structured = (lambda, power) of the optimal structure",
                    {"direct", "structured"}, [](Config& c) -> std::string& { return c.nn.readout; }));
+  f.push_back(text("nn.features",
+                   "what the encoders see of each channel: linear = [Re h, Im h] scaled (the paper), log = its direction with the norm compressed logarithmically (for channels whose gains span decades: 3GPP, Al-Hourani)",
+                   {"linear", "log"}, [](Config& c) -> std::string& { return c.nn.features; }));
   f.push_back(text("nn.precision",
                    "arithmetic of a served model: float32 (as trained) or float64 (same weights, a reference for numerical checks)",
                    {"float32", "float64"}, [](Config& c) -> std::string& { return c.nn.precision; }));

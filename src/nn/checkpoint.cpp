@@ -31,6 +31,7 @@ void save_checkpoint(const std::string& path, const ModelInfo& info, const Train
                          {"epoch", state.epoch},            {"step", state.step},
                          {"best_epoch", state.best_epoch},  {"best_val_sum_rate", state.best_val},
                          {"config", info.config_toml}};
+  if (info.features != "linear") meta["features"] = info.features;  // absent: linear (files before it)
   torch::serialize::OutputArchive archive;
   torch::serialize::OutputArchive params;
   model.save(params);
@@ -55,6 +56,7 @@ LoadedCheckpoint load_checkpoint(const std::string& path, const torch::Device& d
     out.info.hidden = meta.at("hidden").get<int>();
     out.info.layers = meta.at("layers").get<int>();
     out.info.readout = meta.value("readout", std::string("direct"));
+    out.info.features = meta.value("features", std::string("linear"));
     out.info.feature_scale = meta.at("feature_scale").get<double>();
     out.info.parameters = meta.at("parameters").get<std::int64_t>();
     out.info.config_toml = meta.at("config").get<std::string>();
@@ -70,6 +72,7 @@ LoadedCheckpoint load_checkpoint(const std::string& path, const torch::Device& d
   try {
     out.model = make_model(out.info.model, out.info.antennas, out.info.hidden, out.info.layers,
                            parse_readout(out.info.readout));
+    out.model->set_features(parse_features(out.info.features));
     torch::serialize::InputArchive params;
     archive.read("model", params);
     out.model->load(params);

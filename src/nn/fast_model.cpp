@@ -281,6 +281,7 @@ void run(const Block& b, const std::vector<Part>& parts, int rows, const Segment
 struct Model::Impl {
   std::string kind;  // gnn | deepsets | mspointnet
   bool structured = false;
+  bool log_features = false;  // nn.features = "log" (models.hpp, encode_features)
   int antennas = 0;
   float feature_scale = 1.0f;
   // gnn
@@ -299,7 +300,7 @@ namespace {
 
 struct Buffers {
   Work w;
-  Mat x, u, a, mu, ma, mo, mean, u2, a2, y, pooled;
+  Mat x, xin, u, a, mu, ma, mo, mean, u2, a2, y, pooled;
 };
 
 Buffers& buffers() {
@@ -367,6 +368,7 @@ std::unique_ptr<Model> Model::build(const ModelInfo& info, const Params& p) {
   auto m = std::make_unique<Impl>();
   m->kind = info.model;
   m->structured = info.readout == "structured";
+  m->log_features = info.features == "log";
   m->antennas = info.antennas;
   m->feature_scale = static_cast<float>(info.feature_scale);
   const int L = info.antennas, d = info.hidden, out = m->structured ? 2 : 2 * L;
@@ -458,7 +460,22 @@ std::vector<MatrixXcd> Model::forward(const std::vector<const Cluster*>& cluster
         x[L + l] = static_cast<float>(-c->G(k, l).imag() * static_cast<double>(m.feature_scale));
       }
     }
-  m.head(B.x, s, B.y, B.w);
+  if (m.log_features) {
+    // The encoders' input (models.hpp, encode_features), in float as LibTorch computes it on the
+    // float batch; the structured readout below reads the linear B.x.
+    B.xin.resize(U, 2 * L);
+    const float unit = static_cast<float>(std::log1p(1.0 / kLogFeatureFloor)), floor = static_cast<float>(kLogFeatureFloor);
+    for (int u = 0; u < U; ++u) {
+      const float* x = B.x.row(u);
+      float* o = B.xin.row(u);
+      float r2 = 0.0f;
+      for (int i = 0; i < 2 * L; ++i) r2 += x[i] * x[i];
+      const float norm = std::sqrt(r2);
+      const float scale = std::log1p(norm / floor) / (unit * std::max(norm, 1e-30f));
+      for (int i = 0; i < 2 * L; ++i) o[i] = x[i] * scale;
+    }
+  }
+  m.head(m.log_features ? B.xin : B.x, s, B.y, B.w);
 
   std::vector<MatrixXcd> out;
   out.reserve(clusters.size());

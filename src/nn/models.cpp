@@ -1,7 +1,9 @@
 #include "models.hpp"
 
 #include "network_batch.hpp"
+#include "skyloop/nn/learned.hpp"
 
+#include <cmath>
 #include <stdexcept>
 
 namespace skyloop::nn {
@@ -73,6 +75,21 @@ Readout parse_readout(const std::string& s) {
 }
 
 std::string to_string(Readout r) { return r == Readout::Direct ? "direct" : "structured"; }
+
+Features parse_features(const std::string& s) {
+  if (s == "linear") return Features::Linear;
+  if (s == "log") return Features::Log;
+  throw std::invalid_argument("nn.features = \"" + s + "\" is not allowed: allowed one of linear, log");
+}
+
+std::string to_string(Features f) { return f == Features::Linear ? "linear" : "log"; }
+
+torch::Tensor encode_features(const torch::Tensor& x, Features f) {
+  if (f == Features::Linear) return x;
+  const auto r = x.norm(2, -1, true);
+  const double unit = std::log1p(1.0 / kLogFeatureFloor);
+  return x * (torch::log1p(r / kLogFeatureFloor) / (unit * torch::clamp_min(r, 1e-30)));
+}
 
 int64_t head_width(Readout r, int64_t antennas) { return r == Readout::Direct ? 2 * antennas : 2; }
 
@@ -223,6 +240,7 @@ torch::Tensor IgnnImpl::head(const torch::Tensor&, const Graph&) {
 
 torch::Tensor IgnnImpl::forward_network(const NetBatch& b) {
   const auto& x = b.x;                                  // [B, C, C, K, 2L]
+  const auto xin = encode_features(x, features());      // what the encoders see
   const int64_t B = x.size(0), C = x.size(1), K = x.size(3);
   const auto um = b.umask.unsqueeze(-1);                // [B, C, K, 1]
   const auto cm = b.cmask.unsqueeze(-1);                // [B, C, 1]
@@ -231,8 +249,8 @@ torch::Tensor IgnnImpl::forward_network(const NetBatch& b) {
   const auto off_diag = 1 - torch::eye(C, x.options()).view({1, C, C, 1});
   const auto emask = b.cmask.view({B, C, 1, 1}) * b.umask.view({B, 1, C, K}) * off_diag;
   const auto em = emask.unsqueeze(-1);
-  const auto e = edge_enc_(x, kNoGraph) * em;           // e_{m,k}  [B, C, C, K, d]
-  auto u = user_enc_(own, kNoGraph) * um;               // u_k      [B, C, K, d]
+  const auto e = edge_enc_(xin, kNoGraph) * em;           // e_{m,k}  [B, C, C, K, d]
+  auto u = user_enc_(xin.diagonal(0, 1, 2).permute({0, 3, 1, 2}), kNoGraph) * um;  // u_k [B, C, K, d]
   auto a = uav_enc_(masked_mean(u, b.umask, 2), kNoGraph) * cm;  // a_n [B, C, d]
   const auto to_user = torch::clamp_min(emask.sum(1), 1.0).unsqueeze(-1);      // [B, C_rx, K, 1]
   const auto to_uav = torch::clamp_min(emask.sum({2, 3}), 1.0).unsqueeze(-1);  // [B, C_tx, 1]

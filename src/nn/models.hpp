@@ -81,16 +81,31 @@ int64_t head_width(Readout r, int64_t antennas);
 /// Structured readout: head [U, 2], x [U, 2L] -> beamformers [U, 2L] with sum_k ||w_k||^2 = 1.
 torch::Tensor structured_beams(const torch::Tensor& head, const torch::Tensor& x, const Graph& g);
 
+/// What the encoders see of each channel vector x (last dimension, [Re h, Im h] * feature_scale).
+///  Linear (the paper, eq:node_feature): x itself.
+///  Log (beyond the paper): the direction of x with its norm r compressed,
+///    x * log(1 + r / eps) / (r log(1 + 1 / eps)), eps = kLogFeatureFloor (learned.hpp): a user 60 dB below the
+///    set's RMS still moves the input by O(1), where under the 3GPP and Al-Hourani channels the
+///    linear features of far or shadowed users are ~1e-3 of the near ones'. Zero stays zero.
+/// Readouts that use the channel (structured) always read the linear x.
+enum class Features { Linear, Log };
+Features parse_features(const std::string& s);
+std::string to_string(Features f);
+/// x [..., 2L] -> the encoders' input of the same shape.
+torch::Tensor encode_features(const torch::Tensor& x, Features f);
+
 /// Common interface of the three networks.
 class BeamNetImpl : public torch::nn::Module {
  public:
   explicit BeamNetImpl(Readout r) : readout_(r) {}
   /// Raw beamformers [U, 2L] (before scaling onto the budget).
   torch::Tensor forward(const torch::Tensor& x, const Graph& g) {
-    const auto h = head(x, g);
+    const auto h = head(features_ == Features::Linear ? x : encode_features(x, features_), g);
     return readout_ == Readout::Structured ? structured_beams(h, x, g) : h;
   }
   Readout readout() const { return readout_; }
+  Features features() const { return features_; }
+  void set_features(Features f) { features_ = f; }
   /// True for a network-level model (forward_network: all clusters of a snapshot at once).
   virtual bool network() const { return false; }
   /// Raw beams [B, C, K, 2L] of a batch of networks (network models only).
@@ -102,6 +117,7 @@ class BeamNetImpl : public torch::nn::Module {
 
  private:
   Readout readout_;
+  Features features_ = Features::Linear;
 };
 
 /// The paper's GNN (Section IV): user encoder, UAV encoder on the mean user embedding, L_g

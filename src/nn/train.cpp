@@ -97,11 +97,13 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   info.hidden = cfg.nn.hidden;
   info.layers = cfg.nn.layers;
   info.readout = cfg.nn.readout;
+  info.features = cfg.nn.features;
   info.feature_scale = 1.0 / train.channel_rms();
   info.config_toml = to_toml(cfg);
 
   torch::manual_seed(cfg.run.seed);
   auto model = nn::make_model(info.model, info.antennas, info.hidden, info.layers, nn::parse_readout(info.readout));
+  model->set_features(nn::parse_features(info.features));
   model->to(device);
   info.parameters = nn::count_parameters(*model);
   torch::optim::Adam adam(model->parameters(),
@@ -112,10 +114,11 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   if (opt.resume) {
     auto ck = nn::load_checkpoint(last_path, device);
     if (ck.info.model != info.model || ck.info.hidden != info.hidden || ck.info.layers != info.layers ||
-        ck.info.antennas != info.antennas || ck.info.readout != info.readout)
+        ck.info.antennas != info.antennas || ck.info.readout != info.readout || ck.info.features != info.features)
       throw InputError("--resume: '" + last_path + "' holds a " + ck.info.model + " (hidden " +
                        std::to_string(ck.info.hidden) + ", layers " + std::to_string(ck.info.layers) + ", L " +
-                       std::to_string(ck.info.antennas) + "): allowed the same model and sizes as the config");
+                       std::to_string(ck.info.antennas) + ", readout " + ck.info.readout + ", features " +
+                       ck.info.features + "): allowed the same model, sizes, readout and features as the config");
     torch::NoGradGuard no_grad;
     auto dst = model->parameters();
     auto src = ck.model->parameters();
@@ -246,6 +249,7 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
                            {"test_sum_rate", result.test_sum_rate},
                            {"parameters", info.parameters},
                            {"readout", info.readout},
+                           {"features", info.features},
                            {"train_seconds", train_seconds},
                            {"clusters_per_second", result.clusters_per_second},
                            {"spectrum", cfg.channel.spectrum},

@@ -43,6 +43,8 @@ TEST(NnInternal, CheckpointRoundTripsBitForBit) {
     info.hidden = 16;
     info.layers = 2;
     info.feature_scale = 1234.5678;
+    info.features = std::string(name) == "deepsets" ? "log" : "linear";
+    model->set_features(parse_features(info.features));
     info.parameters = count_parameters(*model);
     info.config_toml = "[run]\nseed = 3\n";
     TrainingState state{7, 99, 5, 42.25};
@@ -53,11 +55,32 @@ TEST(NnInternal, CheckpointRoundTripsBitForBit) {
     ASSERT_EQ(a.size(), b.size());
     for (const auto& p : a) EXPECT_TRUE(torch::equal(p.value(), b[p.key()])) << name << " " << p.key();
     EXPECT_EQ(back.info.feature_scale, 1234.5678);
+    EXPECT_EQ(back.info.features, info.features) << name;
+    EXPECT_EQ(back.model->features(), model->features()) << name;
     EXPECT_EQ(back.info.config_toml, info.config_toml);
     EXPECT_EQ(back.state.step, 99);
     EXPECT_EQ(back.state.best_val, 42.25);
     EXPECT_TRUE(back.has_optimizer);
   }
+}
+
+// nn.features = "log" at points computed by hand: x = (3, 4) has r = 5, so the encoders see
+// x * ln(1 + 5000) / (5 ln(1001)) = x * 8.5173932 / (5 * 6.9087548) = x * 0.2465681; a row of
+// zeros stays zero (no 0/0), and the direction is kept. "linear" is the identity.
+TEST(NnInternal, LogFeaturesCompressTheNormAndKeepTheDirection) {
+  const auto x = torch::tensor({3.0, 4.0, 0.0, 0.0, 3e-3, -4e-3}, torch::kFloat64).view({3, 2});
+  const auto y = encode_features(x, Features::Log);
+  const double s = std::log1p(5000.0) / (5.0 * std::log1p(1000.0));
+  EXPECT_NEAR(s, 0.2465681, 1e-7);
+  EXPECT_NEAR(y[0][0].item<double>(), 3 * s, 1e-12);
+  EXPECT_NEAR(y[0][1].item<double>(), 4 * s, 1e-12);
+  EXPECT_EQ(y[1][0].item<double>(), 0.0);
+  EXPECT_EQ(y[1][1].item<double>(), 0.0);
+  // r = 5e-3 = 5 eps: ln(6) / ln(1001) = 0.25938 of the unit norm, where the linear feature is 5e-3.
+  EXPECT_NEAR(y[2].norm().item<double>(), std::log(6.0) / std::log1p(1000.0), 1e-12);
+  EXPECT_NEAR((y[2] / y[2].norm() - x[2] / x[2].norm()).norm().item<double>(), 0.0, 1e-15);
+  EXPECT_TRUE(torch::equal(encode_features(x, Features::Linear), x));
+  EXPECT_THROW(parse_features("sqrt"), std::invalid_argument);
 }
 
 TEST(NnInternal, MaxOverOthersHandMade) {
@@ -223,7 +246,8 @@ void expect_float32_paths_within_rounding(const std::string& label, const Config
 // same weights, on tiny trained models of every kind (d = 16: widths that do not fill a kernel
 // block) and clusters of every size up to 12.
 TEST(NnInternal, Float32ServingIsWithinRoundingOfFloat64) {
-  for (const std::string m : {"gnn", "deepsets", "mspointnet", "gnn+structured", "mspointnet+structured"}) {
+  for (const std::string m : {"gnn", "deepsets", "mspointnet", "gnn+structured", "mspointnet+structured", "gnn+structured+log",
+                              "deepsets+log"}) {
     const Config cfg = test::tiny_nn_config(m);
     TrainOptions opt;
     opt.out_dir = ::testing::TempDir() + "/skyloop_f32_" + std::to_string(::getpid()) + "_" + m;

@@ -38,7 +38,7 @@ std::string tiny_model(const std::string& model) {
   return cache[model];
 }
 
-const char* kModels[] = {"gnn", "deepsets", "mspointnet", "gnn+structured", "deepsets+structured"};
+const char* kModels[] = {"gnn", "deepsets", "mspointnet", "gnn+structured", "deepsets+structured", "gnn+structured+log"};
 
 }  // namespace
 

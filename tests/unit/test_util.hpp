@@ -47,10 +47,17 @@ inline std::vector<Cluster> clusters_of_size(const Config& cfg, int k, int count
 /// thread): "gnn", "deepsets", "mspointnet", "ignn" (under the shared spectrum), or
 /// "<model>+structured" for the structured readout.
 inline Config tiny_nn_config(const std::string& model) {
+  // "model[+readout][+log]", e.g. "gnn+structured+log".
   Config cfg;
-  const auto plus = model.find('+');
+  std::size_t plus = model.find('+');
   cfg.nn.model = model.substr(0, plus);
-  if (plus != std::string::npos) cfg.nn.readout = model.substr(plus + 1);
+  while (plus != std::string::npos) {
+    const std::size_t next = model.find('+', plus + 1);
+    const std::string part = model.substr(plus + 1, next == std::string::npos ? std::string::npos : next - plus - 1);
+    if (part == "log") cfg.nn.features = "log";
+    else cfg.nn.readout = part;
+    plus = next;
+  }
   if (cfg.nn.model == "ignn") cfg.channel.spectrum = "shared";  // the network model learns interference
   cfg.nn.hidden = 16;
   cfg.nn.layers = 2;

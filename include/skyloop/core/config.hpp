@@ -206,6 +206,7 @@ struct NnConfig {                   // [nn] learned beamformers (Section IV and 
   std::string device = "cpu";       // cpu | cuda
   double grad_clip = 0.0;           // max global gradient norm; 0 = off
   std::string readout = "direct";   // direct (the paper: 2L reals per user) | structured (beyond the paper)
+  std::string features = "linear";  // encoders' input: linear (the paper, eq:node_feature) | log (norm compressed)
   std::string precision = "float32";  // serving arithmetic: float32 (training's) | float64 (a reference for checks)
   std::string inference = "fast";     // serving path: fast (fused float32 kernels) | torch (LibTorch, the reference)
 };

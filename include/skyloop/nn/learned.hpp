@@ -14,12 +14,17 @@
 
 namespace skyloop {
 
+/// nn.features = "log": the encoders see x * log(1 + r / eps) / (r log(1 + 1 / eps)), r = ||x||,
+/// with this eps (src/nn/models.hpp, encode_features; the fast path the same).
+inline constexpr double kLogFeatureFloor = 1e-3;
+
 /// What a checkpoint says about itself.
 struct ModelInfo {
   std::string model;            // gnn | deepsets | mspointnet (per cluster) | ignn (network, interference-aware)
   int antennas = 0;             // L the model was trained for
   int hidden = 0, layers = 0;
   std::string readout = "direct";  // direct (the paper) | structured (see src/nn/models.hpp)
+  std::string features = "linear";  // what the encoders see: linear (the paper) | log (see src/nn/models.hpp)
   double feature_scale = 1.0;   // input normalisation: x = [Re h, Im h] * feature_scale
   int epoch = 0;                // epochs completed
   double best_val_sum_rate = 0; // mean network sum rate on the validation set (bit/s/Hz)

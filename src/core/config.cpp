@@ -345,6 +345,10 @@ std::vector<Field> make_fields() {
                    "agent network input: mlp = the paper's 11-real observation; set = permutation-invariant encoder over "
                    "user and neighbour displacements (any K and N)",
                    {"mlp", "set"}, [](Config& c) -> std::string& { return c.marl.encoder; }));
+  f.push_back(boolean("marl.lookahead",
+                      "the set observation also holds each move's one-slot change of the sum rate R, the others held in place "
+                      "(what Greedy ranks moves by; asks the rate oracle A times per agent and slot); needs marl.encoder = set",
+                      [](Config& c) -> bool& { return c.marl.lookahead; }));
   f.push_back(integer("marl.slack_margin",
                       "slots of slack the reachability mask keeps in reserve; the collision shield may spend them to let a UAV "
                       "wait or step aside (0 = none)",
@@ -709,6 +713,9 @@ void validate(const Config& c) {
                        format_double(pl->max_horizontal_m) + " m");
   }
   validate_mobility(c);
+  if (c.marl.lookahead && c.marl.encoder != "set")
+    throw InputError("marl.lookahead = true with marl.encoder = \"" + c.marl.encoder +
+                     "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
   if (c.channel.coverage_radius_m < c.scenario.altitude_m)
     throw InputError("channel.coverage_radius_m = " + format_double(c.channel.coverage_radius_m) +
                      " is below scenario.altitude_m = " + format_double(c.scenario.altitude_m) +

@@ -79,6 +79,7 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.state = parse_state_kind(cfg.env.state);
   p.observation = parse_observation_kind(cfg.marl.encoder);
   p.action = MobilityModel(cfg).actions();
+  p.lookahead = cfg.marl.lookahead;
   return p;
 }
 
@@ -96,6 +97,7 @@ ArraySpec set_observation_spec(const SpecParams& p) {
       .add("users_density", kWideGrid * kWideGrid, 0, 4)  // (4 / K) sum_k of Gaussian kernels
       .add("uavs_wide", kWideGrid * kWideGrid, 0, others)
       .add("uavs_near", kNearGrid * kNearGrid, 0, others);
+  if (p.lookahead) s.add("move_gains", p.action.count(), -1, 1);  // one per action (continuous: per primitive)
   return s;
 }
 

@@ -541,6 +541,23 @@ void UavEnv::write_set_observation(int n, float* o) const {
     add_kernel(o + W, kWideGrid, 2 * d_fly_, 2 * d_fly_, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
     add_kernel(o + 2 * W, kNearGrid, d_fly_, d_fly_ / 2, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
   }
+  if (spec_params_.lookahead) write_move_gains(n, o + 2 * W + Q);
+}
+
+void UavEnv::write_move_gains(int n, float* o) const {
+  const int A = actions();
+  std::fill(o, o + A, 0.0f);
+  if (arrived(n)) return;
+  std::vector<Positions> sets(static_cast<std::size_t>(A) + 1, pos_);  // sets[A]: where the UAVs are now
+  for (int a = 0; a < A; ++a) {
+    const Landing l = landing(n, a);
+    sets[static_cast<std::size_t>(a)](n, 0) = l.x;
+    sets[static_cast<std::size_t>(a)](n, 1) = l.y;
+  }
+  const auto r = oracle_->sum_rates(sets);
+  const double now = r[static_cast<std::size_t>(A)];
+  if (!(now > 0)) return;
+  for (int a = 0; a < A; ++a) o[a] = static_cast<float>(std::tanh(kGainScale * (r[static_cast<std::size_t>(a)] - now) / now));
 }
 
 void UavEnv::write_compact_state(float* s) const {

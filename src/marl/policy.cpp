@@ -31,6 +31,7 @@ struct MarlPolicy::Impl {
   SafetyOptions safety;
   ActionSpec actions;    // the action space it was trained on
   std::string mobility;  // trajectory.mobility it was trained with
+  int input = 0;         // its network's input width (observation, and the Q-networks' agent context)
   WaysMemory ways;       // the ways home reserved, slot to slot (marl.reserve_slack)
 };
 
@@ -97,7 +98,8 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
                      ": allowed 0 (discrete) or 2 (continuous, mappo and ippo)");
   // The actor's outputs: one logit per action, or the squashed Gaussian's mean and log std per dimension.
   const int width = impl->actions.continuous() ? 2 * impl->actions.dims : impl->actions.count();
-  auto net = marl::MlpNet(q_based ? obs + meta.value("context_dim", uavs) : obs, hidden, width);
+  impl->input = q_based ? obs + meta.value("context_dim", uavs) : obs;
+  auto net = marl::MlpNet(impl->input, hidden, width);
   (q_based ? impl->nets.q : impl->nets.actor) = net;
   marl::load(path, impl->nets, nullptr);
   return std::unique_ptr<MarlPolicy>(new MarlPolicy(std::move(impl)));
@@ -116,6 +118,9 @@ torch::Tensor network_outputs(MarlPolicy::Impl& impl, UavEnv& env) {
                      env.mobility().name() + "\" (" + std::to_string(env.actions()) + " actions): allowed the mobility settings "
                      "it was trained with");
   const int N = env.uavs(), D = enc.width(env);
+  if (D != impl.input)
+    throw InputError("policy " + impl.algo + " reads " + std::to_string(impl.input) + " reals per agent but the environment writes " +
+                     std::to_string(D) + " (marl.encoder, marl.lookahead, env.state): allowed the observation settings it was trained with");
   std::vector<float> in(static_cast<std::size_t>(N * D));
   for (int n = 0; n < N; ++n) enc.write(env, n, in.data() + static_cast<std::size_t>(n * D));
   return net(torch::from_blob(in.data(), {N, D})).contiguous();

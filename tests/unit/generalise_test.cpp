@@ -240,6 +240,89 @@ TEST(Env, SetObservationIgnoresTheOrderOfUsersAndUavs) {
   EXPECT_EQ(od.back(), -7.0f) << "wrote past set_observation_size()";
 }
 
+// marl.lookahead: the set observation's move_gains are tanh(kGainScale (R_a - R) / R), R_a the
+// sum rate with this UAV moved by a and the others in place, asked of a separate oracle here; a
+// lone UAV's Greedy move has the largest gain among its feasible moves; an arrived UAV sees zeros.
+TEST(Env, MoveGainsAreTheOneSlotLookAhead) {
+  for (const char* mobility : {"grid", "headings"}) {
+    Config cfg;
+    cfg.scenario.users = 9;
+    cfg.marl.encoder = "set";
+    cfg.marl.lookahead = true;
+    cfg.trajectory.mobility = mobility;
+    finalise(cfg);
+    const Positions users = make_users(cfg, 9, 5);
+    UavEnv env = make_env(cfg, users);
+    RateOracle reference(cfg, zf_bf(), users);
+    const ArraySpec& obs = env.spec().set_obs;
+    const SpecField& f = obs.field("move_gains");
+    ASSERT_EQ(f.size, env.actions()) << mobility;
+    ASSERT_EQ(f.offset + f.size, obs.size) << mobility;
+    Rng rng(3);
+    int checked = 0;
+    while (!env.done()) {
+      for (int n = 0; n < env.uavs(); ++n) {
+        std::vector<float> o(static_cast<std::size_t>(obs.size));
+        env.write_set_observation(n, o.data());
+        const double now = reference.sum_rate(env.positions());
+        for (int a = 0; a < env.actions(); ++a) {
+          Positions p = env.positions();
+          const auto l = env.landing(n, a);
+          p(n, 0) = l.x, p(n, 1) = l.y;
+          const double want = env.arrived(n) ? 0.0 : std::tanh(kGainScale * (reference.sum_rate(p) - now) / now);
+          ASSERT_NEAR(o[static_cast<std::size_t>(f.offset + a)], want, 1e-6) << mobility << ", UAV " << n << ", action " << a;
+          ++checked;
+        }
+      }
+      std::vector<int> act(static_cast<std::size_t>(env.uavs()));
+      for (int n = 0; n < env.uavs(); ++n) {
+        const auto allowed = allowed_moves(env, n, SafetyOptions{});
+        do act[static_cast<std::size_t>(n)] = static_cast<int>(rng.below(static_cast<std::uint64_t>(env.actions())));
+        while (!(allowed >> act[static_cast<std::size_t>(n)] & 1u));
+      }
+      env.step(act);
+    }
+    EXPECT_GT(checked, 100) << mobility;
+    for (int n = 0; n < env.uavs(); ++n) {
+      ASSERT_TRUE(env.arrived(n)) << mobility;
+      std::vector<float> o(static_cast<std::size_t>(obs.size));
+      env.write_set_observation(n, o.data());
+      for (int a = 0; a < f.size; ++a) EXPECT_EQ(o[static_cast<std::size_t>(f.offset + a)], 0.0f) << mobility;
+    }
+  }
+  // One UAV: Greedy's move has the largest gain among the feasible moves, every slot.
+  Config one;
+  one.scenario.users = 9;
+  one.marl.encoder = "set";
+  one.marl.lookahead = true;
+  one.trajectory.starts = {{20, 20}};
+  one.trajectory.destinations = {{180, 180}};
+  finalise(one);
+  UavEnv env = make_env(one, make_users(one, 9, 6));
+  GreedyPlanner greedy;
+  greedy.reset(env);
+  const SpecField& f = env.spec().set_obs.field("move_gains");
+  while (!env.done()) {
+    std::vector<float> o(static_cast<std::size_t>(env.set_observation_size()));
+    env.write_set_observation(0, o.data());
+    const auto a = greedy.act(env);
+    for (int b = 0; b < env.actions(); ++b)
+      if (env.feasible(0, b)) {
+        EXPECT_GE(o[static_cast<std::size_t>(f.offset + a[0])], o[static_cast<std::size_t>(f.offset + b)]) << "t = " << env.t();
+      }
+    env.step(a);
+  }
+  // The paper's observation has no look-ahead: refused in one line.
+  Config mlp = one;
+  mlp.marl.encoder = "mlp";
+  try {
+    validate(mlp);
+    ADD_FAILURE() << "marl.lookahead with marl.encoder = mlp was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("marl.lookahead"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Env, ObjectiveRewardSumsToTheObjective) {
   Config cfg;
   cfg.env.reward = "objective";

@@ -317,6 +317,33 @@ TEST(Marl, UnknownLearnersAreRefusedWithTheRegisteredNames) {
   EXPECT_THROW(resolve_config(std::nullopt, {"marl.algo=sac"}), InputError);
 }
 
+// A policy trained with the look-ahead (marl.lookahead) flies an environment that writes it, and
+// one that does not is refused in one line (not a shape error from the network).
+TEST(Marl, LookAheadPoliciesNeedTheLookAhead) {
+  Config cfg = small_scenario("mappo", 1024);
+  cfg.marl.encoder = "set";
+  cfg.marl.lookahead = true;
+  validate(cfg);
+  MarlTrainOptions opt;
+  opt.out_dir = fresh("lookahead");
+  opt.registry = &zf_registry();
+  train_marl(cfg, opt);
+  auto policy = MarlPolicy::load(opt.out_dir);
+  UavEnv env(cfg, std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, 3)));
+  const auto a = policy->act(env);
+  for (int n = 0; n < env.uavs(); ++n)
+    EXPECT_TRUE(allowed_moves(env, n, SafetyOptions{}) >> a[static_cast<std::size_t>(n)] & 1u);
+  Config plain = cfg;
+  plain.marl.lookahead = false;
+  UavEnv penv(plain, std::make_shared<RateOracle>(plain, zf_registry().create("zf", plain), make_users(plain, 6, 3)));
+  try {
+    policy->act(penv);
+    ADD_FAILURE() << "a look-ahead policy flew an environment without it";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("marl.lookahead"), std::string::npos) << e.what();
+  }
+}
+
 TEST(Marl, BadPoliciesAreRejected) {
   EXPECT_THROW(MarlPolicy::load("/nonexistent/policy.pt"), InputError);
   const std::string dir = fresh("bad");

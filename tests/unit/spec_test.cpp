@@ -18,11 +18,12 @@ using namespace skyloop;
 
 namespace {
 
-Config scenario(int uavs, const std::string& state, const std::string& encoder) {
+Config scenario(int uavs, const std::string& state, const std::string& encoder, bool lookahead = false) {
   const std::string side = uavs <= 3 ? "200" : uavs <= 16 ? "1000" : "2000";
   return resolve_config(std::nullopt, {"scenario.uavs=" + std::to_string(uavs), "scenario.users=15", "scenario.area_x_m=" + side,
                                        "scenario.area_y_m=" + side, "trajectory.layout=\"generated\"", "trajectory.t_max=30",
-                                       "env.state=\"" + state + "\"", "marl.encoder=\"" + encoder + "\"", "env.oracle=\"zf\""});
+                                       "env.state=\"" + state + "\"", "marl.encoder=\"" + encoder + "\"", "env.oracle=\"zf\"",
+                                       std::string("marl.lookahead=") + (lookahead ? "true" : "false")});
 }
 
 /// Calls `write` on a buffer of `size` values and `size + 8` sentinels: every value written is
@@ -43,15 +44,21 @@ void expect_fills_exactly(const ArraySpec& spec, const Write& write, const std::
     ASSERT_EQ(buf[i], kSentinel) << what << ": wrote past its " << spec.size << " values";
 }
 
+/// The set observation's size without the look-ahead: own (6 + the previous action), users and UAVs.
+int scenario_spec_size(const EnvSpec& s) {
+  return 6 + s.action.count() + 2 * kWideGrid * kWideGrid + kNearGrid * kNearGrid;
+}
+
 }  // namespace
 
 TEST(Spec, EveryWriterFillsExactlyItsRow) {
   BeamformerRegistry reg;
   register_classical_beamformers(reg);
   for (const char* state : {"paper", "compact"})
-    for (const char* encoder : {"mlp", "set"})
+    for (const char* encoder : {"mlp", "set", "set+lookahead"})
       for (int N : {1, 2, 5, 9, 16}) {
-        const Config cfg = scenario(N, state, encoder);
+        const bool lookahead = std::string(encoder) == "set+lookahead";
+        const Config cfg = scenario(N, state, lookahead ? "set" : encoder, lookahead);
         auto bf = std::shared_ptr<const Beamformer>(reg.create("zf", cfg));
         VecEnv vec(cfg, bf, 2, 7);
         UavEnv& env = vec.env(1);
@@ -60,7 +67,8 @@ TEST(Spec, EveryWriterFillsExactlyItsRow) {
         ASSERT_EQ(s.agents, N);
         EXPECT_EQ(s.state.size, std::string(state) == "paper" ? 4 * N + 2 * 15 : 3 * kStateGrid * kStateGrid + 2) << what;
         EXPECT_EQ(s.agent_state.size, s.state.size + s.agent_context.size + s.paper_obs.size) << what;
-        EXPECT_EQ(s.obs.size, std::string(encoder) == "set" ? s.set_obs.size : 11) << what;
+        EXPECT_EQ(s.obs.size, std::string(encoder) != "mlp" ? s.set_obs.size : 11) << what;
+        EXPECT_EQ(s.set_obs.size, scenario_spec_size(s) + (lookahead ? kGridActions : 0)) << what;
         EXPECT_EQ(s.action.count(), kGridActions);
         EXPECT_EQ(env.state_size(), s.state.size);
         Rng rng(static_cast<std::uint64_t>(N));

@@ -186,6 +186,7 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   std::string mask_clearance = "none";  // what the mask counts the moves home around (safety.hpp)
   int reserve_slack = -1;           // UAVs with at most this slack reserve their ways home (ways_home.hpp; -1: none); execution only
   std::string encoder = "mlp";      // mlp (the paper's 11-real observation) | set (users and neighbours as sets)
+  bool lookahead = false;           // set observation: each move's one-slot change of R (UavEnv::write_move_gains)
   std::string backend = "fast";     // PPO networks: fast (fused float32, CPU) | torch (LibTorch autograd)
   int val_layouts = 0;              // validation layouts scored at each checkpoint; policy.pt = the best (0 = last)
 };

@@ -87,6 +87,7 @@ constexpr int kStateGrid = 8;   // compact state: G x G cells over the area
 constexpr int kNeighbours = 4;  // compact agent context: nearest other UAVs
 constexpr int kWideGrid = 7;    // set observation: users and UAVs, spacing 2 D_fly
 constexpr int kNearGrid = 5;    // set observation: UAVs one move away, spacing D_fly
+constexpr double kGainScale = 10;  // set observation's move_gains: tanh(kGainScale (R_a - R) / R)
 
 /// The action space of the paper's grid mobility: UP, DOWN, LEFT, RIGHT, STAY.
 const ActionSpec& grid_actions();
@@ -101,9 +102,11 @@ struct SpecParams {
   StateKind state = StateKind::Paper;
   ObservationKind observation = ObservationKind::Paper;
   ActionSpec action = grid_actions();  // the mobility model's
+  bool lookahead = false;              // marl.lookahead: the set observation's move_gains field
   bool operator==(const SpecParams& o) const {
     return agents == o.agents && users == o.users && area_x == o.area_x && area_y == o.area_y && d_fly == o.d_fly &&
-           t_max == o.t_max && state == o.state && observation == o.observation && action == o.action;
+           t_max == o.t_max && state == o.state && observation == o.observation && action == o.action &&
+           lookahead == o.lookahead;
   }
 };
 SpecParams spec_params(const Config& cfg, int agents, int users);

@@ -198,9 +198,17 @@ class UavEnv {
   ///  - users (kWideGrid^2): at each point c of a kWideGrid x kWideGrid grid centred on the UAV
   ///    with spacing 2 D_fly, (4 / K) sum_k exp(-|u_k - x - c|^2 / (2 (2 D_fly)^2));
   ///  - UAVs, wide (kWideGrid^2): the same sum over the other UAVs (not divided by anything);
-  ///  - UAVs, near (kNearGrid^2): spacing D_fly, width D_fly / 2: who is one move away.
+  ///  - UAVs, near (kNearGrid^2): spacing D_fly, width D_fly / 2: who is one move away;
+  ///  - with marl.lookahead, move gains (one per action): write_move_gains.
   /// Reordering the users or the other UAVs leaves it unchanged (tests/unit/env_test.cpp).
   void write_set_observation(int n, float* out) const;
+  /// For each action a of UAV n (continuous model: each primitive), tanh(kGainScale (R_a - R) / R):
+  /// R_a the sum rate with UAV n landed where a takes it (landing(n, a)) and every other UAV where
+  /// it is, R the sum rate now; the one-slot look-ahead Greedy ranks moves by (its sign and order),
+  /// so a learner sees a rate landscape its user-density features cannot show (3GPP LoS states,
+  /// WMMSE's steep rates). Zeros for an arrived UAV and where R = 0. The oracle is asked for the
+  /// A + 1 position sets in one batched call (memoised).
+  void write_move_gains(int n, float* out) const;
   int set_observation_size() const { return spec_->set_obs.size; }
   int users() const;
   /// The compact state (spec().compact_state, whatever env.state says).

@@ -79,6 +79,33 @@ def test_every_array_is_the_environments_own(N, state, encoder):
         o = env.step(a)
 
 
+@pytest.mark.parametrize("N", [1, 3, 9])
+def test_the_look_ahead_is_one_field_of_the_set_observation(N):
+    """marl.lookahead adds move_gains (one per action) at the end of the set observation; STAY
+    changes nothing (0), and the arrays stay the environment's own."""
+    cfg = dict(scenario(N, "compact", "set"), **{"marl.lookahead": True})
+    env = sl.VecEnv(cfg, num_envs=2, seed=N)
+    plain = sl.VecEnv(scenario(N, "compact", "set"), num_envs=2, seed=N)
+    spec = env.spec
+    assert spec["obs"]["size"] == plain.spec["obs"]["size"] + env.num_actions
+    assert spec["obs"]["fields"][-1]["name"] == "move_gains"
+    o, p = env.reset(), plain.reset()
+    rng = np.random.default_rng(N)
+    moved = False
+    for t in range(4):
+        check_against_reference(env, o)
+        check_fields(env, o)
+        assert np.array_equal(o.obs[..., :plain.spec["obs"]["size"]], p.obs)
+        gains = env.field(o.obs, "obs", "move_gains")
+        assert np.all(gains[..., sl.ACTIONS.index("STAY")] == 0)
+        moved |= bool(np.any(gains != 0))
+        a = (rng.random(o.action_mask.shape) * o.action_mask).argmax(-1)
+        o, p = env.step(a), plain.step(a)
+    assert moved
+    with pytest.raises(sl.InputError, match="marl.lookahead"):
+        sl.VecEnv(dict(scenario(N, "compact", "mlp"), **{"marl.lookahead": True}), num_envs=1, seed=0)
+
+
 def test_spec_names_the_actions_once():
     env = sl.VecEnv({"env.oracle": "zf"}, 1, 0)
     assert env.spec["actions"] == sl.ACTIONS and env.num_actions == len(sl.ACTIONS)

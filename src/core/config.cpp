@@ -347,7 +347,7 @@ std::vector<Field> make_fields() {
                    {"mlp", "set"}, [](Config& c) -> std::string& { return c.marl.encoder; }));
   f.push_back(boolean("marl.lookahead",
                       "the set observation also holds each move's one-slot change of the sum rate R, the others held in place "
-                      "(what Greedy ranks moves by; asks the rate oracle A times per agent and slot); needs marl.encoder = set",
+                      "(what Greedy ranks moves by; asks the rate oracle for A + 1 position sets per agent and slot, memoised); needs marl.encoder = set",
                       [](Config& c) -> bool& { return c.marl.lookahead; }));
   f.push_back(integer("marl.slack_margin",
                       "slots of slack the reachability mask keeps in reserve; the collision shield may spend them to let a UAV "

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <numeric>
+#include <stdexcept>
+#include <string>
 
 namespace skyloop {
 
@@ -69,33 +71,53 @@ MatrixXcd zf(const Cluster& c, bool waterfilling) {
   return V;
 }
 
+namespace {
+// The water-filled ZF sum rate of serving `set` alone, from the diagonal of its inverse Gram
+// matrix: ||v_k||^2 = [(G_S G_S^H)^{-1}]_kk. Only the set's rows are touched (|S| <= L), so it
+// costs O(L^3), never the K x K Gram matrix of a cluster of hundreds of users. -1: the set's
+// channels are linearly dependent (no ZF).
+double zf_set_rate(const Cluster& c, const std::vector<int>& set) {
+  const auto n = static_cast<Eigen::Index>(set.size());
+  MatrixXcd rows(n, c.G.cols());
+  for (Eigen::Index i = 0; i < n; ++i) rows.row(i) = c.G.row(set[static_cast<std::size_t>(i)]);
+  const MatrixXcd sub = rows * rows.adjoint();
+  Eigen::LLT<MatrixXcd> llt(sub);
+  if (llt.info() != Eigen::Success) return -1.0;
+  const MatrixXcd inv = llt.solve(MatrixXcd::Identity(n, n));
+  VectorXd floor(n);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    floor[i] = c.noise * inv(i, i).real();
+    if (!(floor[i] > 0) || !std::isfinite(floor[i])) return -1.0;
+  }
+  const VectorXd p = waterfill(floor, c.p_max);
+  double rate = 0.0;
+  for (Eigen::Index i = 0; i < n; ++i) rate += std::log2(1.0 + p[i] / floor[i]);
+  return rate;
+}
+
+// Water-filled ZF over the users in `set`; every other user gets w_k = 0.
+MatrixXcd zf_on_set(const Cluster& c, std::vector<int> set) {
+  std::sort(set.begin(), set.end());
+  MatrixXcd W = MatrixXcd::Zero(c.G.cols(), c.G.rows());
+  if (set.empty()) return W;
+  Cluster sub;
+  sub.p_max = c.p_max;
+  sub.noise = c.noise;
+  sub.G.resize(static_cast<Eigen::Index>(set.size()), c.G.cols());
+  for (std::size_t i = 0; i < set.size(); ++i) sub.G.row(static_cast<Eigen::Index>(i)) = c.G.row(set[i]);
+  const MatrixXcd Ws = zf(sub, true);
+  for (std::size_t i = 0; i < set.size(); ++i) W.col(set[i]) = Ws.col(static_cast<Eigen::Index>(i));
+  return W;
+}
+}  // namespace
+
 MatrixXcd zf_select(const Cluster& c, std::vector<int>* selected) {
   const auto K = c.G.rows(), L = c.G.cols();
   if (K == 0) {
     if (selected) selected->clear();
     return MatrixXcd(L, 0);
   }
-  // Score a set by its water-filled ZF sum rate, from the diagonal of its inverse Gram matrix:
-  // ||v_k||^2 = [(G_S G_S^H)^{-1}]_kk. Only the set's rows are touched (|S| <= L), so a greedy
-  // pass costs O(K L^4), never the K x K Gram matrix of a cluster of hundreds of users.
-  auto score = [&](const std::vector<int>& set) {
-    const auto n = static_cast<Eigen::Index>(set.size());
-    MatrixXcd rows(n, L);
-    for (Eigen::Index i = 0; i < n; ++i) rows.row(i) = c.G.row(set[static_cast<std::size_t>(i)]);
-    const MatrixXcd sub = rows * rows.adjoint();
-    Eigen::LLT<MatrixXcd> llt(sub);
-    if (llt.info() != Eigen::Success) return -1.0;
-    const MatrixXcd inv = llt.solve(MatrixXcd::Identity(n, n));
-    VectorXd floor(n);
-    for (Eigen::Index i = 0; i < n; ++i) {
-      floor[i] = c.noise * inv(i, i).real();
-      if (!(floor[i] > 0) || !std::isfinite(floor[i])) return -1.0;
-    }
-    const VectorXd p = waterfill(floor, c.p_max);
-    double rate = 0.0;
-    for (Eigen::Index i = 0; i < n; ++i) rate += std::log2(1.0 + p[i] / floor[i]);
-    return rate;
-  };
+  // Greedy: O(K L^4) per cluster (zf_set_rate is O(L^3) for each of K candidates, L rounds).
   std::vector<int> set;
   double best = 0.0;
   while (static_cast<Eigen::Index>(set.size()) < std::min(K, L)) {
@@ -105,7 +127,7 @@ MatrixXcd zf_select(const Cluster& c, std::vector<int>* selected) {
       if (std::find(set.begin(), set.end(), k) != set.end()) continue;
       std::vector<int> trial = set;
       trial.push_back(k);
-      const double r = score(trial);
+      const double r = zf_set_rate(c, trial);
       if (r > pick_rate) pick_rate = r, pick = k;
     }
     if (pick < 0) break;
@@ -114,16 +136,34 @@ MatrixXcd zf_select(const Cluster& c, std::vector<int>* selected) {
   }
   std::sort(set.begin(), set.end());
   if (selected) *selected = set;
-  MatrixXcd W = MatrixXcd::Zero(L, K);
-  if (set.empty()) return W;
-  Cluster sub;
-  sub.p_max = c.p_max;
-  sub.noise = c.noise;
-  sub.G.resize(static_cast<Eigen::Index>(set.size()), L);
-  for (std::size_t i = 0; i < set.size(); ++i) sub.G.row(static_cast<Eigen::Index>(i)) = c.G.row(set[i]);
-  const MatrixXcd Ws = zf(sub, true);
-  for (std::size_t i = 0; i < set.size(); ++i) W.col(set[i]) = Ws.col(static_cast<Eigen::Index>(i));
-  return W;
+  return zf_on_set(c, set);
+}
+
+MatrixXcd zf_ranked(const Cluster& c, const std::vector<int>& ranking, std::vector<int>* selected) {
+  const auto K = c.G.rows(), L = c.G.cols();
+  std::vector<int> set, best_set;
+  std::vector<bool> seen(static_cast<std::size_t>(K), false);
+  double best = 0.0;
+  for (const int k : ranking) {
+    if (static_cast<Eigen::Index>(set.size()) >= std::min(K, L)) break;
+    if (k < 0 || k >= K || seen[static_cast<std::size_t>(k)])
+      throw std::invalid_argument("zf_ranked: user " + std::to_string(k) + " is not in the cluster or ranked twice");
+    seen[static_cast<std::size_t>(k)] = true;
+    set.push_back(k);
+    const double r = zf_set_rate(c, set);
+    if (r > best) best = r, best_set = set; else set.pop_back();
+  }
+  std::sort(best_set.begin(), best_set.end());
+  if (selected) *selected = best_set;
+  return zf_on_set(c, best_set);
+}
+
+MatrixXcd ZfGainBeamformer::design(const Cluster& c) const {
+  std::vector<int> order(static_cast<std::size_t>(c.G.rows()));
+  std::iota(order.begin(), order.end(), 0);
+  const VectorXd gain = c.G.rowwise().squaredNorm();
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return gain[a] > gain[b]; });
+  return zf_ranked(c, order);
 }
 
 MatrixXcd rzf(const Cluster& c) {

@@ -51,6 +51,11 @@ void register_classical_beamformers(BeamformerRegistry& reg) {
     no_arg("zfsel", arg);
     return std::make_unique<ZfSelectBeamformer>();
   });
+  reg.add("zfgain", "zero forcing, users joining in the order of their channel gain while the sum rate rises (one pass)",
+          [no_arg](const Config&, const std::string& arg) {
+            no_arg("zfgain", arg);
+            return std::make_unique<ZfGainBeamformer>();
+          });
   reg.add("rzf", "regularised zero forcing (MMSE precoder), full power", [no_arg](const Config&, const std::string& arg) {
     no_arg("rzf", arg);
     return std::make_unique<RzfBeamformer>();

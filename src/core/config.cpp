@@ -297,6 +297,12 @@ std::vector<Field> make_fields() {
                    "serving path of a learned model: fast (fused float32 kernels, same weights; the ignn and float64 are served by "
                    "torch) or torch (LibTorch, the training path and the reference)",
                    {"fast", "torch"}, [](Config& c) -> std::string& { return c.nn.inference; }));
+  f.push_back(text("nn.selection",
+                   "what a served per-cluster model's beams become: soft = the network's beams (as trained); ranked = the "
+                   "network chooses whom to serve, ZF how: in the order of the rates the network's beams give them, each user "
+                   "joins while it raises the water-filled ZF sum rate (at most L); the result or the network's own beams, "
+                   "whichever has the higher sum rate",
+                   {"soft", "ranked"}, [](Config& c) -> std::string& { return c.nn.selection; }));
   // [marl]
   f.push_back(text("marl.algo", "multi-agent learner", learner_names(),
                    [](Config& c) -> std::string& { return c.marl.algo; }));

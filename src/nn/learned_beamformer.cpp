@@ -6,6 +6,8 @@
 #include "data.hpp"
 #include "fast_model.hpp"
 #include "network_batch.hpp"
+#include "skyloop/beamforming/linear.hpp"
+#include "skyloop/channel/rates.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/parallel.hpp"
 #include "skyloop/core/paths.hpp"
@@ -22,7 +24,22 @@ struct LearnedBeamformer::Impl {
   torch::Device device{torch::kCPU};
   PowerScaling scaling = PowerScaling::Full;
   torch::ScalarType dtype = torch::kFloat32;
+  bool ranked = false;                    // nn.selection = "ranked"
   std::unique_ptr<nn::fast::Model> fast;  // the fused float32 path; null: LibTorch serves
+
+  /// A served cluster's beams: the network's, scaled onto the budget, then (nn.selection =
+  /// "ranked") the better of them and water-filled ZF over the users selected in the order of
+  /// the rates the network's beams give them (zf_ranked); ties keep the network's beams.
+  MatrixXcd finish(const Cluster& c, MatrixXcd W) const {
+    W = skyloop::scale_to_budget(std::move(W), c.p_max, scaling);
+    if (!ranked || c.size() == 0) return W;
+    std::vector<int> order(static_cast<std::size_t>(c.size()));
+    std::iota(order.begin(), order.end(), 0);
+    const VectorXd rate = rates(c, W);
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return rate[a] > rate[b]; });
+    MatrixXcd Z = zf_ranked(c, order);
+    return sum_rate(c, Z) > sum_rate(c, W) ? Z : W;
+  }
 };
 
 namespace {
@@ -59,6 +76,10 @@ std::unique_ptr<LearnedBeamformer> LearnedBeamformer::load(const std::string& pa
     impl->dtype = torch::kFloat64;
     ck.model->to(torch::kFloat64);
   }
+  impl->ranked = cfg.nn.selection == "ranked";
+  if (impl->ranked && ck.model->network())
+    throw InputError("nn.selection = \"ranked\" is not allowed for the " + ck.info.model +
+                     " model (its beams are designed for the whole network): allowed soft");
   impl->info = ck.info;
   impl->model = ck.model;
   impl->scaling = cfg.beamforming.power_scaling;
@@ -160,7 +181,7 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
     MatrixXcd W(L, c.size());
     for (int k = 0; k < c.size(); ++k, ++row)
       for (int l = 0; l < L; ++l) W(l, k) = cdouble(acc[row][l], acc[row][L + l]);
-    out[where[i]] = skyloop::scale_to_budget(std::move(W), c.p_max, impl_->scaling);
+    out[where[i]] = impl_->finish(c, std::move(W));
   }
   return out;
 }
@@ -178,7 +199,7 @@ std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<Cluster>
     for (std::size_t j = first; j < last; ++j) part.push_back(&nonempty[j]);
     auto raw = impl_->fast->forward(part);
     for (std::size_t j = first; j < last; ++j)
-      out[where[j]] = skyloop::scale_to_budget(std::move(raw[j - first]), nonempty[j].p_max, impl_->scaling);
+      out[where[j]] = impl_->finish(nonempty[j], std::move(raw[j - first]));
   });
   return out;
 }

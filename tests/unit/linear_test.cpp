@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <numeric>
+
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "test_util.hpp"
@@ -80,4 +82,86 @@ TEST(ZfSelect, SelectsAtMostLUsersAndBeatsPlainZfOnAverage) {
     plain += sum_rate(c, zf(c));
   }
   EXPECT_GT(sel, plain);
+}
+
+namespace {
+/// A cluster with the given channel rows (h_k^H), noise 1 W and budget p W.
+Cluster hand_cluster(const std::vector<std::vector<cdouble>>& rows, double p) {
+  Cluster c;
+  c.p_max = p;
+  c.noise = 1.0;
+  c.G.resize(static_cast<Eigen::Index>(rows.size()), static_cast<Eigen::Index>(rows.front().size()));
+  for (std::size_t i = 0; i < rows.size(); ++i)
+    for (std::size_t l = 0; l < rows[i].size(); ++l) c.G(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(l)) = rows[i][l];
+  return c;
+}
+}  // namespace
+
+// Worked by hand (L = 2, noise 1 W, P = 2 W). Users 0 and 1 are orthogonal with gains 1 and 0.5;
+// user 2 is parallel to user 0. Ranking (0, 2, 1): user 0 joins (log2(1 + 2) = 1.585); {0, 2} cannot
+// be zero-forced (parallel rows) so user 2 is passed over; {0, 1} has floors 1 and 2, water level
+// mu = 2.5, powers 1.5 and 0.5, sum rate log2(2.5) + log2(1.25) = 1.6439 > 1.585, so user 1 joins.
+// With user 1's gain 0.01 its floor (100) lies above the water and the sum rate does not rise:
+// user 0 is served alone.
+TEST(ZfRanked, HandComputedOrthogonalCluster) {
+  const double g1 = std::sqrt(0.5);
+  const Cluster c = hand_cluster({{1.0, 0.0}, {0.0, g1}, {3.0, 0.0}}, 2.0);
+  std::vector<int> chosen;
+  const MatrixXcd W = zf_ranked(c, {0, 2, 1}, &chosen);
+  EXPECT_EQ(chosen, (std::vector<int>{0, 1}));
+  EXPECT_NEAR(sum_rate(c, W), std::log2(2.5) + std::log2(1.25), 1e-12);
+  EXPECT_NEAR(W.col(0).squaredNorm(), 1.5, 1e-12);
+  EXPECT_NEAR(W.col(1).squaredNorm(), 0.5, 1e-12);
+  EXPECT_EQ(W.col(2).norm(), 0.0);
+  // Ranked first, user 2 (gain 9) is served, and user 0 can never join it.
+  zf_ranked(c, {2, 0, 1}, &chosen);
+  EXPECT_EQ(chosen, (std::vector<int>{1, 2}));
+
+  const Cluster weak = hand_cluster({{1.0, 0.0}, {0.0, 0.1}, {3.0, 0.0}}, 2.0);
+  const MatrixXcd Ww = zf_ranked(weak, {0, 1, 2}, &chosen);
+  EXPECT_EQ(chosen, (std::vector<int>{0}));
+  EXPECT_NEAR(sum_rate(weak, Ww), std::log2(3.0), 1e-12);
+}
+
+// On random clusters of every size: at most L users, the others silent, the selected ones
+// zero-forced on the full budget, the beams those of water-filled ZF over the selected users, and
+// never below serving the first-ranked user alone. ZF-GAIN is zf_ranked in the order of the gains.
+TEST(ZfRanked, InvariantsOnRandomClusters) {
+  const Config cfg;
+  const ZfGainBeamformer gain;
+  for (int k = 1; k <= 9; ++k)
+    for (const auto& c : test::clusters_of_size(cfg, k, 12, 70 + k)) {
+      std::vector<int> ranking(static_cast<std::size_t>(k));  // last user first
+      std::iota(ranking.begin(), ranking.end(), 0);
+      std::reverse(ranking.begin(), ranking.end());
+      std::vector<int> chosen;
+      const MatrixXcd W = zf_ranked(c, ranking, &chosen);
+      ASSERT_GE(chosen.size(), 1u);
+      EXPECT_LE(chosen.size(), 4u);
+      EXPECT_NEAR(W.squaredNorm(), c.p_max, 1e-9 * c.p_max);
+      Cluster sub = c;
+      sub.G.resize(static_cast<Eigen::Index>(chosen.size()), c.G.cols());
+      for (std::size_t i = 0; i < chosen.size(); ++i) sub.G.row(static_cast<Eigen::Index>(i)) = c.G.row(chosen[i]);
+      const MatrixXcd Z = zf(sub, true);
+      for (int j = 0, i = 0; j < k; ++j) {
+        const bool in = i < static_cast<int>(chosen.size()) && chosen[static_cast<std::size_t>(i)] == j;
+        if (in) EXPECT_LE((W.col(j) - Z.col(i++)).norm(), 1e-9 * std::sqrt(c.p_max)) << "K=" << k;
+        else EXPECT_EQ(W.col(j).norm(), 0.0);
+      }
+      const double alone = std::log2(1.0 + c.p_max * c.G.row(ranking[0]).squaredNorm() / c.noise);
+      EXPECT_GE(sum_rate(c, W), alone - 1e-9) << "K=" << k;
+      // ZF-GAIN: the same pass over the users sorted by gain.
+      std::vector<int> by_gain(static_cast<std::size_t>(k));
+      std::iota(by_gain.begin(), by_gain.end(), 0);
+      std::stable_sort(by_gain.begin(), by_gain.end(),
+                       [&](int a, int b) { return c.G.row(a).squaredNorm() > c.G.row(b).squaredNorm(); });
+      EXPECT_EQ(gain.design(c), zf_ranked(c, by_gain));
+    }
+}
+
+TEST(ZfRanked, RefusesARankingThatIsNotOfTheCluster) {
+  const Cluster c = hand_cluster({{1.0, 0.0}, {0.0, 1.0}}, 1.0);
+  EXPECT_THROW(zf_ranked(c, {0, 0, 1}), std::invalid_argument);
+  EXPECT_THROW(zf_ranked(c, {2}), std::invalid_argument);
+  EXPECT_THROW(zf_ranked(c, {-1}), std::invalid_argument);
 }

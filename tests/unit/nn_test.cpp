@@ -4,6 +4,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <numeric>
 
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/channel/network.hpp"
@@ -58,6 +59,43 @@ constexpr double kF64Tol = 1e-8;
 Config f64(Config cfg) {
   cfg.nn.precision = "float64";
   return cfg;
+}
+
+// nn.selection = "ranked": the network ranks the users (by the rates its own beams give them) and
+// water-filled ZF serves those zf_ranked selects in that order, or the network's beams stay where
+// they do better. So on every cluster the served sum rate is at least the network's, the beams are
+// on the budget, and where they differ from the network's they are zf_ranked's in the network's
+// order (at most L users). A network-level model (ignn) is refused in one line.
+TEST(Learned, RankedSelectionServesTheNetworksRankingWithZf) {
+  for (const char* m : {"gnn", "gnn+structured"}) {
+    const Config soft = f64(tiny_config(m));
+    Config ranked = soft;
+    ranked.nn.selection = "ranked";
+    const auto a = LearnedBeamformer::load(tiny_model(m), soft), b = LearnedBeamformer::load(tiny_model(m), ranked);
+    int replaced = 0;
+    for (int k = 1; k <= 8; ++k)
+      for (const auto& c : test::clusters_of_size(soft, k, 4, 90 + k)) {
+        const MatrixXcd Ws = a->design(c), Wr = b->design(c);
+        EXPECT_GE(sum_rate(c, Wr), sum_rate(c, Ws) - 1e-12) << m << " K_n=" << k;
+        EXPECT_NEAR(Wr.squaredNorm(), c.p_max, 1e-9 * c.p_max);
+        if (Wr == Ws) continue;
+        ++replaced;
+        const VectorXd r = rates(c, Ws);
+        std::vector<int> order(static_cast<std::size_t>(k));
+        std::iota(order.begin(), order.end(), 0);
+        std::stable_sort(order.begin(), order.end(), [&](int x, int y) { return r[x] > r[y]; });
+        EXPECT_EQ(Wr, zf_ranked(c, order)) << m << " K_n=" << k;
+      }
+    EXPECT_GT(replaced, 0) << m << ": a tiny model's beams are never beaten by ZF on its ranking";
+  }
+  Config ig = tiny_config("ignn");
+  ig.nn.selection = "ranked";
+  try {
+    LearnedBeamformer::load(tiny_model("ignn"), ig);
+    ADD_FAILURE() << "ignn with nn.selection = ranked was not refused";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("nn.selection"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Learned, PermutingUsersPermutesBeamformers) {

@@ -28,6 +28,12 @@ MatrixXcd zf(const Cluster& c, bool waterfilling = true);
 MatrixXcd rzf(const Cluster& c);
 /// ZF with greedy user selection; `selected` (if given) receives the chosen users, ascending.
 MatrixXcd zf_select(const Cluster& c, std::vector<int>* selected = nullptr);
+/// ZF with user selection in a given order (`ranking`: users, best first, each at most once): one
+/// pass that adds each user in turn while it raises the water-filled ZF sum rate of the selected
+/// set (at most L users). O(K L^3) per cluster where ZF-SEL's greedy search costs O(K L^4); with
+/// a good ranking it selects what ZF-SEL selects. `selected` (if given) receives the kept users,
+/// ascending.
+MatrixXcd zf_ranked(const Cluster& c, const std::vector<int>& ranking, std::vector<int>* selected = nullptr);
 
 /// Water-filling of `budget` over channels with noise-to-gain ratios `floor` (p_k = (mu - floor_k)^+).
 VectorXd waterfill(const VectorXd& floor, double budget);
@@ -52,6 +58,15 @@ class ZfSelectBeamformer final : public Beamformer {
  public:
   std::string name() const override { return "zfsel"; }
   MatrixXcd design(const Cluster& c) const override { return zf_select(c); }
+};
+
+/// ZF-GAIN: zf_ranked in the order of the users' channel gains ||h_k|| (strongest first), the
+/// ranking that needs no search and no learning; the control for the learned beamformers'
+/// nn.selection = "ranked", which replaces this order with the network's.
+class ZfGainBeamformer final : public Beamformer {
+ public:
+  std::string name() const override { return "zfgain"; }
+  MatrixXcd design(const Cluster& c) const override;
 };
 
 class RzfBeamformer final : public Beamformer {

@@ -30,6 +30,7 @@ STYLE = {  # label, colour, marker, line style
     "wmmse": ("WMMSE (skyloop reference)", "#000000", "x", "--"),
     "zf": ("ZF", "#7f7f7f", "+", ":"),
     "zfsel": ("ZF with user selection", "#bcbd22", "1", ":"),
+    "zfgain": ("ZF, users in order of gain", "#aec7e8", "2", ":"),
     "nwmmse": ("Coordinated WMMSE (network, skyloop)", "#17becf", "P", "-"),
     "crzf": ("Coordinated RZF", "#e377c2", "*", "-."),
     "czf": ("Coordinated ZF", "#7f7f7f", "X", "-."),

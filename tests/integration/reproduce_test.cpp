@@ -197,7 +197,7 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
                                 "shared_uav_sweep", "shared_marl_episode_reward", "shared_marl_sum_rate", "shared_trajectories",
                                 "generalisation", "generalisation_wmmse", "generalisation_shared", "one_policy_trajectories",
                                 "channel_models", "channel_environments", "rician_k", "altitude", "generalisation_3gpp",
-                                "rate_energy"})
+                                "rate_energy", "ranked_selection"})
     for (const std::string ext : {".png", ".pdf"}) EXPECT_GT(fs::file_size(out / "figures" / (fig + ext)), 1000u) << fig << ext;
 
   const std::string report = slurp(out / "report.html");

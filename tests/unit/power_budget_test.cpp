@@ -94,7 +94,7 @@ TEST(PowerBudget, ExtremeBudgetsAndNoise) {
     Config cfg;
     cfg.channel.p_max_dbm = p_dbm;
     cfg.channel.noise_dbm = noise_dbm;
-    for (const char* name : {"mrt", "zf", "zfsel", "rzf", "wmmse"}) {
+    for (const char* name : {"mrt", "zf", "zfsel", "zfgain", "rzf", "wmmse"}) {
       const auto bf = builtin_beamformers().create(name, cfg);
       for (int k = 1; k <= 6; ++k)
         for (const auto& c : test::clusters_of_size(cfg, k, 3, 200 + k)) {

@@ -80,6 +80,28 @@ def test_batch_equals_one_by_one():
         assert np.linalg.norm(W - bf.design(c)) < 1e-8 * np.sqrt(c.p_max)
 
 
+def test_ranked_selection_is_a_setting_of_the_served_model():
+    """nn.selection = "ranked" from Python: never below the network's own beams, on the budget,
+    and refused for the interference-aware GNN with InputError."""
+    model = sl.SystemModel(sl.config())
+    clusters = [c for s in range(10) for c in model.clusters(model.random_snapshot(3, 12, s))]
+    soft = sl.beamformer("gnn", sl.config())
+    ranked = sl.beamformer("gnn", sl.config(nn={"selection": "ranked"}))
+    gain = sl.beamformer("zfgain", sl.config())
+    better = 0
+    for c in clusters:
+        Ws, Wr = soft.design(c), ranked.design(c)
+        assert sl.sum_rate(c, Wr) >= sl.sum_rate(c, Ws) - 1e-12
+        assert np.linalg.norm(Wr) ** 2 == pytest.approx(c.p_max, rel=1e-9)
+        assert np.linalg.norm(gain.design(c)) ** 2 == pytest.approx(c.p_max, rel=1e-9)
+        better += sl.sum_rate(c, Wr) > sl.sum_rate(c, Ws) + 1e-9
+    assert better > len(clusters) // 2, "the paper's GNN is beaten by ZF on its ranking in most clusters"
+    with pytest.raises(sl.InputError, match="nn.selection"):
+        sl.beamformer("ignn", sl.config(nn={"selection": "ranked"}))
+    with pytest.raises(sl.InputError, match="nn.selection"):
+        sl.config(nn={"selection": "hard"})
+
+
 def test_config_sources_agree(tmp_path):
     p = tmp_path / "c.toml"
     p.write_text("[channel]\np_max_dbm = 40\n")

@@ -233,8 +233,9 @@ def _as_config(cfg) -> Config:
 
 
 def beamformer(spec: str, cfg=None) -> Beamformer:
-    """A registered beamformer by its spec string: "mrt", "zf", "zfsel", "rzf", "wmmse", "ga",
-    "ga=pso", "gnn", "gnn=PATH" (a model.pt or its directory), "deepsets", "mspointnet"."""
+    """A registered beamformer by its spec string: "mrt", "zf", "zfsel", "zfgain", "rzf", "wmmse", "ga",
+    "ga=pso", "gnn", "gnn=PATH" (a model.pt or its directory), "deepsets", "mspointnet". A learned
+    model is served as ``cfg`` says: ``nn={"selection": "ranked"}`` lets it choose whom to serve and ZF how."""
     return _skyloop.beamformer(_as_str(spec, "spec"), _as_config(cfg))
 
 

@@ -27,7 +27,7 @@ struct EvalOpts {
   std::string users, out, planners;
   std::string seed, layouts, first;
   std::string split = "test", cache;
-  bool unsafe = false;
+  bool unsafe = false, rollout = false;
 };
 }  // namespace
 
@@ -75,6 +75,8 @@ void add_marl_commands(CLI::App& app, Action& action) {
   eval->add_option("--split", v->split, "layouts from: test (default), validation or train (skyloop/env/layouts.hpp)");
   eval->add_option("--first", v->first, "index of the first layout (default 0)");
   eval->add_flag("--unsafe", v->unsafe, "with --layouts: also run every policy without action mask and shield (\"<algo>/raw\")");
+  eval->add_flag("--rollout", v->rollout, "also fly every policy as the base of a multiagent rollout (\"<algo>+rollout\"; "
+                                          "each slot, each UAV's moves scored by flying the rest of the mission with the policy)");
   eval->add_option("--cache", v->cache, "with --layouts: directory of cached optima (default OUT/optimum)");
   eval->add_option("--out", v->out, "one layout: trajectory.csv, rates.csv, summary.csv, users.csv, config.toml; "
                                     "--layouts: layouts.csv, summary.csv, config.toml");
@@ -117,6 +119,7 @@ void add_marl_commands(CLI::App& app, Action& action) {
         if (!v->planners.empty()) opt.planners = split_methods(v->planners, "--planner");
         opt.policies = v->policies;
         opt.unsafe = v->unsafe;
+        opt.rollout = v->rollout;
         opt.cache_dir = !v->cache.empty() ? v->cache : !v->out.empty() ? v->out + "/optimum" : "";
         const auto rows = evaluate_layouts(cfg, opt, builtin_beamformers(), &std::cerr);
         const auto sum = summarise_layouts(rows);
@@ -140,6 +143,13 @@ void add_marl_commands(CLI::App& app, Action& action) {
       opt.out_dir = v->out;
       policy->set_reserve_slack(cfg.marl.reserve_slack);  // an execution setting: the evaluation's
       opt.extra.push_back(std::shared_ptr<Planner>(std::move(policy)));
+      if (v->rollout) {
+        if (cfg.marl.reserve_slack >= 0)
+          throw InputError("--rollout with marl.reserve_slack = " + std::to_string(cfg.marl.reserve_slack) +
+                           ": allowed -1 (a rollout flies the policy from states it did not reach, while reserved ways are carried "
+                           "from slot to slot)");
+        opt.extra.push_back(std::make_shared<RolloutPlanner>(MarlPolicy::load(v->policies.front())));
+      }
       std::vector<double> seconds;
       const auto recs = run_planners(cfg, opt, builtin_beamformers(), &std::cerr, &seconds);
       std::cout << "eval: N = " << cfg.trajectory.starts.size() << " UAVs, K = " << cfg.scenario.users << " users (seed "

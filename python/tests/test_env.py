@@ -144,9 +144,9 @@ def test_trained_policy_from_python(skyloop_bin, tmp_path):
 def test_registries_are_the_cores_lists():
     # One list each, read from the C++ registries: every planner runs, an unknown one is refused
     # with the list.
-    assert sl.PLANNERS == ("random", "greedy", "seqgreedy", "bestknown", "optimal")
+    assert sl.PLANNERS == ("random", "greedy", "seqgreedy", "rollout", "bestknown", "optimal")
     assert sl.LEARNERS == ("mappo", "ippo", "vdn", "qmix")
-    with pytest.raises(sl.InputError, match="allowed random, greedy, seqgreedy, bestknown, optimal"):
+    with pytest.raises(sl.InputError, match="allowed random, greedy, seqgreedy, rollout, bestknown, optimal"):
         sl.plan(None, "astar")
     cfg = sl.config(env={"oracle": "zf"}, scenario={"area_x_m": 120.0, "area_y_m": 120.0, "users": 6},
                     trajectory={"starts": [[0.0, 0.0], [120.0, 120.0]], "destinations": [[120.0, 40.0], [0.0, 80.0]],

@@ -155,7 +155,11 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   std::vector<std::string> names;
   for (const auto& p : opt.planners)
     if (p != "optimal" && p != "bestknown") names.push_back(p);
-  const std::size_t per_layout = names.size() + labels.size() * (opt.unsafe ? 2 : 1) + 1;
+  if (opt.rollout && !opt.policies.empty() && cfg.marl.reserve_slack >= 0)
+    throw InputError("--rollout with marl.reserve_slack = " + std::to_string(cfg.marl.reserve_slack) +
+                     ": allowed -1 (a rollout flies the policy from states it did not reach, while reserved ways are carried from "
+                     "slot to slot)");
+  const std::size_t per_layout = names.size() + labels.size() * (1 + (opt.unsafe ? 1 : 0) + (opt.rollout ? 1 : 0)) + 1;
   std::vector<LayoutRow> rows(static_cast<std::size_t>(opt.layouts) * per_layout);
   std::unique_ptr<Progress> bar;
   std::mutex mu;
@@ -181,8 +185,14 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
       policy->set_reserve_slack(cfg.marl.reserve_slack);  // an execution setting: the evaluation's
       timed(*policy, labels[k]);
       if (opt.unsafe) {
-        policy->set_safety(false, false);
-        timed(*policy, labels[k] + "/raw");
+        auto raw = MarlPolicy::load(opt.policies[k]);
+        raw->set_reserve_slack(cfg.marl.reserve_slack);
+        raw->set_safety(false, false);
+        timed(*raw, labels[k] + "/raw");
+      }
+      if (opt.rollout) {
+        RolloutPlanner rollout(std::move(policy), labels[k] + "+rollout");
+        timed(rollout, labels[k] + "+rollout");
       }
     }
     out.push_back(reference_of(cfg, env, opt.cache_dir));

@@ -149,6 +149,15 @@ TEST(Marl, MappoLearnsToArriveNearTheOptimum) {
       // The saved policy reloads and plays the same episode.
       auto policy = MarlPolicy::load(opt.out_dir);
       EXPECT_EQ(run_episode(env, *policy).objective, r.evaluation.objective);
+      // The policy as the base of a multiagent rollout (RolloutPlanner): never below the policy's
+      // own mission, never above the optimum.
+      RolloutPlanner rollout(MarlPolicy::load(opt.out_dir));
+      const auto improved = run_episode(env, rollout);
+      EXPECT_EQ(rollout.name(), "mappo+rollout");
+      EXPECT_TRUE(improved.success);
+      EXPECT_EQ(improved.collisions + improved.boundary, 0);
+      EXPECT_GE(improved.objective, r.evaluation.objective);
+      EXPECT_LE(improved.objective, optimum * (1 + 1e-12));
     }
   }
 }

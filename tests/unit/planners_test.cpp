@@ -2,6 +2,8 @@
 // best-known planner against the exact optimum, and the planner registry.
 #include <gtest/gtest.h>
 
+#include <iostream>
+
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/experiments/builtin.hpp"
@@ -156,13 +158,13 @@ TEST(Planners, BestKnownScalesBeyondTheDp) {
 
 TEST(Planners, RegistryNamesEveryPlannerAndRefusesOthersInOneLine) {
   const auto names = builtin_planners().names();
-  EXPECT_EQ(names, (std::vector<std::string>{"random", "greedy", "seqgreedy", "bestknown", "optimal"}));
+  EXPECT_EQ(names, (std::vector<std::string>{"random", "greedy", "seqgreedy", "rollout", "bestknown", "optimal"}));
   for (const auto& n : names) EXPECT_EQ(builtin_planners().create(n)->name(), n);
   try {
     builtin_planners().create("astar");
     FAIL() << "an unknown planner was built";
   } catch (const InputError& e) {
-    EXPECT_STREQ(e.what(), "planner 'astar' is unknown: allowed random, greedy, seqgreedy, bestknown, optimal");
+    EXPECT_STREQ(e.what(), "planner 'astar' is unknown: allowed random, greedy, seqgreedy, rollout, bestknown, optimal");
   }
   // A user's planner joins the list every consumer reads.
   PlannerRegistry mine = builtin_planners();
@@ -175,4 +177,72 @@ TEST(Planners, RegistryNamesEveryPlannerAndRefusesOthersInOneLine) {
   });
   EXPECT_EQ(mine.names().back(), "stay");
   EXPECT_EQ(mine.create("stay")->name(), "stay");
+}
+
+namespace {
+/// Failures of a mission in the rollout's order: UAVs not home, colliding UAVs, boundary events.
+int failures(const EpisodeRecord& r) {
+  const int uavs = static_cast<int>(r.positions.front().rows());
+  const int home = r.steps.empty() ? 0 : r.steps.back().home;
+  return (uavs - home) + r.collisions + r.boundary + r.over_budget;
+}
+}  // namespace
+
+// Multiagent rollout's cost improvement (planners.hpp, RolloutPlanner): over a deterministic,
+// memoryless base (Greedy, the sequential greedy) its mission is never worse than the base's,
+// failures first, then the objective, on the paper's scenario, on crowded scenes where the bases
+// collide, and under the headings model with the energy-efficiency objective; it never passes
+// the exact optimum, and it improves on its base somewhere (or the test proves nothing).
+TEST(Planners, RolloutIsNeverWorseThanItsBase) {
+  int improved = 0, fewer_failures = 0, compared = 0;
+  auto check = [&](const Config& cfg, std::uint64_t users_seed, bool with_optimum) {
+    UavEnv env(cfg, oracle_of(cfg, users_seed));
+    std::vector<std::unique_ptr<Planner>> bases;
+    bases.push_back(std::make_unique<SequentialGreedyPlanner>());
+    if (cfg.scenario.uavs <= 4 && cfg.trajectory.mobility == "grid") bases.push_back(std::make_unique<GreedyPlanner>());
+    const double optimum = with_optimum ? solve_optimal(env).objective : 0.0;
+    for (auto& b : bases) {
+      const std::string name = b->name();
+      const auto base = run_episode(env, *b);
+      RolloutPlanner rollout(std::move(b));
+      EXPECT_EQ(rollout.name(), name + "+rollout");
+      const auto r = run_episode(env, rollout);
+      EXPECT_GT(rollout.simulated_steps(), 0);
+      const std::string where = cfg.trajectory.mobility + " " + name + " users seed " + std::to_string(users_seed);
+      EXPECT_LE(failures(r), failures(base)) << where;
+      if (failures(r) == failures(base)) EXPECT_GE(r.objective, base.objective) << where;
+      if (with_optimum && failures(r) == 0) EXPECT_LE(r.objective, optimum * (1 + 1e-12)) << where;
+      ++compared;
+      improved += failures(r) == failures(base) && r.objective > base.objective * (1 + 1e-9);
+      fewer_failures += failures(r) < failures(base);
+    }
+  };
+  for (std::uint64_t s = 1; s <= 4; ++s) check(scene({"env.oracle=zf", "scenario.users=12"}), s, false);
+  for (std::uint64_t s = 1; s <= 3; ++s)
+    check(scene({"env.oracle=zf", "scenario.users=6", "scenario.area_x_m=120", "scenario.area_y_m=120",
+                 "trajectory.starts=[[0.0, 0.0], [120.0, 120.0]]", "trajectory.destinations=[[120.0, 40.0], [0.0, 80.0]]",
+                 "trajectory.t_max=12"}),
+          s, true);
+  for (int uavs : {4, 5})
+    for (std::uint64_t layout = 1; layout <= 4; ++layout)
+      check(scene({"scenario.uavs=" + std::to_string(uavs), "scenario.users=8", "scenario.area_x_m=120", "scenario.area_y_m=120",
+                   "trajectory.layout=generated", "trajectory.layout_seed=" + std::to_string(layout), "trajectory.t_max=16",
+                   "trajectory.d_min_m=25"}),
+            layout, false);
+  check(scene({"env.oracle=zf", "scenario.users=10", "trajectory.mobility=headings", "env.objective=energy-efficiency"}), 2, false);
+  EXPECT_GE(compared, 20);
+  EXPECT_GE(improved, 3) << "the rollout never improved on its base: the test proves nothing";
+  std::cout << "rollout: " << improved << " of " << compared << " missions improved, " << fewer_failures << " with fewer failures\n";
+}
+
+TEST(Planners, RolloutRefusesTheContinuousModelInOneLine) {
+  Config cfg = scene({"trajectory.mobility=continuous"});
+  UavEnv env(cfg, oracle_of(cfg, 1));
+  RolloutPlanner rollout(std::make_unique<SequentialGreedyPlanner>());
+  try {
+    run_episode(env, rollout);
+    FAIL() << "a rollout flew the continuous model";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("trajectory.mobility = \"continuous\""), std::string::npos) << e.what();
+  }
 }

@@ -27,6 +27,8 @@ struct LayoutEvalOptions {
                                         // evaluation config's marl.reserve_slack (an execution setting), its own safety otherwise
   std::vector<std::string> policy_names;  // their labels (default: the algorithm, then "-2", "-3" if repeated)
   bool unsafe = false;                  // also run every policy without mask and shield ("<label>/raw")
+  bool rollout = false;                 // also fly every policy as the base of a multiagent rollout ("<label>+rollout",
+                                        // RolloutPlanner in skyloop/planning/planners.hpp)
   std::string cache_dir;                // optimum cache; empty = none
   int threads = 0;                      // layouts in parallel (0 = run.threads)
 };

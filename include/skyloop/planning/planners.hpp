@@ -79,6 +79,46 @@ class SequentialGreedyPlanner final : public Planner {
   SafetyOptions safety_;
 };
 
+/// Multiagent rollout over a base planner (Bertsekas, "Multiagent Rollout Algorithms and
+/// Reinforcement Learning", arXiv:1910.00120, 2019; rollout: Bertsekas, Tsitsiklis and Wu, J.
+/// Heuristics 1997). Each slot it starts from the base planner's joint action; then UAV by UAV
+/// (index order), with the moves already chosen fixed and the base's moves for the UAVs still to
+/// choose, it tries every feasible move of the UAV (UavEnv::feasible; an arrived UAV hovers),
+/// scores each by flying the rest of the mission on a copy of the environment with the base
+/// planner (the oracle and its memo shared), and keeps the move with the best score: fewest
+/// failures (UAVs not home at the end, colliding UAVs, boundary events, UAVs past energy.budget_j,
+/// summed over the mission), then the highest J of env.objective; a move replaces the one held
+/// only if its score is strictly better.
+///
+/// Cost improvement: when the base planner's joint action is a function of the environment's
+/// state alone (deterministic, no memory from slot to slot), the rollout's mission is never worse
+/// than the base planner's in that order (tests/unit/planners_test.cpp). Its cost per slot is
+/// about (sum over the UAVs of their feasible moves) remainders of the mission, each a base
+/// decision per slot: linear in N.
+class RolloutPlanner final : public Planner {
+ public:
+  /// `label`: the planner's name (default: the base's name + "+rollout"). Refuses (InputError) a
+  /// base that commands velocities (the continuous model).
+  explicit RolloutPlanner(std::unique_ptr<Planner> base, std::string label = {});
+  std::string name() const override { return name_; }
+  void reset(UavEnv& env) override;
+  std::vector<int> act(UavEnv& env) override;
+  /// Environment steps simulated since reset.
+  long simulated_steps() const { return simulated_; }
+
+ private:
+  struct Score {
+    int failures = 0;
+    double objective = 0;
+    bool better_than(const Score& o) const { return failures != o.failures ? failures < o.failures : objective > o.objective; }
+  };
+  /// The mission's score when the UAVs take `joint` now and the base planner flies the rest.
+  Score simulate(const UavEnv& env, const std::vector<int>& joint);
+  std::unique_ptr<Planner> base_;
+  std::string name_;
+  long simulated_ = 0;
+};
+
 struct OptimalPlan {
   double objective = 0;                     // J of env.objective (sum-rate: (1/T) sum_{t=1}^T R[t])
   double sum_rate_objective = 0;            // (1/T) sum_{t=1}^T R[t]

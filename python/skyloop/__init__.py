@@ -258,13 +258,15 @@ def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, pl
 
 
 def evaluate_layouts(cfg=None, policies=(), planners=("greedy", "random"), layouts: int = 100, split: str = "test",
-                     first: int = 0, unsafe: bool = False, cache: str = "", threads: int = 0) -> dict:
+                     first: int = 0, unsafe: bool = False, cache: str = "", threads: int = 0, rollout: bool = False) -> dict:
     """Policies (run directories of ``skyloop train``) and planners on ``layouts`` user layouts of
     ``split`` ("test", "validation" or "train"; disjoint seed ranges, see ``skyloop eval --layouts``),
     each scored against that layout's exact optimum (cached in ``cache`` when given). ``cfg``
     defaults to the first policy's training configuration. Returns {"rows": [...], "summary": [...]}:
     one dict per (layout, planner) and per planner, with the columns of layouts.csv and summary.csv
-    (complete_rate, collisions, boundary_events, fraction_mean, fraction_p5, fraction_worst, ...)."""
+    (complete_rate, collisions, boundary_events, fraction_mean, fraction_p5, fraction_worst, ...).
+    ``unsafe``: also each policy without mask and shield ("<algo>/raw"); ``rollout``: also each policy as
+    the base of a multiagent rollout ("<algo>+rollout", as ``skyloop eval --rollout``)."""
     policies = _as_names(policies, "policies")
     planners = _as_names(planners, "planners")
     if cfg is None and policies:  # the training run's resolved config.toml
@@ -272,9 +274,11 @@ def evaluate_layouts(cfg=None, policies=(), planners=("greedy", "random"), layou
         cfg = config(_os.path.join(p if _os.path.isdir(p) else _os.path.dirname(p), "config.toml"))
     if not isinstance(unsafe, bool):
         raise InputError(f"unsafe = {unsafe!r} has the wrong type: allowed True or False")
+    if not isinstance(rollout, bool):
+        raise InputError(f"rollout = {rollout!r} has the wrong type: allowed True or False")
     return _skyloop.evaluate_layouts(_as_config(cfg), policies, planners, _as_int(layouts, "layouts", 1, 1_000_000),
                                      _as_str(split, "split"), _as_int(first, "first", 0, 2**62 - 1), unsafe,
-                                     _as_str(cache, "cache"), _as_int(threads, "threads", 0, 1024))
+                                     rollout, _as_str(cache, "cache"), _as_int(threads, "threads", 0, 1024))
 
 
 from .env import VecEnv  # noqa: E402  (needs the names above)

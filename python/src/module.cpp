@@ -560,8 +560,8 @@ py::dict plan(const Config& cfg, const std::string& planner, std::uint64_t users
 #ifdef SKYLOOP_HAS_TORCH
 /// skyloop.evaluate_layouts: rows and summary as lists of dicts (the CSV columns).
 py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policies, std::vector<std::string> planners,
-                             int layouts, const std::string& split, std::uint64_t first, bool unsafe, const std::string& cache,
-                             int threads) {
+                             int layouts, const std::string& split, std::uint64_t first, bool unsafe, bool rollout,
+                             const std::string& cache, int threads) {
   LayoutEvalOptions opt;
   opt.layouts = layouts;
   opt.split = parse_layout_split(split, "split");
@@ -569,6 +569,7 @@ py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policie
   opt.policies = std::move(policies);
   opt.planners = std::move(planners);
   opt.unsafe = unsafe;
+  opt.rollout = rollout;
   opt.cache_dir = cache;
   opt.threads = threads;
   std::vector<LayoutRow> rows;
@@ -788,7 +789,8 @@ PYBIND11_MODULE(_skyloop, m) {
 
 #ifdef SKYLOOP_HAS_TORCH
   m.def("evaluate_layouts", &evaluate_layouts_py, py::arg("config"), py::arg("policies"), py::arg("planners"),
-        py::arg("layouts"), py::arg("split"), py::arg("first"), py::arg("unsafe"), py::arg("cache"), py::arg("threads"));
+        py::arg("layouts"), py::arg("split"), py::arg("first"), py::arg("unsafe"), py::arg("rollout"), py::arg("cache"),
+        py::arg("threads"));
 #endif
   m.def("plan", &plan, py::arg("config"), py::arg("planner"), py::arg("users_seed") = 3, py::arg("users") = py::none(),
         py::arg("planner_seed") = py::none());

@@ -139,6 +139,14 @@ def test_trained_policy_from_python(skyloop_bin, tmp_path):
     assert r.returncode == 0, r.stderr
     res = sl.plan(sl.config(env={"oracle": "zf"}), str(out), users_seed=3)
     assert res["planner"] and res["positions"].shape[1:] == (3, 2)
+    # The policy as a rollout's base: never below its own mission on any layout (failures first).
+    ev = sl.evaluate_layouts(sl.config(env={"oracle": "zf"}), [str(out)], planners=[], layouts=2, threads=1, rollout=True)
+    rows = ev["rows"]
+    assert [r["planner"] for r in rows[:3]] == ["mappo", "mappo+rollout", "optimal"]
+    for base, roll in zip(rows[0::3], rows[1::3]):
+        assert roll["complete"] >= base["complete"]
+        if roll["complete"] == base["complete"]:
+            assert roll["objective"] >= base["objective"]
 
 
 def test_registries_are_the_cores_lists():

@@ -78,6 +78,7 @@ CASES = [
     ("layouts repeated planner", lambda: sl.evaluate_layouts(CFG, planners=["random", "random"], layouts=1)),
     ("layouts planners type", lambda: sl.evaluate_layouts(CFG, planners=3, layouts=1)),
     ("layouts unsafe type", lambda: sl.evaluate_layouts(CFG, planners=["random"], layouts=1, unsafe="yes")),
+    ("layouts rollout type", lambda: sl.evaluate_layouts(CFG, planners=["random"], layouts=1, rollout=1)),
     ("layouts split", lambda: sl.evaluate_layouts(CFG, planners=["random"], layouts=1, split="nope")),
     ("derive_seed negative", lambda: sl.derive_seed(-1, 0)),
 ]

@@ -36,6 +36,18 @@ def test_rows_summary_and_the_optimum_cache(tmp_path):
     assert all(2 ** 62 <= r["users_seed"] < 2 ** 63 for r in val)
 
 
+def test_the_rollout_never_falls_below_its_base():
+    # "rollout" (multiagent rollout over seqgreedy) is a registered planner; its missions are never
+    # worse than seqgreedy's (complete first, then the objective) and never above the optimum.
+    rows = sl.evaluate_layouts(SMALL, planners=["seqgreedy", "rollout"], layouts=6, threads=1)["rows"]
+    assert [r["planner"] for r in rows[:3]] == ["seqgreedy", "rollout", "optimal"]
+    for base, roll in zip(rows[0::3], rows[1::3]):
+        assert roll["complete"] >= base["complete"]
+        if roll["complete"] == base["complete"]:
+            assert roll["objective"] >= base["objective"]
+        assert roll["fraction"] <= 1 + 1e-9
+
+
 def test_bad_arguments_raise_input_errors():
     with pytest.raises(sl.InputError, match="split"):
         sl.evaluate_layouts(SMALL, planners=["greedy"], layouts=1, split="holdout")

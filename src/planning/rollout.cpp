@@ -7,17 +7,19 @@ namespace skyloop {
 RolloutPlanner::RolloutPlanner(std::unique_ptr<Planner> base, std::string label) : base_(std::move(base)), name_(std::move(label)) {
   if (!base_) throw std::invalid_argument("RolloutPlanner: no base planner");
   if (name_.empty()) name_ = base_->name() + "+rollout";
-  if (base_->commands_velocities())
-    throw InputError("rollout over " + base_->name() + ", which commands velocities (trajectory.mobility = \"continuous\"): allowed "
-                     "a base planner on the grid or headings model");
 }
 
 void RolloutPlanner::reset(UavEnv& env) {
-  if (env.mobility().continuous())
-    throw InputError("planner " + name_ + " under trajectory.mobility = \"continuous\": allowed \"grid\" or \"headings\" (the "
-                     "rollout tries each UAV's discrete moves)");
   base_->reset(env);
   simulated_ = 0;
+}
+
+RolloutPlanner::Score RolloutPlanner::score(const UavEnv& sim) const {
+  Score s;
+  for (int n = 0; n < sim.uavs(); ++n) s.failures += sim.arrived(n) ? 0 : 1;
+  s.failures += sim.total_collisions() + sim.total_boundary() + sim.over_budget();
+  s.objective = sim.objective();
+  return s;
 }
 
 RolloutPlanner::Score RolloutPlanner::simulate(const UavEnv& env, const std::vector<int>& joint) {
@@ -30,11 +32,39 @@ RolloutPlanner::Score RolloutPlanner::simulate(const UavEnv& env, const std::vec
     ++simulated_;
     if (!sim.done()) a = base_->act(sim);
   }
-  Score s;
-  for (int n = 0; n < sim.uavs(); ++n) s.failures += sim.arrived(n) ? 0 : 1;
-  s.failures += sim.total_collisions() + sim.total_boundary() + sim.over_budget();
-  s.objective = sim.objective();
-  return s;
+  return score(sim);
+}
+
+RolloutPlanner::Score RolloutPlanner::simulate(const UavEnv& env, const Positions& commands) {
+  UavEnv sim = env;
+  Positions v = commands;
+  while (!sim.done()) {
+    sim.step_velocities(v);
+    ++simulated_;
+    if (!sim.done()) v = base_->act_velocities(sim);
+  }
+  return score(sim);
+}
+
+Positions RolloutPlanner::act_velocities(UavEnv& env) {
+  if (!base_->commands_velocities()) return Planner::act_velocities(env);
+  Positions joint = base_->act_velocities(env);
+  Score best = simulate(env, joint);
+  for (int n = 0; n < env.uavs(); ++n) {
+    if (env.arrived(n)) continue;
+    const double held_x = joint(n, 0), held_y = joint(n, 1);
+    double choice_x = held_x, choice_y = held_y;
+    for (int a = 0; a < env.actions(); ++a) {
+      if (!env.feasible(n, a)) continue;
+      Positions trial = joint;
+      env.primitive_velocity(n, a, trial(n, 0), trial(n, 1));
+      if (trial(n, 0) == held_x && trial(n, 1) == held_y) continue;
+      const Score s = simulate(env, trial);
+      if (s.better_than(best)) best = s, choice_x = trial(n, 0), choice_y = trial(n, 1);
+    }
+    joint(n, 0) = choice_x, joint(n, 1) = choice_y;
+  }
+  return joint;
 }
 
 std::vector<int> RolloutPlanner::act(UavEnv& env) {

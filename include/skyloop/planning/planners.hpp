@@ -90,6 +90,11 @@ class SequentialGreedyPlanner final : public Planner {
 /// summed over the mission), then the highest J of env.objective; a move replaces the one held
 /// only if its score is strictly better.
 ///
+/// Every mobility model: a base that commands velocities (a continuous-action policy) keeps its
+/// command unless one of the UAV's feasible primitives (UavEnv::primitive_velocity: the 8
+/// headings at two speeds, HOME, HOVER) scores strictly better; a base that chooses primitives
+/// is rolled out over them as over the lattice moves.
+///
 /// Cost improvement: when the base planner's joint action is a function of the environment's
 /// state alone (deterministic, no memory from slot to slot), the rollout's mission is never worse
 /// than the base planner's in that order (tests/unit/planners_test.cpp). Its cost per slot is
@@ -97,12 +102,13 @@ class SequentialGreedyPlanner final : public Planner {
 /// decision per slot: linear in N.
 class RolloutPlanner final : public Planner {
  public:
-  /// `label`: the planner's name (default: the base's name + "+rollout"). Refuses (InputError) a
-  /// base that commands velocities (the continuous model).
+  /// `label`: the planner's name (default: the base's name + "+rollout").
   explicit RolloutPlanner(std::unique_ptr<Planner> base, std::string label = {});
   std::string name() const override { return name_; }
   void reset(UavEnv& env) override;
   std::vector<int> act(UavEnv& env) override;
+  bool commands_velocities() const override { return base_->commands_velocities(); }
+  Positions act_velocities(UavEnv& env) override;
   /// Environment steps simulated since reset.
   long simulated_steps() const { return simulated_; }
 
@@ -114,6 +120,9 @@ class RolloutPlanner final : public Planner {
   };
   /// The mission's score when the UAVs take `joint` now and the base planner flies the rest.
   Score simulate(const UavEnv& env, const std::vector<int>& joint);
+  /// The same for velocity commands [N x 2] (m/s).
+  Score simulate(const UavEnv& env, const Positions& commands);
+  Score score(const UavEnv& finished) const;
   std::unique_ptr<Planner> base_;
   std::string name_;
   long simulated_ = 0;

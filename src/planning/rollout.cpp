@@ -50,19 +50,24 @@ Positions RolloutPlanner::act_velocities(UavEnv& env) {
   if (!base_->commands_velocities()) return Planner::act_velocities(env);
   Positions joint = base_->act_velocities(env);
   Score best = simulate(env, joint);
-  for (int n = 0; n < env.uavs(); ++n) {
-    if (env.arrived(n)) continue;
-    const double held_x = joint(n, 0), held_y = joint(n, 1);
-    double choice_x = held_x, choice_y = held_y;
-    for (int a = 0; a < env.actions(); ++a) {
-      if (!env.feasible(n, a)) continue;
-      Positions trial = joint;
-      env.primitive_velocity(n, a, trial(n, 0), trial(n, 1));
-      if (trial(n, 0) == held_x && trial(n, 1) == held_y) continue;
-      const Score s = simulate(env, trial);
-      if (s.better_than(best)) best = s, choice_x = trial(n, 0), choice_y = trial(n, 1);
+  for (int pass = 0; pass < kMaxPasses; ++pass) {
+    bool changed = false;
+    for (int n = 0; n < env.uavs(); ++n) {
+      if (env.arrived(n)) continue;
+      const double held_x = joint(n, 0), held_y = joint(n, 1);
+      double choice_x = held_x, choice_y = held_y;
+      for (int a = 0; a < env.actions(); ++a) {
+        if (!env.feasible(n, a)) continue;
+        Positions trial = joint;
+        env.primitive_velocity(n, a, trial(n, 0), trial(n, 1));
+        if (trial(n, 0) == held_x && trial(n, 1) == held_y) continue;
+        const Score s = simulate(env, trial);
+        if (s.better_than(best)) best = s, choice_x = trial(n, 0), choice_y = trial(n, 1);
+      }
+      changed |= choice_x != held_x || choice_y != held_y;
+      joint(n, 0) = choice_x, joint(n, 1) = choice_y;
     }
-    joint(n, 0) = choice_x, joint(n, 1) = choice_y;
+    if (!changed) break;
   }
   return joint;
 }
@@ -73,19 +78,24 @@ std::vector<int> RolloutPlanner::act(UavEnv& env) {
   for (int n = 0; n < N; ++n)
     if (env.arrived(n)) joint[static_cast<std::size_t>(n)] = env.hover();
   Score best = simulate(env, joint);
-  for (int n = 0; n < N; ++n) {
-    if (env.arrived(n)) continue;
-    const int held = joint[static_cast<std::size_t>(n)];
-    int choice = held;
-    for (int a = 0; a < A; ++a) {
-      if (a == held || !env.feasible(n, a)) continue;
-      std::vector<int> trial = joint;
-      trial[static_cast<std::size_t>(n)] = a;
-      // The UAVs after n keep the base's moves of this slot; from the next slot on the base flies all.
-      const Score s = simulate(env, trial);
-      if (s.better_than(best)) best = s, choice = a;
+  for (int pass = 0; pass < kMaxPasses; ++pass) {
+    bool changed = false;
+    for (int n = 0; n < N; ++n) {
+      if (env.arrived(n)) continue;
+      const int held = joint[static_cast<std::size_t>(n)];
+      int choice = held;
+      for (int a = 0; a < A; ++a) {
+        if (a == held || !env.feasible(n, a)) continue;
+        std::vector<int> trial = joint;
+        trial[static_cast<std::size_t>(n)] = a;
+        // The others keep the moves held for this slot; from the next slot on the base flies all.
+        const Score s = simulate(env, trial);
+        if (s.better_than(best)) best = s, choice = a;
+      }
+      changed |= choice != held;
+      joint[static_cast<std::size_t>(n)] = choice;
     }
-    joint[static_cast<std::size_t>(n)] = choice;
+    if (!changed) break;
   }
   return joint;
 }

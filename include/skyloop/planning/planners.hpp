@@ -88,7 +88,8 @@ class SequentialGreedyPlanner final : public Planner {
 /// planner (the oracle and its memo shared), and keeps the move with the best score: fewest
 /// failures (UAVs not home at the end, colliding UAVs, boundary events, UAVs past energy.budget_j,
 /// summed over the mission), then the highest J of env.objective; a move replaces the one held
-/// only if its score is strictly better.
+/// only if its score is strictly better. The pass over the UAVs repeats while it changes a move,
+/// at most kMaxPasses times (a second pass lets a UAV answer the moves chosen after it).
 ///
 /// Every mobility model: a base that commands velocities (a continuous-action policy) keeps its
 /// command unless one of the UAV's feasible primitives (UavEnv::primitive_velocity: the 8
@@ -98,8 +99,8 @@ class SequentialGreedyPlanner final : public Planner {
 /// Cost improvement: when the base planner's joint action is a function of the environment's
 /// state alone (deterministic, no memory from slot to slot), the rollout's mission is never worse
 /// than the base planner's in that order (tests/unit/planners_test.cpp). Its cost per slot is
-/// about (sum over the UAVs of their feasible moves) remainders of the mission, each a base
-/// decision per slot: linear in N.
+/// about (sum over the UAVs of their feasible moves) remainders of the mission per pass, each a
+/// base decision per slot: linear in N.
 class RolloutPlanner final : public Planner {
  public:
   /// `label`: the planner's name (default: the base's name + "+rollout").
@@ -111,6 +112,7 @@ class RolloutPlanner final : public Planner {
   Positions act_velocities(UavEnv& env) override;
   /// Environment steps simulated since reset.
   long simulated_steps() const { return simulated_; }
+  static constexpr int kMaxPasses = 3;
 
  private:
   struct Score {

@@ -42,6 +42,8 @@ STYLE = {  # label, colour, marker, line style
     "vdn": ("VDN", "#2ca02c", "^", "-"),
     "qmix": ("QMIX", "#9467bd", "v", "-"),
     "greedy": ("Greedy", "#7f7f7f", "+", "--"),
+    "seqgreedy": ("Sequential greedy", "#bcbd22", "1", "--"),
+    "rollout": ("Rollout over sequential greedy", "#17becf", "*", "--"),
     "random": ("Random", "#8c564b", ".", ":"),
     "optimal": ("Optimum (skyloop, DP)", "#000000", "x", "--"),
 }
@@ -398,11 +400,11 @@ def generalisation(run, exp):
             xs.append(i + (j - (len(planners) - 1) / 2) * width)
             ms.append(100 * mean([float(r["fraction_mean"]) for r in rs]))
             p5.append(100 * min(float(r["fraction_p5"]) for r in rs))
-        base = pl.split("/")[0]
+        base = pl.split("/")[0].split("+")[0]
         label, colour, _, _ = style(base)
-        raw = pl.endswith("/raw")
-        ax.bar(xs, ms, width, color=colour, alpha=0.35 if raw else 0.9, hatch="//" if raw else None,
-               label=label + (" without mask and shield" if raw else ""))
+        raw, rolled = pl.endswith("/raw"), pl.endswith("+rollout")
+        ax.bar(xs, ms, width, color=colour, alpha=0.35 if raw else 0.9, hatch="//" if raw else ".." if rolled else None,
+               label=label + (" without mask and shield" if raw else " + rollout" if rolled else ""))
         ax.scatter(xs, p5, marker="_", color="#000000", s=60, zorder=3)
     ax.set_xticks(range(len(groups)))
     ax.set_xticklabels([("training layouts" if e == "train" else "held-out layouts") + f"\nK = {k}" for e, k in groups], fontsize=8)

@@ -26,7 +26,7 @@ namespace {
 
 const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "set",   "models", "reuse_shipped",
                                         "sweep", "values", "methods", "samples", "seed", "algos", "seeds",
-                                        "steps", "users",  "planners", "one_policy", "series", "series_values"};
+                                        "steps", "users",  "planners", "one_policy", "rollout", "series", "series_values"};
 
 std::string join(const std::vector<std::string>& v) {
   std::string s;
@@ -105,6 +105,10 @@ void apply_table(ExperimentSpec& s, const toml::table& t, const Reader& r, const
       const auto b = node.value_exact<bool>();
       if (!b) r.bad(full, node, "true or false");
       s.one_policy = *b;
+    } else if (key == "rollout") {
+      const auto b = node.value_exact<bool>();
+      if (!b) r.bad(full, node, "true or false");
+      s.rollout = *b;
     } else if (key == "sweep") s.sweep = r.text(full, node);
     else if (key == "values") {
       s.values.clear();

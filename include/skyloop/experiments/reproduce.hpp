@@ -44,7 +44,10 @@ struct ExperimentSpec {
   // trajectories: one policy trained on the experiment's layouts (its `set`), drawn at every K
   // (else one policy per K, the paper's figure)
   bool one_policy = false;
-  // generalisation: `samples` = layouts per evaluation, `users` = the K of the test layouts
+  // generalisation: `samples` = layouts per evaluation, `users` = the K of the test layouts;
+  // `rollout`: each trained policy also flies as the base of a multiagent rollout on the test
+  // layouts ("<algo>+rollout", skyloop eval --rollout)
+  bool rollout = false;
 };
 
 /// Parses one experiment file for `profile`. The [experiment] table holds the defaults;

@@ -194,9 +194,10 @@ Piece StageContext::layouts_piece(const Config& cfg, const fs::path& dir, const 
   p.kind = "eval";
   p.label = fmt::format("{} layouts K={}{}", o.layouts, cfg.scenario.users, policy_run.empty() ? "" : " policy");
   // The optima are the cost unless a dependency solved them (dp_cost per layout; K of a sampled
-  // layout taken at the middle of its range), plus about 0.05 s per layout for the planners.
+  // layout taken at the middle of its range), plus about 0.05 s per layout for the planners and
+  // 0.15 s per layout for a policy's rollout (N = 3, BENCHMARKS "Decision-time rollout").
   const int k = cfg.env.users_min && cfg.env.users_max ? (cfg.env.users_min + cfg.env.users_max) / 2 : cfg.scenario.users;
-  p.cost = 0.05 * o.layouts + (deps.empty() ? dp_cost(cfg, k) * o.layouts : 0.0);
+  p.cost = (0.05 + (o.rollout ? 0.15 : 0.0)) * o.layouts + (deps.empty() ? dp_cost(cfg, k) * o.layouts : 0.0);
   if (!policy_run.empty()) deps.push_back(id_of(policy_run, out));
   p.deps = std::move(deps);
   p.done = [dir] { return fs::exists(dir / "summary.csv"); };

@@ -28,6 +28,11 @@ LayoutEvalOptions options(const ExperimentSpec& s, LayoutSplit split, std::vecto
   return o;
 }
 
+LayoutEvalOptions with_rollout(LayoutEvalOptions o, bool rollout) {
+  o.rollout = rollout;
+  return o;
+}
+
 struct Item {
   std::string algo, seed, eval, users;  // the CSV's key columns
   Piece piece;
@@ -61,8 +66,8 @@ std::vector<Item> items(const StageContext& ctx, const ExperimentSpec& s) {
       for (int k : s.users) {
         const Config c = at_users(run, k);
         out.push_back({algo, std::to_string(seed), "test", std::to_string(k),
-                       ctx.layouts_piece(c, ctx.eval_dir(c, tag + fmt::format("_test_n{}", s.samples), {}),
-                                         options(s, LayoutSplit::Test, {}), &run, {refs[k]})});
+                       ctx.layouts_piece(c, ctx.eval_dir(c, tag + fmt::format(s.rollout ? "_test_rollout_n{}" : "_test_n{}", s.samples), {}),
+                                         with_rollout(options(s, LayoutSplit::Test, {}), s.rollout), &run, {refs[k]})});
       }
     }
   return out;

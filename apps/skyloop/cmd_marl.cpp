@@ -144,10 +144,7 @@ void add_marl_commands(CLI::App& app, Action& action) {
       policy->set_reserve_slack(cfg.marl.reserve_slack);  // an execution setting: the evaluation's
       opt.extra.push_back(std::shared_ptr<Planner>(std::move(policy)));
       if (v->rollout) {
-        if (cfg.marl.reserve_slack >= 0)
-          throw InputError("--rollout with marl.reserve_slack = " + std::to_string(cfg.marl.reserve_slack) +
-                           ": allowed -1 (a rollout flies the policy from states it did not reach, while reserved ways are carried "
-                           "from slot to slot)");
+        check_rollout_settings(cfg);
         opt.extra.push_back(std::make_shared<RolloutPlanner>(MarlPolicy::load(v->policies.front())));
       }
       std::vector<double> seconds;

@@ -155,10 +155,7 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   std::vector<std::string> names;
   for (const auto& p : opt.planners)
     if (p != "optimal" && p != "bestknown") names.push_back(p);
-  if (opt.rollout && !opt.policies.empty() && cfg.marl.reserve_slack >= 0)
-    throw InputError("--rollout with marl.reserve_slack = " + std::to_string(cfg.marl.reserve_slack) +
-                     ": allowed -1 (a rollout flies the policy from states it did not reach, while reserved ways are carried from "
-                     "slot to slot)");
+  if (opt.rollout && !opt.policies.empty()) check_rollout_settings(cfg);
   const std::size_t per_layout = names.size() + labels.size() * (1 + (opt.unsafe ? 1 : 0) + (opt.rollout ? 1 : 0)) + 1;
   std::vector<LayoutRow> rows(static_cast<std::size_t>(opt.layouts) * per_layout);
   std::unique_ptr<Progress> bar;
@@ -213,6 +210,13 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   });
   if (bar) bar->finish();
   return rows;
+}
+
+void check_rollout_settings(const Config& cfg) {
+  if (cfg.marl.reserve_slack >= 0)
+    throw InputError("--rollout with marl.reserve_slack = " + std::to_string(cfg.marl.reserve_slack) +
+                     ": allowed -1 (a rollout flies the policy from states it did not reach, while reserved ways are carried from "
+                     "slot to slot)");
 }
 
 std::string layout_reference(const UavEnv& env) {

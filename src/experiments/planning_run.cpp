@@ -1,3 +1,4 @@
+#include <algorithm>
 #include "skyloop/experiments/planning_run.hpp"
 
 #include <chrono>
@@ -117,11 +118,13 @@ std::string summary_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t se
 }
 
 std::string format_plan_summary(const std::vector<EpisodeRecord>& recs, const std::vector<double>& seconds) {
-  std::string s = fmt::format("{:<10} {:>10} {:>4} {:>9} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}\n", "planner", "objective",
+  std::size_t w = 10;  // the planner column: as wide as its longest name
+  for (const auto& r : recs) w = std::max(w, r.planner.size());
+  std::string s = fmt::format("{:<{}} {:>10} {:>4} {:>9} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}\n", "planner", w, "objective",
                               "T", "arrived", "collided", "boundary", "reward", "time (s)", "energy kJ", "kbit/J");
   for (std::size_t i = 0; i < recs.size(); ++i) {
     const auto& r = recs[i];
-    s += fmt::format("{:<10} {:>10.3f} {:>4} {:>9} {:>9} {:>11} {:>9.2f} {:>10.2f} {:>10.3f} {:>10.3f}\n", r.planner,
+    s += fmt::format("{:<{}} {:>10.3f} {:>4} {:>9} {:>9} {:>11} {:>9.2f} {:>10.2f} {:>10.3f} {:>10.3f}\n", r.planner, w,
                      r.objective, r.T, fmt::format("{}/{}", r.arrivals, r.positions.front().rows()), r.collisions, r.boundary,
                      r.reward, i < seconds.size() ? seconds[i] : 0.0, r.energy_j / 1e3, r.bits_per_joule / 1e3);
   }

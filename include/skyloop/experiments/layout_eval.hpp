@@ -69,6 +69,10 @@ std::string layout_reference(const UavEnv& env);
 /// measure against (refused in one line where those speeds leave the D_fly lattice).
 Config lattice_twin(const Config& cfg);
 
+/// Refuses (InputError) flying policies as rollout bases with marl.reserve_slack >= 0: a rollout
+/// flies a policy from states it did not reach, while its reserved ways are carried from slot to slot.
+void check_rollout_settings(const Config& cfg);
+
 /// Rows in layout order, each layout's planners in the order given, policies next, the reference last.
 std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptions& opt, const BeamformerRegistry& registry,
                                         std::ostream* progress = nullptr);

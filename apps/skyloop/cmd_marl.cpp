@@ -145,7 +145,9 @@ void add_marl_commands(CLI::App& app, Action& action) {
       opt.extra.push_back(std::shared_ptr<Planner>(std::move(policy)));
       if (v->rollout) {
         check_rollout_settings(cfg);
-        opt.extra.push_back(std::make_shared<RolloutPlanner>(MarlPolicy::load(v->policies.front())));
+        auto base = MarlPolicy::load(v->policies.front());
+        base->set_reserve_slack(cfg.marl.reserve_slack);  // as the policy flies above (-1 here)
+        opt.extra.push_back(std::make_shared<RolloutPlanner>(std::move(base)));
       }
       std::vector<double> seconds;
       const auto recs = run_planners(cfg, opt, builtin_beamformers(), &std::cerr, &seconds);

@@ -210,8 +210,12 @@ TEST(Planners, RolloutIsNeverWorseThanItsBase) {
       EXPECT_GT(rollout.simulated_steps(), 0);
       const std::string where = cfg.trajectory.mobility + " " + name + " users seed " + std::to_string(users_seed);
       EXPECT_LE(failures(r), failures(base)) << where;
-      if (failures(r) == failures(base)) EXPECT_GE(r.objective, base.objective) << where;
-      if (with_optimum && failures(r) == 0) EXPECT_LE(r.objective, optimum * (1 + 1e-12)) << where;
+      if (failures(r) == failures(base)) {
+        EXPECT_GE(r.objective, base.objective) << where;
+      }
+      if (with_optimum && failures(r) == 0) {
+        EXPECT_LE(r.objective, optimum * (1 + 1e-12)) << where;
+      }
       ++compared;
       improved += failures(r) == failures(base) && r.objective > base.objective * (1 + 1e-9);
       fewer_failures += failures(r) < failures(base);
@@ -267,7 +271,9 @@ TEST(Planners, RolloutFliesTheContinuousModel) {
       EXPECT_EQ(rollout.commands_velocities(), velocities);
       const auto r = run_episode(env, rollout);
       EXPECT_LE(failures(r), failures(base)) << rollout.name() << " seed " << seed;
-      if (failures(r) == failures(base)) EXPECT_GE(r.objective, base.objective) << rollout.name() << " seed " << seed;
+      if (failures(r) == failures(base)) {
+        EXPECT_GE(r.objective, base.objective) << rollout.name() << " seed " << seed;
+      }
       improved += failures(r) < failures(base) || r.objective > base.objective * (1 + 1e-9);
       std::cout << rollout.name() << ": failures " << failures(base) << " -> " << failures(r) << ", objective " << base.objective
                 << " -> " << r.objective << "\n";

@@ -147,6 +147,10 @@ def test_trained_policy_from_python(skyloop_bin, tmp_path):
         assert roll["complete"] >= base["complete"]
         if roll["complete"] == base["complete"]:
             assert roll["objective"] >= base["objective"]
+    # A policy carrying reserved ways from slot to slot cannot be a rollout's base: one line.
+    with pytest.raises(sl.InputError, match="--rollout with marl.reserve_slack = 2: allowed -1"):
+        sl.evaluate_layouts(sl.config(env={"oracle": "zf"}, marl={"reserve_slack": 2}), [str(out)], planners=[], layouts=1,
+                            threads=1, rollout=True)
 
 
 def test_registries_are_the_cores_lists():

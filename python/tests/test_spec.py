@@ -106,6 +106,35 @@ def test_the_look_ahead_is_one_field_of_the_set_observation(N):
         sl.VecEnv(dict(scenario(N, "compact", "mlp"), **{"marl.lookahead": True}), num_envs=1, seed=0)
 
 
+def test_the_rate_map_is_the_last_field_of_the_set_observation():
+    """marl.rate_map = r adds the radio map around each UAV (2 r (r + 1) cells) after the move
+    gains; with r = 1 its cells are the four moves' gains (cells 0..3 = RIGHT, UP, LEFT, DOWN)."""
+    base = dict(scenario(3, "compact", "set"), **{"marl.lookahead": True})
+    for r in (1, 3):
+        env = sl.VecEnv(dict(base, **{"marl.rate_map": r}), num_envs=2, seed=r)
+        plain = sl.VecEnv(base, num_envs=2, seed=r)
+        assert env.spec["obs"]["fields"][-1]["name"] == "rate_map"
+        assert env.spec["obs"]["size"] == plain.spec["obs"]["size"] + 2 * r * (r + 1)
+        o, p = env.reset(), plain.reset()
+        rng = np.random.default_rng(r)
+        for t in range(4):
+            check_against_reference(env, o)
+            check_fields(env, o)
+            assert np.array_equal(o.obs[..., :plain.spec["obs"]["size"]], p.obs)
+            cells = env.field(o.obs, "obs", "rate_map")
+            assert np.all((cells >= -1) & (cells <= 1)) and np.any((cells != 0) & (cells != -1))
+            if r == 1:
+                gains = env.field(o.obs, "obs", "move_gains")
+                for a, c in (("RIGHT", 0), ("UP", 1), ("LEFT", 2), ("DOWN", 3)):
+                    inside = cells[..., c] > -1
+                    assert np.array_equal(gains[..., sl.ACTIONS.index(a)][inside], cells[..., c][inside])
+            a = (rng.random(o.action_mask.shape) * o.action_mask).argmax(-1)
+            o, p = env.step(a), plain.step(a)
+    for bad, pattern in (({"marl.rate_map": 7}, "marl.rate_map"), ({"marl.encoder": "mlp", "marl.lookahead": False, "marl.rate_map": 2}, "marl.rate_map")):
+        with pytest.raises(sl.InputError, match=pattern):
+            sl.VecEnv(dict(base, **bad), num_envs=1, seed=0)
+
+
 def test_spec_names_the_actions_once():
     env = sl.VecEnv({"env.oracle": "zf"}, 1, 0)
     assert env.spec["actions"] == sl.ACTIONS and env.num_actions == len(sl.ACTIONS)

@@ -355,6 +355,18 @@ std::vector<Field> make_fields() {
                       "the set observation also holds each move's one-slot change of the sum rate R, the others held in place "
                       "(what Greedy ranks moves by; asks the rate oracle for A + 1 position sets per agent and slot, memoised); needs marl.encoder = set",
                       [](Config& c) -> bool& { return c.marl.lookahead; }));
+  f.push_back(text("marl.lr_schedule",
+                   "the learners' learning rate over training: constant, or linear = from marl.learning_rate down to 0 "
+                   "at total_steps (CleanRL's anneal_lr)",
+                   {"constant", "linear"}, [](Config& c) -> std::string& { return c.marl.lr_schedule; }));
+  f.push_back(text("marl.entropy_schedule",
+                   "PPO's entropy bonus over training: constant, or linear = from marl.entropy_coef down to 0 at total_steps",
+                   {"constant", "linear"}, [](Config& c) -> std::string& { return c.marl.entropy_schedule; }));
+  f.push_back(integer("marl.rate_map",
+                      "the set observation also holds the radio map around the UAV: the sum rate R with the UAV at each lattice "
+                      "point within this many D_fly steps, the others held in place (2 r (r + 1) cells, asked of the rate oracle "
+                      "per agent and slot, memoised; 0 = none); needs marl.encoder = set",
+                      0, kMaxRateMap, [](Config& c) -> int& { return c.marl.rate_map; }));
   f.push_back(integer("marl.slack_margin",
                       "slots of slack the reachability mask keeps in reserve; the collision shield may spend them to let a UAV "
                       "wait or step aside (0 = none)",
@@ -719,6 +731,9 @@ void validate(const Config& c) {
                        format_double(pl->max_horizontal_m) + " m");
   }
   validate_mobility(c);
+  if (c.marl.rate_map > 0 && c.marl.encoder != "set")
+    throw InputError("marl.rate_map = " + std::to_string(c.marl.rate_map) + " with marl.encoder = \"" + c.marl.encoder +
+                     "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
   if (c.marl.lookahead && c.marl.encoder != "set")
     throw InputError("marl.lookahead = true with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");

@@ -63,6 +63,18 @@ ArraySpec& add_previous_action(ArraySpec& s, const ActionSpec& actions) {
 }
 }  // namespace
 
+std::vector<std::array<int, 2>> rate_map_offsets(int radius) {
+  std::vector<std::array<int, 2>> cells;
+  for (int d = 1; d <= radius; ++d)
+    for (int q = 0; q < 4; ++q)  // quadrant q: from (d, 0) rotated q quarter turns, d steps along the ring
+      for (int i = 0; i < d; ++i) {
+        int dx = d - i, dy = i;
+        for (int r = 0; r < q; ++r) std::swap(dx, dy), dx = -dx;  // (x, y) -> (-y, x)
+        cells.push_back({dx, dy});
+      }
+  return cells;
+}
+
 ArraySpec paper_observation_spec(const ActionSpec& actions) {
   ArraySpec s = named("obs", "paper", "float32", true);
   s.add("own_position", 2, 0, 1)                 // (x, y) / area side
@@ -80,6 +92,7 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.observation = parse_observation_kind(cfg.marl.encoder);
   p.action = MobilityModel(cfg).actions();
   p.lookahead = cfg.marl.lookahead;
+  p.rate_map = cfg.marl.rate_map;
   return p;
 }
 
@@ -98,6 +111,8 @@ ArraySpec set_observation_spec(const SpecParams& p) {
       .add("uavs_wide", kWideGrid * kWideGrid, 0, others)
       .add("uavs_near", kNearGrid * kNearGrid, 0, others);
   if (p.lookahead) s.add("move_gains", p.action.count(), -1, 1);  // one per action (continuous: per primitive)
+  if (p.rate_map > 0)  // tanh(kGainScale (R_c - R) / R) at each cell c of rate_map_offsets; -1 outside the area
+    s.add("rate_map", static_cast<int>(rate_map_offsets(p.rate_map).size()), -1, 1);
   return s;
 }
 

@@ -541,7 +541,43 @@ void UavEnv::write_set_observation(int n, float* o) const {
     add_kernel(o + W, kWideGrid, 2 * d_fly_, 2 * d_fly_, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
     add_kernel(o + 2 * W, kNearGrid, d_fly_, d_fly_ / 2, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
   }
-  if (spec_params_.lookahead) write_move_gains(n, o + 2 * W + Q);
+  o += 2 * W + Q;
+  if (spec_params_.lookahead) {
+    write_move_gains(n, o);
+    o += actions();
+  }
+  if (spec_params_.rate_map > 0) write_rate_map(n, o);
+}
+
+void UavEnv::write_rate_map(int n, float* o) const {
+  const auto& cells = rate_map_offsets(spec_params_.rate_map);
+  const int C = static_cast<int>(cells.size());
+  std::fill(o, o + C, 0.0f);
+  if (arrived(n)) return;
+  std::vector<Positions> sets(1, pos_);  // sets[0]: where the UAVs are now
+  std::vector<int> at(static_cast<std::size_t>(C), -1);
+  for (int c = 0; c < C; ++c) {
+    const double x = pos_(n, 0) + d_fly_ * cells[static_cast<std::size_t>(c)][0];
+    const double y = pos_(n, 1) + d_fly_ * cells[static_cast<std::size_t>(c)][1];
+    if (x < 0 || y < 0 || x > area_x_ || y > area_y_) {
+      o[c] = -1.0f;
+      continue;
+    }
+    at[static_cast<std::size_t>(c)] = static_cast<int>(sets.size());
+    sets.push_back(pos_);
+    sets.back()(n, 0) = x;
+    sets.back()(n, 1) = y;
+  }
+  const auto r = oracle_->sum_rates(sets);
+  const double now = r[0];
+  if (!(now > 0)) {
+    for (int c = 0; c < C; ++c)
+      if (at[static_cast<std::size_t>(c)] >= 0) o[c] = 0.0f;
+    return;
+  }
+  for (int c = 0; c < C; ++c)
+    if (const int i = at[static_cast<std::size_t>(c)]; i >= 0)
+      o[c] = static_cast<float>(std::tanh(kGainScale * (r[static_cast<std::size_t>(i)] - now) / now));
 }
 
 void UavEnv::write_move_gains(int n, float* o) const {

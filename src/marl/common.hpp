@@ -1,6 +1,8 @@
 #pragma once
 // Shared pieces of the learners: checkpoints, environment set-up, metrics, evaluation.
+#include <algorithm>
 #include <chrono>
+#include <cstdint>
 #include <cmath>
 #include <functional>
 #include <filesystem>
@@ -32,6 +34,17 @@ struct Encoder {
   void write(const UavEnv& env, int n, float* out) const;
 };
 Encoder encoder_of(const Config& cfg, bool context);
+
+/// A coefficient over training (marl.lr_schedule, marl.entropy_schedule), resolved once: its
+/// factor at `steps` of `total` environment steps, 1 throughout (constant) or 1 - steps / total
+/// (linear; a function of the steps alone, so --resume continues it).
+struct Schedule {
+  bool linear = false;
+  static Schedule of(const std::string& name) { return Schedule{name == "linear"}; }
+  double factor(std::int64_t steps, std::int64_t total) const {
+    return linear ? std::max(0.0, 1.0 - static_cast<double>(steps) / static_cast<double>(std::max<std::int64_t>(1, total))) : 1.0;
+  }
+};
 
 /// A learner's networks and optimiser as the run's archives see them (last.pt, policy.pt).
 class Learned {

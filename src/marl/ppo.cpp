@@ -262,6 +262,10 @@ class TorchPpo final : public PpoNetworks {
     adam_ = std::make_unique<torch::optim::Adam>(params_, torch::optim::AdamOptions(learning_rate));
   }
 
+  void set_learning_rate(double learning_rate) override {
+    for (auto& group : adam_->param_groups()) static_cast<torch::optim::AdamOptions&>(group.options()).lr(learning_rate);
+  }
+
   void logits(const float* obs, int rows, float* out) override { forward(nets_.actor, obs, rows, actions(), out); }
   void values(const float* in, int rows, float* out) override { forward(nets_.critic, in, rows, 1, out); }
 
@@ -348,6 +352,8 @@ class FastPpo final : public PpoNetworks {
     actor_adam_.learning_rate = critic_adam_.learning_rate = learning_rate;
     threads_ = std::max(1, std::min<int>(static_cast<int>(kChunks), resolve_threads(threads)));
   }
+
+  void set_learning_rate(double learning_rate) override { actor_adam_.learning_rate = critic_adam_.learning_rate = learning_rate; }
 
   void logits(const float* obs, int rows, float* out) override {
     forward(actor_, obs, rows, static_cast<int>(torch_.actor->l3->options.out_features()), out);
@@ -634,7 +640,7 @@ double explained_variance(const Rollout& r) {
 }
 
 UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng, Minibatch& b,
-                   int threads) {
+                   int threads, double entropy_factor) {
   const std::size_t S = r.samples();
   // Advantages normalised over the active agents; value targets in normalised units.
   double w = 0, mean = 0, var = 0;
@@ -646,7 +652,7 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
   if (m.value_norm) value_norm.update(r.returns.data(), S);
   auto norm = [&](float x) { return static_cast<float>(m.value_norm ? value_norm.normalise(x) : x); };
 
-  const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef, m.grad_clip};
+  const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef * entropy_factor, m.grad_clip};
   const int rows = static_cast<int>(std::max<std::size_t>(1, S / static_cast<std::size_t>(m.minibatches)));
   b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width, b.action_count = r.A, b.dims = r.C;
   b.raw_actions.resize(static_cast<std::size_t>(rows) * r.C);
@@ -736,13 +742,16 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   Rollout rollout(m.rollout, M, N, obs_width, critic_width, A, C);
   Minibatch scratch;
   EpisodeStats stats;
+  const Schedule lr_schedule = Schedule::of(m.lr_schedule), entropy_schedule = Schedule::of(m.entropy_schedule);
   while (steps < m.total_steps) {
     Rng rng(derive_seed(cfg.run.seed, 0x50504fULL, static_cast<std::uint64_t>(updates)));
+    if (lr_schedule.linear) nets->set_learning_rate(m.learning_rate * lr_schedule.factor(steps, m.total_steps));
+    const double entropy_factor = entropy_schedule.factor(steps, m.total_steps);
     collect(vec, encoder, critic, safety, *nets, value_norm, rng, rollout, stats);
     steps += per_update;
     compute_advantages(rollout, m.gamma, m.gae_lambda);
     const double explained = explained_variance(rollout);
-    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch, cfg.run.threads);
+    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch, cfg.run.threads, entropy_factor);
     ++updates;
     const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - run.start).count();
     if (stats.episodes > 0 || steps >= m.total_steps) {

@@ -114,6 +114,8 @@ class PpoNetworks : public Learned {
   /// rows), minus entropy_coef x the masked mean entropy of the policy among the allowed moves;
   /// the global gradient norm clipped to grad_clip (0: off).
   virtual UpdateStats step(const Minibatch& batch, const PpoSettings& settings) = 0;
+  /// The optimiser's learning rate from the next step on (marl.lr_schedule).
+  virtual void set_learning_rate(double learning_rate) = 0;
 };
 
 /// Actor obs_width -> hidden -> hidden -> actions (the mobility model's) and critic critic_width -> ... -> 1, both
@@ -145,7 +147,8 @@ double explained_variance(const Rollout& rollout);
 /// `rng`); normalises the advantages over active agents and (marl.value_norm) updates
 /// `value_norm` with the returns first. Returns the mean statistics over all steps. `threads`
 /// (run.threads) gathers each minibatch in two halves in parallel (the same numbers either way).
+/// The entropy bonus is entropy_factor x marl.entropy_coef (marl.entropy_schedule).
 UpdateStats update(const Rollout& rollout, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng,
-                   Minibatch& scratch, int threads = 1);
+                   Minibatch& scratch, int threads = 1, double entropy_factor = 1.0);
 
 }  // namespace skyloop::marl

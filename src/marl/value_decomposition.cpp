@@ -212,6 +212,11 @@ class ValueDecompositionCore {
     return loss.item<double>();
   }
 
+  /// The optimiser's learning rate from the next step on (marl.lr_schedule).
+  void set_learning_rate(double learning_rate) {
+    for (auto& group : adam_->param_groups()) static_cast<torch::optim::AdamOptions&>(group.options()).lr(learning_rate);
+  }
+
   std::int64_t grad_steps = 0;
 
  private:
@@ -283,7 +288,9 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   double loss_sum = 0;
   int loss_count = 0, new_episodes = 0;
   std::int64_t next_log = steps + log_every, logs = 0;
+  const Schedule lr_schedule = Schedule::of(m.lr_schedule);
   while (steps < m.total_steps) {
+    if (lr_schedule.linear) core.set_learning_rate(m.learning_rate * lr_schedule.factor(steps, m.total_steps));
     // Epsilon anneals linearly over the first marl.epsilon_anneal of the steps.
     const double frac = std::min(1.0, static_cast<double>(steps) / std::max(1.0, m.epsilon_anneal * static_cast<double>(m.total_steps)));
     const double epsilon = m.epsilon_start + (m.epsilon_end - m.epsilon_start) * frac;

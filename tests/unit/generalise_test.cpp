@@ -323,6 +323,97 @@ TEST(Env, MoveGainsAreTheOneSlotLookAhead) {
   }
 }
 
+// marl.rate_map = r: the radio map around the UAV. The cells are every lattice offset within r
+// moves, once each, ring by ring; each value is tanh(kGainScale (R_c - R) / R) with R_c the sum
+// rate with this UAV at x + D_fly c (asked of a separate oracle here), -1 outside the area, zeros
+// once arrived; on the grid model the first ring is the four moves' gains (marl.lookahead).
+TEST(Env, RateMapIsTheRadioMapAroundTheUav) {
+  for (int r = 1; r <= kMaxRateMap; ++r) {
+    const auto cells = rate_map_offsets(r);
+    ASSERT_EQ(cells.size(), static_cast<std::size_t>(2 * r * (r + 1))) << "radius " << r;
+    std::set<std::array<int, 2>> seen(cells.begin(), cells.end());
+    EXPECT_EQ(seen.size(), cells.size()) << "radius " << r << ": a cell twice";
+    int ring = 1;
+    for (const auto& c : cells) {
+      const int d = std::abs(c[0]) + std::abs(c[1]);
+      EXPECT_GE(d, ring) << "radius " << r << ": rings out of order";
+      ring = d;
+      EXPECT_LE(d, r);
+    }
+  }
+  EXPECT_EQ(rate_map_offsets(1), (std::vector<std::array<int, 2>>{{1, 0}, {0, 1}, {-1, 0}, {0, -1}}));
+  for (const char* mobility : {"grid", "continuous"}) {
+    Config cfg;
+    cfg.scenario.users = 9;
+    cfg.marl.encoder = "set";
+    cfg.marl.lookahead = true;
+    cfg.marl.rate_map = 2;
+    cfg.trajectory.mobility = mobility;
+    finalise(cfg);
+    const Positions users = make_users(cfg, 9, 5);
+    UavEnv env = make_env(cfg, users);
+    RateOracle reference(cfg, zf_bf(), users);
+    const ArraySpec& obs = env.spec().set_obs;
+    const SpecField& f = obs.field("rate_map");
+    const SpecField& gains = obs.field("move_gains");
+    ASSERT_EQ(f.size, 12) << mobility;
+    ASSERT_EQ(f.offset + f.size, obs.size) << mobility << ": rate_map is the last field";
+    const auto cells = rate_map_offsets(2);
+    Rng rng(4);
+    int checked = 0, outside = 0;
+    while (!env.done()) {
+      for (int n = 0; n < env.uavs(); ++n) {
+        std::vector<float> o(static_cast<std::size_t>(obs.size));
+        env.write_set_observation(n, o.data());
+        const double now = reference.sum_rate(env.positions());
+        for (int c = 0; c < f.size; ++c) {
+          Positions p = env.positions();
+          p(n, 0) += cfg.trajectory.d_fly_m * cells[static_cast<std::size_t>(c)][0];
+          p(n, 1) += cfg.trajectory.d_fly_m * cells[static_cast<std::size_t>(c)][1];
+          const bool out = p(n, 0) < 0 || p(n, 1) < 0 || p(n, 0) > cfg.scenario.area_x_m || p(n, 1) > cfg.scenario.area_y_m;
+          const double want = env.arrived(n) ? 0.0 : out ? -1.0 : std::tanh(kGainScale * (reference.sum_rate(p) - now) / now);
+          ASSERT_NEAR(o[static_cast<std::size_t>(f.offset + c)], want, 1e-6) << mobility << ", UAV " << n << ", cell " << c;
+          outside += out && !env.arrived(n);
+          ++checked;
+        }
+        if (std::string(mobility) == "grid" && !env.arrived(n))  // UP, DOWN, LEFT, RIGHT are cells 1, 3, 2, 0
+          for (const auto& [a, c] : {std::pair{0, 1}, std::pair{1, 3}, std::pair{2, 2}, std::pair{3, 0}})
+            if (env.feasible(n, a)) {
+              EXPECT_EQ(o[static_cast<std::size_t>(gains.offset + a)], o[static_cast<std::size_t>(f.offset + c)]) << "action " << a;
+            }
+      }
+      std::vector<int> act(static_cast<std::size_t>(env.uavs()));
+      for (int n = 0; n < env.uavs(); ++n) {
+        const auto allowed = allowed_moves(env, n, SafetyOptions{});
+        do act[static_cast<std::size_t>(n)] = static_cast<int>(rng.below(static_cast<std::uint64_t>(env.actions())));
+        while (!(allowed >> act[static_cast<std::size_t>(n)] & 1u));
+      }
+      env.step(act);
+    }
+    EXPECT_GT(checked, 300) << mobility;
+    EXPECT_GT(outside, 0) << mobility << ": the starts sit at the area's edge";
+    for (int n = 0; n < env.uavs(); ++n) {
+      std::vector<float> o(static_cast<std::size_t>(obs.size));
+      env.write_set_observation(n, o.data());
+      for (int c = 0; c < f.size; ++c) EXPECT_EQ(o[static_cast<std::size_t>(f.offset + c)], 0.0f) << mobility;
+    }
+  }
+  // The paper's observation has no radio map, and the radius is bounded: each refused in one line.
+  for (const auto& [encoder, radius] : {std::pair{"mlp", 2}, std::pair{"set", kMaxRateMap + 1}, std::pair{"set", -1}}) {
+    Config bad;
+    bad.marl.encoder = encoder;
+    std::string error;
+    try {
+      set_field(bad, *find_field("marl.rate_map"), FieldValue(static_cast<std::int64_t>(radius)));
+      validate(bad);
+    } catch (const InputError& e) {
+      error = e.what();
+    }
+    EXPECT_NE(error.find("marl.rate_map"), std::string::npos) << encoder << ", " << radius << ": " << error;
+    EXPECT_EQ(error.find('\n'), std::string::npos) << error;
+  }
+}
+
 TEST(Env, ObjectiveRewardSumsToTheObjective) {
   Config cfg;
   cfg.env.reward = "objective";

@@ -211,6 +211,36 @@ TEST(PpoCore, BackendsTakeTheSameSteps) {
   EXPECT_THROW(make_ppo_networks("jax", 11, 37, 64, 3e-4, torch::kCPU, 9), InputError);
 }
 
+// marl.lr_schedule sets the optimiser's rate between updates, on both backends: at rate 0 a step
+// leaves the actor exactly as it was; Adam's first step is the rate times g / (|g| + eps), so at
+// half the rate the logits move half as far (to first order in the step: within 2%).
+TEST(PpoCore, TheLearningRateIsSetBetweenSteps) {
+  const PpoSettings s{0.2, 0.5, 0.03, 10};
+  const auto b = random_minibatch(256, 11, 37, 8);
+  const std::size_t L = static_cast<std::size_t>(b.rows) * kGridActions;
+  for (const char* backend : {"fast", "torch"}) {
+    std::vector<float> before(L), full(L), half(L), frozen(L);
+    auto logits_after = [&](double rate, std::vector<float>& out) {
+      auto nets = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 9);
+      nets->logits(b.observations.data(), b.rows, before.data());
+      nets->set_learning_rate(rate);
+      nets->step(b, s);
+      nets->logits(b.observations.data(), b.rows, out.data());
+    };
+    logits_after(3e-4, full);
+    logits_after(1.5e-4, half);
+    logits_after(0, frozen);
+    EXPECT_EQ(frozen, before) << backend << ": rate 0 moved the actor";
+    double moved = 0, off = 0;
+    for (std::size_t i = 0; i < L; ++i) {
+      moved += std::abs(full[i] - before[i]);
+      off += std::abs((half[i] - before[i]) - 0.5 * (full[i] - before[i]));
+    }
+    EXPECT_GT(moved, 0) << backend;
+    EXPECT_LT(off, 0.02 * 0.5 * moved) << backend << ": half the rate, not half the step";
+  }
+}
+
 // The fast backend splits every minibatch into two fixed halves (one per thread when allowed):
 // the same numbers, bit for bit, on one thread or two.
 TEST(PpoCore, FastBackendIsTheSameOnAnyThreadCount) {

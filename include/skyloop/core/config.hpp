@@ -152,6 +152,8 @@ struct EnvConfig {                  // [env] the trajectory environment (Section
   std::string state = "paper";      // global state of the critics / mixers: paper (4N + 2K reals) | compact (independent of N and K)
 };
 
+constexpr int kMaxRateMap = 6;  // marl.rate_map's largest radius: 2 r (r + 1) = 84 cells of the radio map
+
 struct MarlConfig {                 // [marl] trajectory learning (Section V, VI-C)
   std::string algo = "mappo";       // mappo | ippo | vdn | qmix
   std::int64_t total_steps = 2000000;  // environment steps (all environments together)
@@ -187,6 +189,9 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   int reserve_slack = -1;           // UAVs with at most this slack reserve their ways home (ways_home.hpp; -1: none); execution only
   std::string encoder = "mlp";      // mlp (the paper's 11-real observation) | set (users and neighbours as sets)
   bool lookahead = false;           // set observation: each move's one-slot change of R (UavEnv::write_move_gains)
+  int rate_map = 0;                 // set observation: R around the UAV within this many lattice steps (UavEnv::write_rate_map; 0 = none, at most kMaxRateMap)
+  std::string lr_schedule = "constant";       // constant | linear: the learning rate falls linearly to 0 over total_steps
+  std::string entropy_schedule = "constant";  // constant | linear: PPO's entropy_coef falls linearly to 0 over total_steps
   std::string backend = "fast";     // PPO networks: fast (fused float32, CPU) | torch (LibTorch autograd)
   int val_layouts = 0;              // validation layouts scored at each checkpoint; policy.pt = the best (0 = last)
 };

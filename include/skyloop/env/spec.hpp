@@ -12,6 +12,7 @@
 //                                    to its kNeighbours nearest UAVs
 //   agent_state  per agent  float32  state, agent_context, then the paper observation (11)
 //   action_mask  per agent  int8     1 = allowed, one entry per action
+#include <array>
 #include <memory>
 #include <string>
 #include <vector>
@@ -88,6 +89,10 @@ constexpr int kNeighbours = 4;  // compact agent context: nearest other UAVs
 constexpr int kWideGrid = 7;    // set observation: users and UAVs, spacing 2 D_fly
 constexpr int kNearGrid = 5;    // set observation: UAVs one move away, spacing D_fly
 constexpr double kGainScale = 10;  // set observation's move_gains: tanh(kGainScale (R_a - R) / R)
+/// The set observation's rate_map cells: the lattice offsets (dx, dy), in steps of D_fly, with
+/// 1 <= |dx| + |dy| <= radius (every cell a grid UAV reaches within `radius` slots), ring by ring,
+/// each ring from +x counter-clockwise; 2 radius (radius + 1) of them.
+std::vector<std::array<int, 2>> rate_map_offsets(int radius);
 
 /// The action space of the paper's grid mobility: UP, DOWN, LEFT, RIGHT, STAY.
 const ActionSpec& grid_actions();
@@ -103,10 +108,11 @@ struct SpecParams {
   ObservationKind observation = ObservationKind::Paper;
   ActionSpec action = grid_actions();  // the mobility model's
   bool lookahead = false;              // marl.lookahead: the set observation's move_gains field
+  int rate_map = 0;                    // marl.rate_map: the set observation's rate_map field (its radius)
   bool operator==(const SpecParams& o) const {
     return agents == o.agents && users == o.users && area_x == o.area_x && area_y == o.area_y && d_fly == o.d_fly &&
            t_max == o.t_max && state == o.state && observation == o.observation && action == o.action &&
-           lookahead == o.lookahead;
+           lookahead == o.lookahead && rate_map == o.rate_map;
   }
 };
 SpecParams spec_params(const Config& cfg, int agents, int users);

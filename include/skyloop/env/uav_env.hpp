@@ -199,7 +199,8 @@ class UavEnv {
   ///    with spacing 2 D_fly, (4 / K) sum_k exp(-|u_k - x - c|^2 / (2 (2 D_fly)^2));
   ///  - UAVs, wide (kWideGrid^2): the same sum over the other UAVs (not divided by anything);
   ///  - UAVs, near (kNearGrid^2): spacing D_fly, width D_fly / 2: who is one move away;
-  ///  - with marl.lookahead, move gains (one per action): write_move_gains.
+  ///  - with marl.lookahead, move gains (one per action): write_move_gains;
+  ///  - with marl.rate_map = r, the radio map within r lattice steps: write_rate_map.
   /// Reordering the users or the other UAVs leaves it unchanged (tests/unit/env_test.cpp).
   void write_set_observation(int n, float* out) const;
   /// For each action a of UAV n (continuous model: each primitive), tanh(kGainScale (R_a - R) / R):
@@ -209,6 +210,13 @@ class UavEnv {
   /// WMMSE's steep rates). Zeros for an arrived UAV and where R = 0. The oracle is asked for the
   /// A + 1 position sets in one batched call (memoised).
   void write_move_gains(int n, float* out) const;
+  /// The radio map around UAV n: at each cell c of rate_map_offsets(marl.rate_map), the point
+  /// x + D_fly c (x the UAV's position, on or off the lattice), tanh(kGainScale (R_c - R) / R) with
+  /// R_c the sum rate with UAV n there and every other UAV where it is; -1 at a point outside the
+  /// area. Beyond the moves' gains it shows where the rate is two or more slots away (a 3GPP LoS
+  /// patch, WMMSE's peaks), which the optimum plans towards and a one-slot look-ahead cannot see.
+  /// Zeros for an arrived UAV and where R = 0; the cells in one batched, memoised oracle call.
+  void write_rate_map(int n, float* out) const;
   int set_observation_size() const { return spec_->set_obs.size; }
   int users() const;
   /// The compact state (spec().compact_state, whatever env.state says).

@@ -240,6 +240,19 @@ TEST(Env, SetObservationIgnoresTheOrderOfUsersAndUavs) {
   EXPECT_EQ(od.back(), -7.0f) << "wrote past set_observation_size()";
 }
 
+namespace {
+/// One slot of uniformly random moves among those the reachability mask allows.
+void step_at_random(UavEnv& env, Rng& rng) {
+  std::vector<int> act(static_cast<std::size_t>(env.uavs()));
+  for (int n = 0; n < env.uavs(); ++n) {
+    const auto allowed = allowed_moves(env, n, SafetyOptions{});
+    do act[static_cast<std::size_t>(n)] = static_cast<int>(rng.below(static_cast<std::uint64_t>(env.actions())));
+    while (!(allowed >> act[static_cast<std::size_t>(n)] & 1u));
+  }
+  env.step(act);
+}
+}  // namespace
+
 // marl.lookahead: the set observation's move_gains are tanh(kGainScale (R_a - R) / R), R_a the
 // sum rate with this UAV moved by a and the others in place, asked of a separate oracle here; a
 // lone UAV's Greedy move has the largest gain among its feasible moves; an arrived UAV sees zeros.
@@ -274,13 +287,7 @@ TEST(Env, MoveGainsAreTheOneSlotLookAhead) {
           ++checked;
         }
       }
-      std::vector<int> act(static_cast<std::size_t>(env.uavs()));
-      for (int n = 0; n < env.uavs(); ++n) {
-        const auto allowed = allowed_moves(env, n, SafetyOptions{});
-        do act[static_cast<std::size_t>(n)] = static_cast<int>(rng.below(static_cast<std::uint64_t>(env.actions())));
-        while (!(allowed >> act[static_cast<std::size_t>(n)] & 1u));
-      }
-      env.step(act);
+      step_at_random(env, rng);
     }
     EXPECT_GT(checked, 100) << mobility;
     for (int n = 0; n < env.uavs(); ++n) {
@@ -382,13 +389,7 @@ TEST(Env, RateMapIsTheRadioMapAroundTheUav) {
               EXPECT_EQ(o[static_cast<std::size_t>(gains.offset + a)], o[static_cast<std::size_t>(f.offset + c)]) << "action " << a;
             }
       }
-      std::vector<int> act(static_cast<std::size_t>(env.uavs()));
-      for (int n = 0; n < env.uavs(); ++n) {
-        const auto allowed = allowed_moves(env, n, SafetyOptions{});
-        do act[static_cast<std::size_t>(n)] = static_cast<int>(rng.below(static_cast<std::uint64_t>(env.actions())));
-        while (!(allowed >> act[static_cast<std::size_t>(n)] & 1u));
-      }
-      env.step(act);
+      step_at_random(env, rng);
     }
     EXPECT_GT(checked, 300) << mobility;
     EXPECT_GT(outside, 0) << mobility << ": the starts sit at the area's edge";

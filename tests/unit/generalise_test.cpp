@@ -251,6 +251,18 @@ void step_at_random(UavEnv& env, Rng& rng) {
   }
   env.step(act);
 }
+
+/// The paper scenario with 9 users, the set observation, the moves' gains and a radio map of radius `rate_map`.
+Config look_ahead_scene(const char* mobility, int rate_map) {
+  Config cfg;
+  cfg.scenario.users = 9;
+  cfg.marl.encoder = "set";
+  cfg.marl.lookahead = true;
+  cfg.marl.rate_map = rate_map;
+  cfg.trajectory.mobility = mobility;
+  finalise(cfg);
+  return cfg;
+}
 }  // namespace
 
 // marl.lookahead: the set observation's move_gains are tanh(kGainScale (R_a - R) / R), R_a the
@@ -258,12 +270,7 @@ void step_at_random(UavEnv& env, Rng& rng) {
 // lone UAV's Greedy move has the largest gain among its feasible moves; an arrived UAV sees zeros.
 TEST(Env, MoveGainsAreTheOneSlotLookAhead) {
   for (const char* mobility : {"grid", "headings"}) {
-    Config cfg;
-    cfg.scenario.users = 9;
-    cfg.marl.encoder = "set";
-    cfg.marl.lookahead = true;
-    cfg.trajectory.mobility = mobility;
-    finalise(cfg);
+    const Config cfg = look_ahead_scene(mobility, 0);
     const Positions users = make_users(cfg, 9, 5);
     UavEnv env = make_env(cfg, users);
     RateOracle reference(cfg, zf_bf(), users);
@@ -350,13 +357,7 @@ TEST(Env, RateMapIsTheRadioMapAroundTheUav) {
   }
   EXPECT_EQ(rate_map_offsets(1), (std::vector<std::array<int, 2>>{{1, 0}, {0, 1}, {-1, 0}, {0, -1}}));
   for (const char* mobility : {"grid", "continuous"}) {
-    Config cfg;
-    cfg.scenario.users = 9;
-    cfg.marl.encoder = "set";
-    cfg.marl.lookahead = true;
-    cfg.marl.rate_map = 2;
-    cfg.trajectory.mobility = mobility;
-    finalise(cfg);
+    const Config cfg = look_ahead_scene(mobility, 2);
     const Positions users = make_users(cfg, 9, 5);
     UavEnv env = make_env(cfg, users);
     RateOracle reference(cfg, zf_bf(), users);

@@ -63,16 +63,22 @@ ArraySpec& add_previous_action(ArraySpec& s, const ActionSpec& actions) {
 }
 }  // namespace
 
-std::vector<std::array<int, 2>> rate_map_offsets(int radius) {
-  std::vector<std::array<int, 2>> cells;
-  for (int d = 1; d <= radius; ++d)
-    for (int q = 0; q < 4; ++q)  // quadrant q: from (d, 0) rotated q quarter turns, d steps along the ring
-      for (int i = 0; i < d; ++i) {
-        int dx = d - i, dy = i;
-        for (int r = 0; r < q; ++r) std::swap(dx, dy), dx = -dx;  // (x, y) -> (-y, x)
-        cells.push_back({dx, dy});
-      }
-  return cells;
+const std::vector<std::array<int, 2>>& rate_map_offsets(int radius) {
+  static const auto tables = [] {
+    std::vector<std::vector<std::array<int, 2>>> t(kMaxRateMap + 1);
+    for (int r = 0; r <= kMaxRateMap; ++r)
+      for (int d = 1; d <= r; ++d)
+        for (int q = 0; q < 4; ++q)  // quadrant q: from (d, 0) rotated q quarter turns, d steps along the ring
+          for (int i = 0; i < d; ++i) {
+            int dx = d - i, dy = i;
+            for (int k = 0; k < q; ++k) std::swap(dx, dy), dx = -dx;  // (x, y) -> (-y, x)
+            t[static_cast<std::size_t>(r)].push_back({dx, dy});
+          }
+    return t;
+  }();
+  if (radius < 0 || radius > kMaxRateMap)
+    throw InputError("marl.rate_map = " + std::to_string(radius) + ": allowed 0 .. " + std::to_string(kMaxRateMap));
+  return tables[static_cast<std::size_t>(radius)];
 }
 
 ArraySpec paper_observation_spec(const ActionSpec& actions) {

@@ -92,7 +92,8 @@ constexpr double kGainScale = 10;  // set observation's move_gains: tanh(kGainSc
 /// The set observation's rate_map cells: the lattice offsets (dx, dy), in steps of D_fly, with
 /// 1 <= |dx| + |dy| <= radius (every cell a grid UAV reaches within `radius` slots), ring by ring,
 /// each ring from +x counter-clockwise; 2 radius (radius + 1) of them.
-std::vector<std::array<int, 2>> rate_map_offsets(int radius);
+/// Built once per radius (0..kMaxRateMap); the observation writer reads it every step.
+const std::vector<std::array<int, 2>>& rate_map_offsets(int radius);
 
 /// The action space of the paper's grid mobility: UP, DOWN, LEFT, RIGHT, STAY.
 const ActionSpec& grid_actions();

@@ -570,11 +570,7 @@ void UavEnv::write_rate_map(int n, float* o) const {
   }
   const auto r = oracle_->sum_rates(sets);
   const double now = r[0];
-  if (!(now > 0)) {
-    for (int c = 0; c < C; ++c)
-      if (at[static_cast<std::size_t>(c)] >= 0) o[c] = 0.0f;
-    return;
-  }
+  if (!(now > 0)) return;  // the cells inside the area stay 0
   for (int c = 0; c < C; ++c)
     if (const int i = at[static_cast<std::size_t>(c)]; i >= 0)
       o[c] = static_cast<float>(std::tanh(kGainScale * (r[static_cast<std::size_t>(i)] - now) / now));

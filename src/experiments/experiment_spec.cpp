@@ -7,6 +7,7 @@
 
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/planning/registry.hpp"
+#include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/paths.hpp"
@@ -24,7 +25,7 @@ const std::vector<std::string>& experiment_kinds() {
 
 namespace {
 
-const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "set",   "models", "reuse_shipped",
+const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "config", "set",   "models", "reuse_shipped",
                                         "sweep", "values", "methods", "samples", "seed", "algos", "seeds",
                                         "steps", "users",  "planners", "one_policy", "rollout", "series", "series_values"};
 
@@ -92,6 +93,22 @@ void apply_table(ExperimentSpec& s, const toml::table& t, const Reader& r, const
     else if (key == "kind") s.kind = r.text(full, node);
     else if (key == "figure") s.figure = r.text(full, node);
     else if (key == "title") s.title = r.text(full, node);
+    else if (key == "config") {
+      // Relative to the experiment file, so that a copy of configs/ works from anywhere.
+      const std::string given = r.text(full, node);
+      const auto path = std::filesystem::path(r.source).parent_path() / given;
+      if (given.empty() || !std::filesystem::is_regular_file(path))
+        r.bad(full, node, "a configuration file relative to the experiment file (" + path.lexically_normal().string() + " is not one)");
+      s.config = path.lexically_normal().string();
+      try {  // a bad field of the file fails here, at load, naming both files
+        Config check;
+        apply_toml(check, read_file(s.config, "config file"), s.config);
+      } catch (const InputError& e) {
+        const std::string what = e.what();
+        throw InputError(r.source + ": " + full + " = \"" + given + "\": " +
+                         (what.rfind(s.config, 0) == 0 ? what : s.config + ": " + what));
+      }
+    }
     else if (key == "set") {
       auto v = r.texts(full, node, true);
       if (!append_set) s.set.clear();
@@ -209,6 +226,13 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
     for (const auto& p : s.planners) check_in(source, "experiment.planners", p, builtin_planners().names());
   }
   return s;
+}
+
+Config resolve_experiment(const ExperimentSpec& s, const std::vector<std::string>& before, const std::vector<std::string>& after) {
+  std::vector<std::string> all = before;
+  all.insert(all.end(), s.set.begin(), s.set.end());
+  all.insert(all.end(), after.begin(), after.end());
+  return resolve_config(s.config.empty() ? std::nullopt : std::optional<std::string>(s.config), all);
 }
 
 std::vector<ExperimentSpec> load_experiments(const std::string& dir, const std::string& profile) {

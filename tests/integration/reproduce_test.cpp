@@ -78,7 +78,7 @@ TEST(Experiments, EveryFileLoadsForEveryProfile) {
     for (const auto& s : specs) {
       figures.insert(s.figure);
       // Every override resolves against the configuration table.
-      EXPECT_NO_THROW(resolve_config(std::nullopt, s.set)) << s.path;
+      EXPECT_NO_THROW(resolve_experiment(s)) << s.path;
     }
     // Every figure of the paper's Section VI has its experiment.
     for (const std::string f : {"fig:power_sweep", "fig:noise_sweep", "fig:uav_gen", "fig:User_gen", "fig:runtime",
@@ -90,7 +90,7 @@ TEST(Experiments, EveryFileLoadsForEveryProfile) {
 TEST(Experiments, PaperProfileUsesThePapersSettings) {
   const Config defaults;
   for (const auto& s : load_experiments(kExperiments, "paper")) {
-    const Config c = resolve_config(std::nullopt, s.set);
+    const Config c = resolve_experiment(s);
     EXPECT_EQ(c.ga.generations, 2000) << s.path;
     EXPECT_EQ(c.nn.train_samples, 10000) << s.path;
     EXPECT_EQ(c.nn.epochs, 25) << s.path;
@@ -106,7 +106,7 @@ TEST(Experiments, PaperProfileUsesThePapersSettings) {
     }
     // The exact optimum beside every planning figure where the DP can solve it (the scale study's
     // 16 UAVs are far beyond it: 2401^16 joint states, which the DP refuses by name).
-    if ((s.kind == "planning_users" || s.kind == "trajectories") && resolve_config(std::nullopt, s.set).scenario.uavs <= 3) {
+    if ((s.kind == "planning_users" || s.kind == "trajectories") && resolve_experiment(s).scenario.uavs <= 3) {
       EXPECT_TRUE(std::count(s.planners.begin(), s.planners.end(), "optimal")) << s.path;
     }
   }
@@ -137,6 +137,55 @@ TEST(Experiments, BadFilesGiveOneClearError) {
       EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
     }
   }
+}
+
+// An experiment trained with a recipe names the recipe's file (`config`, relative to the experiment
+// file) instead of repeating its fields: the file's fields apply, the experiment's `set` over them,
+// and a missing or bad file is one line at load.
+TEST(Experiments, AConfigFileIsTheBaseOfTheExperimentsSettings) {
+  const fs::path dir = tmp("recipe");
+  fs::create_directories(dir / "experiments");
+  std::ofstream(dir / "recipe.toml") << "[marl]\nencoder = \"set\"\nhidden = 32\n[env]\nstate = \"compact\"\nusers_min = 8\nusers_max = 16\n";
+  std::ofstream(dir / "bad_recipe.toml") << "[marl]\nhidden = -1\n";
+  const std::string head = "[experiment]\nname = \"g\"\nkind = \"generalisation\"\nseeds = [1]\nusers = [12]\n";
+  const std::string source = (dir / "experiments" / "g.toml").string();
+  const ExperimentSpec s = parse_experiment(head + "config = \"../recipe.toml\"\nset = [\"marl.hidden=48\"]\n[profile.quick]\n",
+                                            source, "quick");
+  EXPECT_TRUE(fs::equivalent(s.config, dir / "recipe.toml")) << s.config;
+  const Config c = resolve_experiment(s, {"marl.hidden=16", "env.users_max=12"}, {"env.users_min=4"});
+  EXPECT_EQ(c.marl.encoder, "set");   // the file
+  EXPECT_EQ(c.marl.hidden, 48);       // `set` over the file and over `before`
+  EXPECT_EQ(c.env.users_max, 12);     // `before` over the file
+  EXPECT_EQ(c.env.users_min, 4);      // `after` last
+  EXPECT_EQ(c.marl.algo, Config{}.marl.algo);  // the defaults under everything
+  // Without a file: the defaults and `set`, as before.
+  const ExperimentSpec plain = parse_experiment(head + "set = [\"marl.hidden=48\"]\n[profile.quick]\n", source, "quick");
+  EXPECT_TRUE(plain.config.empty());
+  EXPECT_EQ(resolve_experiment(plain).marl.encoder, Config{}.marl.encoder);
+  for (const auto& [line, want] : std::vector<std::pair<std::string, std::string>>{
+           {"config = \"../nosuch.toml\"", "experiment.config = \"../nosuch.toml\" is invalid: allowed a configuration file"},
+           {"config = \"\"", "experiment.config = \"\" is invalid"},
+           {"config = 3", "experiment.config = 3 is invalid: allowed a string"},
+           {"config = \"../bad_recipe.toml\"", "bad_recipe.toml"}}) {
+    try {
+      parse_experiment(head + line + "\n[profile.quick]\n", source, "quick");
+      ADD_FAILURE() << "accepted " << line;
+    } catch (const InputError& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find(want), std::string::npos) << msg;
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+    }
+  }
+  // The shipped experiments trained with the recipe read it from configs/generalise.toml.
+  int with_recipe = 0;
+  for (const auto& e : load_experiments(kExperiments, "paper"))
+    if (!e.config.empty()) {
+      EXPECT_TRUE(fs::equivalent(e.config, kSrc + "/configs/generalise.toml")) << e.path;
+      EXPECT_EQ(resolve_experiment(e).marl.encoder, "set") << e.path;
+      ++with_recipe;
+    }
+  EXPECT_GE(with_recipe, 5);
+  fs::remove_all(dir);
 }
 
 // Every kind an experiment file may name has a stage, and the table holds no other; an unknown

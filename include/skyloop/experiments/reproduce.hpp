@@ -11,6 +11,7 @@
 namespace skyloop {
 
 class Transport;
+struct Config;
 
 /// One experiment file after its profile has been applied.
 struct ExperimentSpec {
@@ -20,6 +21,7 @@ struct ExperimentSpec {
   std::string kind;     // models | beamform_sweep | marl_training | planning_users | trajectories | generalisation
   std::string figure;   // the paper's \label, e.g. fig:power_sweep
   std::string title;
+  std::string config;             // a configuration file (`config`, relative to the experiment file) under `set`; empty: defaults
   std::vector<std::string> set;  // config overrides ("section.key=value"), base then profile
 
   // models: labels gnn, deepsets, mspointnet, gnn_structured
@@ -56,6 +58,12 @@ struct ExperimentSpec {
 /// text) are read by the report, not interpreted here. Unknown keys, wrong types and a profile the file does
 /// not define throw InputError naming the file, the key and what is allowed.
 ExperimentSpec parse_experiment(const std::string& toml_text, const std::string& source, const std::string& profile);
+
+/// The configuration an experiment runs under: the defaults, its `config` file (a recipe such as
+/// configs/generalise.toml, read once so that every experiment trained with it says so in one
+/// place), then `before`, its `set` and `after`, finalised like resolve_config().
+Config resolve_experiment(const ExperimentSpec& s, const std::vector<std::string>& before = {},
+                          const std::vector<std::string>& after = {});
 
 /// The kinds an experiment file may name (each has a stage in reproduce's kind table).
 const std::vector<std::string>& experiment_kinds();

@@ -44,7 +44,8 @@ Config StageContext::resolve(const std::vector<std::string>& sets) const {
 }
 
 Config StageContext::base(const ExperimentSpec& s, const std::vector<std::string>& extra) const {
-  Config c = resolve(s.set);
+  // --threads first, so an experiment may pin its own (the latency figure runs on one core).
+  Config c = resolve_experiment(s, {"run.threads=" + std::to_string(threads)}, opt.sets);
   for (const auto& e : extra) apply_override(c, e);
   finalise(c);
   finalise_users_file(c);

@@ -416,6 +416,71 @@ TEST(Env, RateMapIsTheRadioMapAroundTheUav) {
   }
 }
 
+// marl.peer_headings: where the other UAVs head. At each point c of the wide grid (spacing and
+// width 2 D_fly, centred on the UAV) the field holds sum_m u_m exp(-|p_m - x - c|^2 / (2 (2 D_fly)^2))
+// over the other UAVs m not yet arrived, u_m the unit vector from p_m to m's destination: its x
+// components, then its y components; evaluated here from that formula, on random flights to the end.
+TEST(Env, PeerHeadingsShowWhereTheOtherUavsHead) {
+  Config cfg = look_ahead_scene("grid", 2);
+  cfg.marl.peer_headings = true;
+  finalise(cfg);
+  const Positions users = make_users(cfg, 9, 5);
+  UavEnv env = make_env(cfg, users);
+  const ArraySpec& obs = env.spec().set_obs;
+  const SpecField& near = obs.field("uavs_near");
+  const SpecField& f = obs.field("uavs_heading");
+  constexpr int G = kWideGrid, W = G * G;
+  ASSERT_EQ(f.size, 2 * W);
+  ASSERT_EQ(f.offset, near.offset + near.size) << "right after the UAVs' own maps";
+  EXPECT_EQ(obs.field("rate_map").offset + obs.field("rate_map").size, obs.size) << "the radio map stays last";
+  const double step = 2 * cfg.trajectory.d_fly_m, inv = 1.0 / (2 * step * step);
+  const auto& dest = cfg.trajectory.destinations;
+  Rng rng(7);
+  int checked = 0, arrived_seen = 0;
+  for (bool last = false; !last;) {  // every slot's observations, the final one's too (all arrived)
+    last = env.done();
+    for (int n = 0; n < env.uavs(); ++n) {
+      std::vector<float> o(static_cast<std::size_t>(obs.size));
+      env.write_set_observation(n, o.data());
+      const Positions& p = env.positions();
+      for (int j = 0; j < G; ++j)
+        for (int i = 0; i < G; ++i) {
+          double want_x = 0, want_y = 0;
+          for (int m = 0; m < env.uavs(); ++m) {
+            if (m == n || env.arrived(m)) continue;
+            const double hx = dest[static_cast<std::size_t>(m)].x - p(m, 0), hy = dest[static_cast<std::size_t>(m)].y - p(m, 1);
+            const double len = std::sqrt(hx * hx + hy * hy);
+            const double dx = p(m, 0) - p(n, 0) - (i - G / 2) * step, dy = p(m, 1) - p(n, 1) - (j - G / 2) * step;
+            const double k = std::exp(-(dx * dx + dy * dy) * inv);
+            want_x += k * hx / len, want_y += k * hy / len;
+          }
+          ASSERT_NEAR(o[static_cast<std::size_t>(f.offset + j * G + i)], want_x, 1e-5) << "UAV " << n << ", point " << i << "," << j;
+          ASSERT_NEAR(o[static_cast<std::size_t>(f.offset + W + j * G + i)], want_y, 1e-5) << "UAV " << n << ", point " << i << "," << j;
+          ++checked;
+        }
+    }
+    for (int m = 0; m < env.uavs(); ++m) arrived_seen += env.arrived(m);
+    if (!last) step_at_random(env, rng);
+  }
+  EXPECT_GT(checked, 1000);
+  EXPECT_GT(arrived_seen, 0) << "an arrived UAV's heading is left out";
+  // Off by default: the observation of every earlier policy keeps its layout.
+  Config plain = look_ahead_scene("grid", 2);
+  EXPECT_THROW(make_env(plain, users).spec().set_obs.field("uavs_heading"), std::exception);
+  EXPECT_EQ(make_env(plain, users).spec().set_obs.size + 2 * W, obs.size);
+  // The paper's observation has no such field: refused in one line.
+  Config bad;
+  bad.marl.peer_headings = true;
+  try {
+    validate(bad);
+    ADD_FAILURE() << "marl.peer_headings accepted with the paper's observation";
+  } catch (const InputError& e) {
+    const std::string error = e.what();
+    EXPECT_NE(error.find("marl.peer_headings = true with marl.encoder = \"mlp\""), std::string::npos) << error;
+    EXPECT_EQ(error.find('\n'), std::string::npos) << error;
+  }
+}
+
 TEST(Env, ObjectiveRewardSumsToTheObjective) {
   Config cfg;
   cfg.env.reward = "objective";

@@ -362,11 +362,6 @@ std::vector<Field> make_fields() {
   f.push_back(text("marl.entropy_schedule",
                    "PPO's entropy bonus over training: constant, or linear = from marl.entropy_coef down to 0 at total_steps",
                    {"constant", "linear"}, [](Config& c) -> std::string& { return c.marl.entropy_schedule; }));
-  f.push_back(boolean("marl.peer_headings",
-                      "the set observation also holds where the other UAVs head: their kernel maps (as uavs_wide) weighted "
-                      "by the x and the y of the unit vector to their destinations (0 once arrived), so that UAVs crossing "
-                      "on their ways home can keep apart; needs marl.encoder = set",
-                      [](Config& c) -> bool& { return c.marl.peer_headings; }));
   f.push_back(integer("marl.rate_map",
                       "the set observation also holds the radio map around the UAV: the sum rate R with the UAV at each lattice "
                       "point within this many D_fly steps, the others held in place (2 r (r + 1) cells, asked of the rate oracle "
@@ -738,9 +733,6 @@ void validate(const Config& c) {
   validate_mobility(c);
   if (c.marl.rate_map > 0 && c.marl.encoder != "set")
     throw InputError("marl.rate_map = " + std::to_string(c.marl.rate_map) + " with marl.encoder = \"" + c.marl.encoder +
-                     "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
-  if (c.marl.peer_headings && c.marl.encoder != "set")
-    throw InputError("marl.peer_headings = true with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
   if (c.marl.lookahead && c.marl.encoder != "set")
     throw InputError("marl.lookahead = true with marl.encoder = \"" + c.marl.encoder +

@@ -99,7 +99,6 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.action = MobilityModel(cfg).actions();
   p.lookahead = cfg.marl.lookahead;
   p.rate_map = cfg.marl.rate_map;
-  p.peer_headings = cfg.marl.peer_headings;
   return p;
 }
 
@@ -117,8 +116,6 @@ ArraySpec set_observation_spec(const SpecParams& p) {
       .add("users_density", kWideGrid * kWideGrid, 0, 4)  // (4 / K) sum_k of Gaussian kernels
       .add("uavs_wide", kWideGrid * kWideGrid, 0, others)
       .add("uavs_near", kNearGrid * kNearGrid, 0, others);
-  if (p.peer_headings)  // uavs_wide's kernels weighted by the x, then the y, of each one's unit vector to its destination
-    s.add("uavs_heading", 2 * kWideGrid * kWideGrid, -others, others);
   if (p.lookahead) s.add("move_gains", p.action.count(), -1, 1);  // one per action (continuous: per primitive)
   if (p.rate_map > 0)  // tanh(kGainScale (R_c - R) / R) at each cell c of rate_map_offsets; -1 outside the area
     s.add("rate_map", static_cast<int>(rate_map_offsets(p.rate_map).size()), -1, 1);

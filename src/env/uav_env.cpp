@@ -542,17 +542,6 @@ void UavEnv::write_set_observation(int n, float* o) const {
     add_kernel(o + 2 * W, kNearGrid, d_fly_, d_fly_ / 2, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
   }
   o += 2 * W + Q;
-  if (spec_params_.peer_headings) {
-    std::fill(o, o + 2 * W, 0.0f);
-    for (int m = 0; m < n_; ++m) {
-      if (m == n || arrived(m)) continue;
-      const double hx = dest_(m, 0) - pos_(m, 0), hy = dest_(m, 1) - pos_(m, 1), len = std::hypot(hx, hy);
-      if (!(len > 0)) continue;
-      add_kernel(o, kWideGrid, 2 * d_fly_, 2 * d_fly_, pos_(m, 0) - x, pos_(m, 1) - y, hx / len);
-      add_kernel(o + W, kWideGrid, 2 * d_fly_, 2 * d_fly_, pos_(m, 0) - x, pos_(m, 1) - y, hy / len);
-    }
-    o += 2 * W;
-  }
   if (spec_params_.lookahead) {
     write_move_gains(n, o);
     o += actions();

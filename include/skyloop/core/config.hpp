@@ -189,7 +189,6 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   int reserve_slack = -1;           // UAVs with at most this slack reserve their ways home (ways_home.hpp; -1: none); execution only
   std::string encoder = "mlp";      // mlp (the paper's 11-real observation) | set (users and neighbours as sets)
   bool lookahead = false;           // set observation: each move's one-slot change of R (UavEnv::write_move_gains)
-  bool peer_headings = false;       // set observation: where the other UAVs head (UavEnv::write_set_observation)
   int rate_map = 0;                 // set observation: R around the UAV within this many lattice steps (UavEnv::write_rate_map; 0 = none, at most kMaxRateMap)
   std::string lr_schedule = "constant";       // constant | linear: the learning rate falls linearly to 0 over total_steps
   std::string entropy_schedule = "constant";  // constant | linear: PPO's entropy_coef falls linearly to 0 over total_steps

@@ -199,9 +199,6 @@ class UavEnv {
   ///    with spacing 2 D_fly, (4 / K) sum_k exp(-|u_k - x - c|^2 / (2 (2 D_fly)^2));
   ///  - UAVs, wide (kWideGrid^2): the same sum over the other UAVs (not divided by anything);
   ///  - UAVs, near (kNearGrid^2): spacing D_fly, width D_fly / 2: who is one move away;
-  ///  - with marl.peer_headings, where the other UAVs head (2 kWideGrid^2): uavs_wide's kernels
-  ///    weighted by the x, then by the y, of each other UAV's unit vector to its destination
-  ///    (nothing for an arrived one): UAVs crossing on their ways home see each other coming;
   ///  - with marl.lookahead, move gains (one per action): write_move_gains;
   ///  - with marl.rate_map = r, the radio map within r lattice steps: write_rate_map.
   /// Reordering the users or the other UAVs leaves it unchanged (tests/unit/env_test.cpp).

@@ -49,7 +49,7 @@ class Runner {
     for (const auto* s : selected) (void)stage_kind(s->kind), (void)ctx_.base(*s);
     if (ctx_.write_outputs && !opt_.plan_out) {
       remove_stale_temporaries(ctx_.out.string(), true);  // debris of a run killed mid-write
-      write_file_atomic((ctx_.out / "config.toml").string(), to_toml(ctx_.resolve({})));
+      write_file_atomic((ctx_.out / "config.toml").string(), to_toml(ctx_.resolve(ExperimentSpec{})));
     }
     std::vector<const ExperimentSpec*> models, others;
     for (const auto* s : selected) (stage_kind(s->kind).phase == 0 ? models : others).push_back(s);

@@ -35,17 +35,13 @@ const std::map<std::string, ModelLabel>& model_labels() {
 StageContext::StageContext(const ReproduceOptions& o, std::ostream& l, int t)
     : opt(o), out(o.out_dir), log(l.rdbuf()), threads(t), cache(o.out_dir) {}
 
-Config StageContext::resolve(const std::vector<std::string>& sets) const {
+Config StageContext::resolve(const ExperimentSpec& s) const {
   // --threads first, so an experiment may pin its own (the latency figure runs on one core).
-  std::vector<std::string> all = {"run.threads=" + std::to_string(threads)};
-  all.insert(all.end(), sets.begin(), sets.end());
-  all.insert(all.end(), opt.sets.begin(), opt.sets.end());
-  return resolve_config(std::nullopt, all);
+  return resolve_experiment(s, {"run.threads=" + std::to_string(threads)}, opt.sets);
 }
 
 Config StageContext::base(const ExperimentSpec& s, const std::vector<std::string>& extra) const {
-  // --threads first, so an experiment may pin its own (the latency figure runs on one core).
-  Config c = resolve_experiment(s, {"run.threads=" + std::to_string(threads)}, opt.sets);
+  Config c = resolve(s);
   for (const auto& e : extra) apply_override(c, e);
   finalise(c);
   finalise_users_file(c);

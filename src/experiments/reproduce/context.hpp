@@ -69,7 +69,7 @@ class StageContext {
   std::map<std::string, std::string> shown_models;
 
   /// The run's config with `sets` (after --threads, before the command line's --set).
-  Config resolve(const std::vector<std::string>& sets) const;
+  Config resolve(const ExperimentSpec& s) const;
   /// An experiment's config (+ extra overrides), finalised; a learned env.oracle names this run's model.
   Config base(const ExperimentSpec& s, const std::vector<std::string>& extra = {}) const;
   /// Hash of the model env.oracle names (0 for a classical oracle).

@@ -68,7 +68,7 @@ class StageContext {
   std::map<std::string, std::uint64_t> model_hashes;
   std::map<std::string, std::string> shown_models;
 
-  /// The run's config with `sets` (after --threads, before the command line's --set).
+  /// The config of experiment `s` in this run: its file and `set` after --threads, before the command line's --set.
   Config resolve(const ExperimentSpec& s) const;
   /// An experiment's config (+ extra overrides), finalised; a learned env.oracle names this run's model.
   Config base(const ExperimentSpec& s, const std::vector<std::string>& extra = {}) const;

@@ -92,7 +92,7 @@ void Mlp::forward(const float* x, int rows, float* out, Cache* cache) const {
   gemm::tanh_inplace(c.h1.data(), static_cast<long>(hn));
   gemm::matmul(c.h1.data(), hidden_pad_, rows, p + w2_, hidden_, hidden_pad_, p + b2_, c.h2.data(), hidden_pad_, false);
   gemm::tanh_inplace(c.h2.data(), static_cast<long>(hn));
-  gemm::matmul(c.h2.data(), hidden_pad_, rows, p + w3_, hidden_, out_pad_, p + b3_, out, out_pad_, false);
+  gemm::matmul(c.h2.data(), hidden_pad_, rows, p + w3_, hidden_, out_pad_, p + b3_, out, out_pad_, false, out_);
 }
 
 void Mlp::backward(Cache& c, const float* dout, float* grad) const {
@@ -101,7 +101,7 @@ void Mlp::backward(Cache& c, const float* dout, float* grad) const {
   const std::size_t hn = static_cast<std::size_t>(rows) * hidden_pad_;
   grow(c.dh, hn);
   // Layer 3: dW3^T += h2^T dout, db3 += sum dout, dh2 = dout W3.
-  gemm::matmul_at(c.h2.data(), hidden_pad_, hidden_, dout, rows, out_pad_, grad + w3_, out_pad_);
+  gemm::matmul_at(c.h2.data(), hidden_pad_, hidden_, dout, rows, out_pad_, grad + w3_, out_pad_, out_);
   gemm::column_sums(dout, rows, out_pad_, out_pad_, grad + b3_);
   gemm::matmul(dout, out_pad_, rows, w3_rows_.data(), out_, hidden_pad_, nullptr, c.dh.data(), hidden_pad_, false);
   gemm::tanh_backward(c.h2.data(), c.dh.data(), static_cast<long>(hn));

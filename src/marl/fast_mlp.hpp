@@ -44,8 +44,9 @@ class Mlp {
     std::vector<float> h1, h2, dh;
   };
 
-  /// out [rows x out_stride()] = the network on x [rows x in] (row-major, stride in). With a
-  /// cache, keeps what backward needs.
+  /// out [rows x out_stride()] = the network on x [rows x in] (row-major, stride in); only the
+  /// first out() columns are defined (the narrow output layer computes one kernel vector, the
+  /// rest of the padding is left as it was). With a cache, keeps what backward needs.
   void forward(const float* x, int rows, float* out, Cache* cache) const;
   /// grad (size() floats) += d loss / d params for the batch of the last forward into `cache`,
   /// given dout = d loss / d out [rows x out_stride()] (padding columns zero).

@@ -34,7 +34,7 @@ namespace {
 #undef SKYLOOP_GEMM_V
 #endif
 
-using Kernel = void (*)(const float*, int, int, const float*, int, int, const float*, float*, int, bool);
+using Kernel = void (*)(const float*, int, int, const float*, int, int, int, const float*, float*, int, bool);
 using Elementwise = void (*)(float*, long);
 using Sums = void (*)(const float*, int, int, int, float*);
 using TanhGrad = void (*)(const float*, float*, long);
@@ -94,18 +94,20 @@ Dense pack(const float* w, int out, int in_total, int first, int count, const fl
 
 void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, bool accumulate) {
   if (ldc < w.out_pad) throw std::logic_error("fast::gemm: unpadded buffers");
-  chosen().fn(A, lda, rows, w.wt.data(), w.in, w.out_pad, w.bias.empty() ? nullptr : w.bias.data(), C, ldc, accumulate);
+  chosen().fn(A, lda, rows, w.wt.data(), w.in, w.out_pad, w.out_pad, w.bias.empty() ? nullptr : w.bias.data(), C, ldc, accumulate);
 }
 
 void matmul(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* bias, float* C, int ldc,
-            bool accumulate) {
-  if (cols_pad % kColBlock != 0 || ldc < cols_pad) throw std::logic_error("fast::matmul: unpadded buffers");
-  chosen().fn(A, lda, rows, B, inner, cols_pad, bias, C, ldc, accumulate);
+            bool accumulate, int cols) {
+  if (cols < 0) cols = cols_pad;
+  if (cols_pad % kColBlock != 0 || ldc < cols_pad || cols > cols_pad) throw std::logic_error("fast::matmul: unpadded buffers");
+  chosen().fn(A, lda, rows, B, inner, cols_pad, cols, bias, C, ldc, accumulate);
 }
 
-void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, float* C, int ldc) {
-  if (cols_pad % kColBlock != 0 || ldc < cols_pad) throw std::logic_error("fast::matmul_at: unpadded buffers");
-  chosen().fn_at(A, lda, rows, B, inner, cols_pad, nullptr, C, ldc, true);
+void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, float* C, int ldc, int cols) {
+  if (cols < 0) cols = cols_pad;
+  if (cols_pad % kColBlock != 0 || ldc < cols_pad || cols > cols_pad) throw std::logic_error("fast::matmul_at: unpadded buffers");
+  chosen().fn_at(A, lda, rows, B, inner, cols_pad, cols, nullptr, C, ldc, true);
 }
 
 void tanh_inplace(float* x, long n) { chosen().tanh(x, n); }

@@ -32,12 +32,14 @@ void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, 
 /// The same kernel on any row-major B [inner x cols_pad] (cols_pad a multiple of kColBlock):
 /// C[i, :cols_pad] (+)= A[i, :inner] B (+ bias) for i < rows. The training path (the learners'
 /// fused MLPs, src/marl/fast_mlp.hpp) builds its forward and backward passes from it.
+/// cols >= 0: only the columns [0, cols) are asked for; those up to the next whole vector of the
+/// kernel in use are written too, the rest of C's row is left as it was (a narrow output layer).
 void matmul(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* bias, float* C, int ldc,
-            bool accumulate);
+            bool accumulate, int cols = -1);
 
 /// C[:rows, :cols_pad] += A^T B for A [inner x rows] of row stride lda: a weight's gradient
-/// X^T dY straight from the activations X [batch x in] (rows = in, inner = batch).
-void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, float* C, int ldc);
+/// X^T dY straight from the activations X [batch x in] (rows = in, inner = batch). cols as matmul's.
+void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, float* C, int ldc, int cols = -1);
 
 /// x[i] = tanh(x[i]) for i < n, vectorised (absolute error within a few float32 ulps of 1).
 void tanh_inplace(float* x, long n);

@@ -70,32 +70,35 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void panel(cons
   }
 }
 
+/// The columns [0, cols rounded up to V) of C, B of row stride out_pad: a narrow output layer
+/// (5 logits, 1 value) costs one vector of columns, not the whole padded block.
 template <bool TA>
-SKYLOOP_GEMM_TARGET static void gemm_any(const float* A, int lda, int rows, const float* wt, int in, int out_pad,
+SKYLOOP_GEMM_TARGET static void gemm_any(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
                                          const float* bias, float* C, int ldc, bool accumulate) {
-  for (int j = 0; j < out_pad; j += 2 * V) {
+  const int live = (cols + V - 1) / V * V;
+  for (int j = 0; j < live; j += 2 * V) {
     const float* b = bias ? bias + j : nullptr;
-    if (out_pad - j >= 2 * V) panel<2, TA>(A, lda, rows, wt + j, in, out_pad, b, C + j, ldc, accumulate);
+    if (live - j >= 2 * V) panel<2, TA>(A, lda, rows, wt + j, in, out_pad, b, C + j, ldc, accumulate);
     else panel<1, TA>(A, lda, rows, wt + j, in, out_pad, b, C + j, ldc, accumulate);
   }
 }
 
 /// C = A B (+ bias) with A [rows x in] of row stride lda.
-SKYLOOP_GEMM_TARGET static void gemm(const float* A, int lda, int rows, const float* wt, int in, int out_pad,
+SKYLOOP_GEMM_TARGET static void gemm(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
                                      const float* bias, float* C, int ldc, bool accumulate) {
-  gemm_any<false>(A, lda, rows, wt, in, out_pad, bias, C, ldc, accumulate);
+  gemm_any<false>(A, lda, rows, wt, in, out_pad, cols, bias, C, ldc, accumulate);
 }
 
 /// C (+)= A^T B with A [in x rows] of row stride lda (the weight gradient X^T dY, where in is the
 /// batch). The batch is swept in chunks whose panel of B and rows of A stay in the L1 cache while
 /// every block of C passes over them; each element still sums over k in order.
-SKYLOOP_GEMM_TARGET static void gemm_at(const float* A, int lda, int rows, const float* wt, int in, int out_pad,
+SKYLOOP_GEMM_TARGET static void gemm_at(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
                                         const float* bias, float* C, int ldc, bool accumulate) {
   constexpr int kChunk = 128;
-  if (in <= kChunk) return gemm_any<true>(A, lda, rows, wt, in, out_pad, bias, C, ldc, accumulate);
+  if (in <= kChunk) return gemm_any<true>(A, lda, rows, wt, in, out_pad, cols, bias, C, ldc, accumulate);
   for (int k = 0; k < in; k += kChunk) {
     const int n = in - k < kChunk ? in - k : kChunk;
-    gemm_any<true>(A + static_cast<long>(k) * lda, lda, rows, wt + static_cast<long>(k) * out_pad, n, out_pad,
+    gemm_any<true>(A + static_cast<long>(k) * lda, lda, rows, wt + static_cast<long>(k) * out_pad, n, out_pad, cols,
                    k == 0 ? bias : nullptr, C, ldc, k == 0 ? accumulate : true);
   }
 }

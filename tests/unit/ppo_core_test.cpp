@@ -9,6 +9,7 @@
 #include "../../src/marl/ppo.hpp"
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/core/error.hpp"
+#include "test_util.hpp"
 
 using namespace skyloop;
 using namespace skyloop::marl;
@@ -176,53 +177,40 @@ TEST(PpoCore, FastMlpMatchesAutogradWithinFloat32Rounding) {
 }
 
 // The loss's gradient with respect to the logits and values (written out by hand) against
-// autograd on the same expression in float64.
+// autograd on the same expression in float64; with a teacher (marl.teacher_coef) its
+// cross-entropy adds c_t w (p_k - 1[k = g]) to the logits' gradient.
 TEST(PpoCore, LossGradientMatchesAutograd) {
-  const PpoSettings s{0.2, 0.5, 0.03, 10.0};
-  for (std::uint64_t seed : {1, 2, 3}) {
-    const auto b = random_minibatch(400, 1, 1, seed);
-    torch::manual_seed(seed);
-    const auto logits = (torch::randn({b.rows, kGridActions}) * 2).to(torch::kDouble).requires_grad_(true);
-    const auto values = torch::randn({b.rows, 1}).to(torch::kDouble).requires_grad_(true);
-    torch_loss(b, s, logits, values, torch::kDouble).backward();
-    const auto l32 = as_vector(logits), v32 = as_vector(values);
-    std::vector<float> dl(l32.size(), 0.0f), dv(v32.size(), 0.0f);
-    const auto u = ppo_loss(b, s, l32.data(), kGridActions, v32.data(), 1, dl.data(), dv.data());
-    const auto dl_t = torch::from_blob(dl.data(), {b.rows, kGridActions}), dv_t = torch::from_blob(dv.data(), {b.rows, 1});
-    const double gl = logits.grad().abs().max().item<double>(), gv = values.grad().abs().max().item<double>();
-    // ppo_loss works in float64 from the float32 inputs and rounds its output to float32.
-    EXPECT_LE(max_error(dl_t, logits.grad()), 1e-6 * gl + 1e-9) << "seed " << seed;
-    EXPECT_LE(max_error(dv_t, values.grad()), 1e-6 * gv + 1e-9) << "seed " << seed;
-    // The statistics are those of the same expression.
-    const auto total = u.policy_loss + s.value_coef * u.value_loss - s.entropy_coef * u.entropy;
-    EXPECT_NEAR(total, torch_loss(b, s, logits.detach(), values.detach(), torch::kDouble).item<double>(), 1e-6) << "seed " << seed;
-    EXPECT_GT(u.clipfrac, 0.05) << "the minibatch should exercise the clip";
-    EXPECT_LT(u.clipfrac, 0.95);
-  }
-}
-
-// marl.teacher_coef: the cross-entropy to the teacher's moves, c_t w (p_k - 1[k = g]) on the
-// logits, against autograd of the same expression; its statistics are those of the expression.
-TEST(PpoCore, TeacherGradientMatchesAutograd) {
-  const PpoSettings s{0.2, 0.5, 0.03, 10.0, 0.7};
-  for (std::uint64_t seed : {4, 5}) {
-    auto b = random_minibatch(300, kGridActions, 1, seed);
-    teach_from_observations(b);
-    torch::manual_seed(seed);
-    const auto logits = (torch::randn({b.rows, kGridActions}) * 2).to(torch::kDouble).requires_grad_(true);
-    const auto values = torch::randn({b.rows, 1}).to(torch::kDouble).requires_grad_(true);
-    torch_loss(b, s, logits, values, torch::kDouble).backward();
-    const auto l32 = as_vector(logits), v32 = as_vector(values);
-    std::vector<float> dl(l32.size(), 0.0f), dv(v32.size(), 0.0f);
-    const auto u = ppo_loss(b, s, l32.data(), kGridActions, v32.data(), 1, dl.data(), dv.data());
-    const auto dl_t = torch::from_blob(dl.data(), {b.rows, kGridActions});
-    EXPECT_LE(max_error(dl_t, logits.grad()), 1e-6 * logits.grad().abs().max().item<double>() + 1e-9) << "seed " << seed;
-    const auto total = u.policy_loss + s.value_coef * u.value_loss - s.entropy_coef * u.entropy + s.teacher_coef * u.teacher;
-    EXPECT_NEAR(total, torch_loss(b, s, logits.detach(), values.detach(), torch::kDouble).item<double>(), 1e-6) << "seed " << seed;
-    EXPECT_GT(u.teacher, 0.0);
-    EXPECT_GT(u.teacher_agreement, 0.0);
-    EXPECT_LT(u.teacher_agreement, 1.0);
-  }
+  for (const bool taught : {false, true})
+    for (std::uint64_t seed : {1, 2, 3}) {
+      SCOPED_TRACE(std::string(taught ? "with" : "without") + " a teacher, seed " + std::to_string(seed));
+      const PpoSettings s{0.2, 0.5, 0.03, 10.0, taught ? 0.7 : 0.0};
+      auto b = random_minibatch(400, kGridActions, 1, seed);
+      if (taught) teach_from_observations(b);
+      torch::manual_seed(seed);
+      const auto logits = (torch::randn({b.rows, kGridActions}) * 2).to(torch::kDouble).requires_grad_(true);
+      const auto values = torch::randn({b.rows, 1}).to(torch::kDouble).requires_grad_(true);
+      torch_loss(b, s, logits, values, torch::kDouble).backward();
+      const auto l32 = as_vector(logits), v32 = as_vector(values);
+      std::vector<float> dl(l32.size(), 0.0f), dv(v32.size(), 0.0f);
+      const auto u = ppo_loss(b, s, l32.data(), kGridActions, v32.data(), 1, dl.data(), dv.data());
+      const auto dl_t = torch::from_blob(dl.data(), {b.rows, kGridActions}), dv_t = torch::from_blob(dv.data(), {b.rows, 1});
+      const double gl = logits.grad().abs().max().item<double>(), gv = values.grad().abs().max().item<double>();
+      // ppo_loss works in float64 from the float32 inputs and rounds its output to float32.
+      EXPECT_LE(max_error(dl_t, logits.grad()), 1e-6 * gl + 1e-9);
+      EXPECT_LE(max_error(dv_t, values.grad()), 1e-6 * gv + 1e-9);
+      // The statistics are those of the same expression.
+      const auto total = u.policy_loss + s.value_coef * u.value_loss - s.entropy_coef * u.entropy + s.teacher_coef * u.teacher;
+      EXPECT_NEAR(total, torch_loss(b, s, logits.detach(), values.detach(), torch::kDouble).item<double>(), 1e-6);
+      EXPECT_GT(u.clipfrac, 0.05) << "the minibatch should exercise the clip";
+      EXPECT_LT(u.clipfrac, 0.95);
+      if (taught) {
+        EXPECT_GT(u.teacher, 0.0);
+        EXPECT_GT(u.teacher_agreement, 0.0);
+        EXPECT_LT(u.teacher_agreement, 1.0);
+      } else {
+        EXPECT_EQ(u.teacher, 0.0);
+      }
+    }
 }
 
 // The teacher term alone (no advantage, no entropy bonus) teaches the actor the teacher's rule: on
@@ -266,30 +254,30 @@ TEST(PpoCore, TheTeacherTermTeachesTheTeachersMoves) {
 // same losses, approximate KL, clip fraction and gradient norm, and after 10 steps the same losses.
 TEST(PpoCore, BackendsTakeTheSameSteps) {
   for (const bool taught : {false, true}) {  // with and without a teacher's cross-entropy
-  SCOPED_TRACE(taught ? "with a teacher" : "without a teacher");
-  const PpoSettings s{0.2, 0.5, 0.03, 0.1, taught ? 0.5 : 0.0};  // a small clip norm, so the clipping is exercised
-  auto b = random_minibatch(512, 11, 37, 5);
-  if (taught) teach_from_observations(b);
-  auto fast = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 9);
-  auto ref = make_ppo_networks("torch", 11, 37, 64, 3e-4, torch::kCPU, 9);
-  std::vector<float> lf(static_cast<std::size_t>(b.rows) * kGridActions), lr(lf.size());
-  fast->logits(b.observations.data(), b.rows, lf.data());
-  ref->logits(b.observations.data(), b.rows, lr.data());
-  for (std::size_t i = 0; i < lf.size(); ++i) ASSERT_NEAR(lf[i], lr[i], 1e-5) << "same initial weights";
-  for (int step = 0; step < 10; ++step) {
-    const auto uf = fast->step(b, s), ur = ref->step(b, s);
-    const double tol = step == 0 ? 1e-5 : 1e-3;  // after the first Adam step, near-zero gradients may differ in sign
-    EXPECT_NEAR(uf.policy_loss, ur.policy_loss, tol * (1 + std::abs(ur.policy_loss))) << "step " << step;
-    EXPECT_NEAR(uf.value_loss, ur.value_loss, tol * (1 + std::abs(ur.value_loss))) << "step " << step;
-    EXPECT_NEAR(uf.entropy, ur.entropy, tol * (1 + std::abs(ur.entropy))) << "step " << step;
-    EXPECT_NEAR(uf.approx_kl, ur.approx_kl, tol) << "step " << step;
-    EXPECT_NEAR(uf.clipfrac, ur.clipfrac, step == 0 ? 1e-6 : 0.01) << "step " << step;
-    EXPECT_NEAR(uf.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
-    EXPECT_NEAR(uf.teacher, ur.teacher, tol * (1 + std::abs(ur.teacher))) << "step " << step;
-    EXPECT_NEAR(uf.teacher_agreement, ur.teacher_agreement, step == 0 ? 1e-6 : 0.01) << "step " << step;
-    if (taught) EXPECT_GT(ur.teacher, 0.1) << "step " << step;
-    if (step == 0) EXPECT_GT(ur.grad_norm, s.grad_clip) << "the clip should act";
-  }
+    SCOPED_TRACE(taught ? "with a teacher" : "without a teacher");
+    const PpoSettings s{0.2, 0.5, 0.03, 0.1, taught ? 0.5 : 0.0};  // a small clip norm, so the clipping is exercised
+    auto b = random_minibatch(512, 11, 37, 5);
+    if (taught) teach_from_observations(b);
+    auto fast = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 9);
+    auto ref = make_ppo_networks("torch", 11, 37, 64, 3e-4, torch::kCPU, 9);
+    std::vector<float> lf(static_cast<std::size_t>(b.rows) * kGridActions), lr(lf.size());
+    fast->logits(b.observations.data(), b.rows, lf.data());
+    ref->logits(b.observations.data(), b.rows, lr.data());
+    for (std::size_t i = 0; i < lf.size(); ++i) ASSERT_NEAR(lf[i], lr[i], 1e-5) << "same initial weights";
+    for (int step = 0; step < 10; ++step) {
+      const auto uf = fast->step(b, s), ur = ref->step(b, s);
+      const double tol = step == 0 ? 1e-5 : 1e-3;  // after the first Adam step, near-zero gradients may differ in sign
+      EXPECT_NEAR(uf.policy_loss, ur.policy_loss, tol * (1 + std::abs(ur.policy_loss))) << "step " << step;
+      EXPECT_NEAR(uf.value_loss, ur.value_loss, tol * (1 + std::abs(ur.value_loss))) << "step " << step;
+      EXPECT_NEAR(uf.entropy, ur.entropy, tol * (1 + std::abs(ur.entropy))) << "step " << step;
+      EXPECT_NEAR(uf.approx_kl, ur.approx_kl, tol) << "step " << step;
+      EXPECT_NEAR(uf.clipfrac, ur.clipfrac, step == 0 ? 1e-6 : 0.01) << "step " << step;
+      EXPECT_NEAR(uf.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
+      EXPECT_NEAR(uf.teacher, ur.teacher, tol * (1 + std::abs(ur.teacher))) << "step " << step;
+      EXPECT_NEAR(uf.teacher_agreement, ur.teacher_agreement, step == 0 ? 1e-6 : 0.01) << "step " << step;
+      if (taught) EXPECT_GT(ur.teacher, 0.1) << "step " << step;
+      if (step == 0) EXPECT_GT(ur.grad_norm, s.grad_clip) << "the clip should act";
+    }
   }
   EXPECT_THROW(make_ppo_networks("jax", 11, 37, 64, 3e-4, torch::kCPU, 9), InputError);
 }
@@ -615,16 +603,11 @@ TEST(PpoCore, TheTeacherIsRefusedWhereItHasNoMoves) {
   cfg.marl.lookahead = true;
   cfg.marl.teacher_coef = 0.5;
   EXPECT_NO_THROW(validate(cfg));
-  auto refused = [](Config c, const std::string& allowed) {
-    try {
-      validate(c);
-      ADD_FAILURE() << "accepted; expected a refusal naming " << allowed;
-    } catch (const InputError& e) {
-      const std::string what = e.what();
-      EXPECT_NE(what.find("marl.teacher_coef = 0.5"), std::string::npos) << what;
-      EXPECT_NE(what.find(allowed), std::string::npos) << what;
-      EXPECT_EQ(what.find('\n'), std::string::npos) << what;
-    }
+  auto refused = [](const Config& c, const std::string& allowed) {
+    const std::string what = test::error_of([&] { validate(c); });
+    EXPECT_NE(what.find("marl.teacher_coef = 0.5"), std::string::npos) << "refusal expected, naming " << allowed << ": " << what;
+    EXPECT_NE(what.find(allowed), std::string::npos) << what;
+    EXPECT_EQ(what.find('\n'), std::string::npos) << what;
   };
   Config no_gains = cfg;
   no_gains.marl.lookahead = false;

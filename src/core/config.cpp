@@ -19,10 +19,9 @@ std::vector<std::string> learner_names() {
   return out;
 }
 
-std::string learner_names_text(const LearnerInfo::Core* core) {
+std::string learner_names_text() {
   std::string out;
-  for (const auto& l : learners())
-    if (!core || l.core == *core) out += (out.empty() ? "" : ", ") + l.name;
+  for (const auto& l : learners()) out += (out.empty() ? "" : ", ") + l.name;
   return out;
 }
 
@@ -363,13 +362,6 @@ std::vector<Field> make_fields() {
   f.push_back(text("marl.entropy_schedule",
                    "PPO's entropy bonus over training: constant, or linear = from marl.entropy_coef down to 0 at total_steps",
                    {"constant", "linear"}, [](Config& c) -> std::string& { return c.marl.entropy_schedule; }));
-  f.push_back(real("marl.teacher_coef",
-                   "PPO's actor also imitates each UAV's one-slot greedy move, the allowed move with the largest gain of the "
-                   "sum rate in the observation's move_gains (kickstarting): the cross-entropy to it, weighted by this "
-                   "coefficient falling linearly to 0 at marl.teacher_steps (0 = off); needs marl.lookahead and a discrete mobility model",
-                   0, 100, [](Config& c) -> double& { return c.marl.teacher_coef; }));
-  f.push_back(integer("marl.teacher_steps", "environment steps over which marl.teacher_coef falls linearly to 0", 1, 1e12,
-                      [](Config& c) -> std::int64_t& { return c.marl.teacher_steps; }));
   f.push_back(integer("marl.rate_map",
                       "the set observation also holds the radio map around the UAV: the sum rate R with the UAV at each lattice "
                       "point within this many D_fly steps, the others held in place (2 r (r + 1) cells, asked of the rate oracle "
@@ -742,19 +734,6 @@ void validate(const Config& c) {
   if (c.marl.rate_map > 0 && c.marl.encoder != "set")
     throw InputError("marl.rate_map = " + std::to_string(c.marl.rate_map) + " with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
-  if (c.marl.teacher_coef > 0) {
-    const std::string teacher = "marl.teacher_coef = " + format_double(c.marl.teacher_coef);
-    if (!c.marl.lookahead)
-      throw InputError(teacher + " with marl.lookahead = false: allowed with marl.lookahead = true (the teacher's move is "
-                       "read from the observation's move gains)");
-    if (c.trajectory.mobility == "continuous")
-      throw InputError(teacher + " with trajectory.mobility = \"continuous\": allowed with a discrete mobility model "
-                       "(grid or headings)");
-    constexpr LearnerInfo::Core ppo = LearnerInfo::Core::Ppo;
-    if (find_learner(c.marl.algo).core != ppo)
-      throw InputError(teacher + " with marl.algo = \"" + c.marl.algo + "\": allowed with the PPO learners (" +
-                       learner_names_text(&ppo) + ")");
-  }
   if (c.marl.lookahead && c.marl.encoder != "set")
     throw InputError("marl.lookahead = true with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");

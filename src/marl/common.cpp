@@ -143,7 +143,7 @@ std::string metrics_header() {
   return "seed,env_steps,episodes,charts/episode_reward,charts/sum_rate,charts/arrival_rate,charts/collisions,"
          "charts/boundary_events,losses/policy,losses/value,losses/entropy,losses/old_approx_kl,losses/approx_kl,"
          "losses/clipfrac,losses/explained_variance,losses/grad_norm,charts/epsilon,charts/objective,charts/energy_j,"
-         "charts/bits_per_joule,losses/teacher,charts/teacher_agreement,charts/steps_per_s\n";
+         "charts/bits_per_joule,charts/steps_per_s\n";
 }
 
 std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, const LearnerLog& log, double sps) {
@@ -151,11 +151,10 @@ std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeSta
   auto f = [&](double x) { return e.episodes ? format_double(x / n) : std::string(""); };
   auto g = [](double x) { return std::isnan(x) ? std::string("") : format_double(x); };
   // charts/sum_rate: P2.2's (1/T) sum R[t]; charts/objective: env.objective's J (the same under sum-rate).
-  return fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, steps, e.episodes,
-                     f(e.reward), f(e.sum_rate), f(e.home), f(e.collisions), f(e.boundary), g(log.policy_loss),
-                     g(log.value_loss), g(log.entropy), g(log.old_approx_kl), g(log.approx_kl), g(log.clipfrac),
-                     g(log.explained_variance), g(log.grad_norm), g(log.epsilon), f(e.objective), f(e.energy_j),
-                     f(e.bits_per_joule), g(log.teacher), g(log.teacher_agreement), format_double(sps));
+  return fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", seed, steps, e.episodes, f(e.reward),
+                     f(e.sum_rate), f(e.home), f(e.collisions), f(e.boundary), g(log.policy_loss), g(log.value_loss),
+                     g(log.entropy), g(log.old_approx_kl), g(log.approx_kl), g(log.clipfrac), g(log.explained_variance),
+                     g(log.grad_norm), g(log.epsilon), f(e.objective), f(e.energy_j), f(e.bits_per_joule), format_double(sps));
 }
 
 EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner) {

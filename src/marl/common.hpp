@@ -111,7 +111,6 @@ struct EpisodeStats {
 struct LearnerLog {
   double policy_loss = NAN, value_loss = NAN, entropy = NAN, old_approx_kl = NAN, approx_kl = NAN, clipfrac = NAN,
          explained_variance = NAN, grad_norm = NAN, epsilon = NAN;
-  double teacher = NAN, teacher_agreement = NAN;  // PPO with marl.teacher_coef > 0 (kickstarting)
 };
 
 /// metrics.csv: the header, and one row.

@@ -108,8 +108,6 @@ void UpdateStats::add(const UpdateStats& o, double w) {
   approx_kl += w * o.approx_kl;
   clipfrac += w * o.clipfrac;
   grad_norm += w * o.grad_norm;
-  teacher += w * o.teacher;
-  teacher_agreement += w * o.teacher_agreement;
 }
 
 double tanh_log_jacobian(double z) {
@@ -207,20 +205,9 @@ UpdateStats ppo_loss_rows(const Minibatch& b, const PpoSettings& s, int first, i
     // d/dz_k: -w dsurr ratio (1[k = a] - p_k) from the surrogate, -c2 w (-p_k (log p_k + H)) from the entropy.
     const double dlogp = -w * dsurr * ratio;
     u.entropy += w * entropy;
-    // The teacher's cross-entropy -log p_g (g its move): c_t w (p_k - 1[k = g]).
-    const bool taught = !b.teacher.empty();
-    const auto g = taught ? static_cast<std::size_t>(b.teacher[static_cast<std::size_t>(i)]) : std::size_t{0};
-    const double wt = taught ? s.teacher_coef * w : 0.0;
-    if (taught) {
-      u.teacher -= w * logp[g];
-      bool top = true;
-      for (int k = 0; k < A; ++k) top = top && (allowed[k] <= 0 || logp[static_cast<std::size_t>(k)] <= logp[g]);
-      u.teacher_agreement += top ? w : 0.0;
-    }
     float* dz = dlogits + static_cast<std::size_t>(i - first) * logit_stride;
     for (std::size_t k = 0; k < static_cast<std::size_t>(A); ++k)
-      dz[k] = static_cast<float>(dlogp * ((k == a ? 1.0 : 0.0) - p[k]) + s.entropy_coef * w * p[k] * (logp[k] + entropy) +
-                                 wt * (p[k] - (k == g ? 1.0 : 0.0)));
+      dz[k] = static_cast<float>(dlogp * ((k == a ? 1.0 : 0.0) - p[k]) + s.entropy_coef * w * p[k] * (logp[k] + entropy));
   }
   // Critic: the clipped value loss, a plain mean over the rows.
   for (int i = first; i < last; ++i) {
@@ -290,8 +277,7 @@ class TorchPpo final : public PpoNetworks {
     const auto active = blob(b.active, {R});
     const auto logp_old = blob(b.logprobs, {R});
     const auto out = nets_.actor(blob(b.observations, {R, b.obs_width}));
-    torch::Tensor logp, entropy, teacher_logp;
-    double agreement = 0;
+    torch::Tensor logp, entropy;
     if (b.dims > 0) {  // the squashed Gaussian (ppo.hpp)
       const int64_t C = b.dims;
       const auto mu = out.narrow(1, 0, C), log_std = out.narrow(1, C, C).clamp(kLogStdMin, kLogStdMax);
@@ -304,22 +290,11 @@ class TorchPpo final : public PpoNetworks {
       const auto actions = torch::from_blob(const_cast<std::int64_t*>(b.actions.data()), {R}, torch::kInt64).to(device_);
       logp = logp_all.gather(1, actions.unsqueeze(1)).squeeze(1);
       entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
-      if (!b.teacher.empty()) {
-        const auto g = torch::from_blob(const_cast<std::int64_t*>(b.teacher.data()), {R}, torch::kInt64).to(device_);
-        teacher_logp = logp_all.gather(1, g.unsqueeze(1)).squeeze(1);
-        const auto top = (teacher_logp >= std::get<0>(logp_all.max(1))).to(torch::kFloat);
-        agreement = masked_mean(top, active).item<double>();
-      }
     }
     const auto policy_loss = -masked_mean(clipped_surrogate(logp, logp_old, blob(b.advantages, {R}), s.clip), active);
     const auto v = nets_.critic(blob(b.critic_inputs, {R, b.critic_width})).view({R});
     const auto value_loss = clipped_value_loss(v, blob(b.values, {R}), blob(b.returns, {R}), s.clip);
-    auto loss = policy_loss + s.value_coef * value_loss - s.entropy_coef * entropy;  // eq:total_loss
-    torch::Tensor teacher_loss;
-    if (teacher_logp.defined()) {  // kickstarting: the cross-entropy to the teacher's moves
-      teacher_loss = masked_mean(-teacher_logp, active);
-      loss = loss + s.teacher_coef * teacher_loss;
-    }
+    const auto loss = policy_loss + s.value_coef * value_loss - s.entropy_coef * entropy;  // eq:total_loss
     adam_->zero_grad();
     loss.backward();
     UpdateStats u;
@@ -341,7 +316,6 @@ class TorchPpo final : public PpoNetworks {
     u.old_approx_kl = masked_mean(-log_ratio, active).item<double>();
     u.approx_kl = masked_mean((ratio - 1) - log_ratio, active).item<double>();
     u.clipfrac = masked_mean(((ratio - 1).abs() > s.clip).to(torch::kFloat), active).item<double>();
-    if (teacher_loss.defined()) u.teacher = teacher_loss.item<double>(), u.teacher_agreement = agreement;
     return u;
   }
 
@@ -535,13 +509,6 @@ std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int o
 
 // ---- the three phases ----------------------------------------------------------------------------
 
-int greedy_move(const float* gains, ActionSet allowed, int actions) {
-  int best = -1;
-  for (int k = 0; k < actions; ++k)
-    if ((allowed >> k & 1u) && (best < 0 || gains[k] > gains[best])) best = k;
-  return best < 0 ? 0 : best;
-}
-
 void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety, PpoNetworks& nets,
              const RunningStats& value_norm, Rng& rng, Rollout& r, EpisodeStats& stats) {
   const int M = r.M, N = r.N, A = r.A, C = r.C;
@@ -618,7 +585,6 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
               break;
             }
         r.logprobs[i] = static_cast<float>(static_cast<double>(z[a]) - mx - std::log(sum));
-        if (r.teacher_from >= 0) r.teacher[i] = greedy_move(obs + static_cast<std::size_t>(e * N + n) * r.obs_width + r.teacher_from, allowed, A);
         return a;
       });
       for (int n = 0; n < N; ++n) r.actions[r.at(t, e, n)] = actions[static_cast<std::size_t>(e)][static_cast<std::size_t>(n)];
@@ -676,8 +642,8 @@ double explained_variance(const Rollout& r) {
 namespace {
 
 /// dst[j] = src[j] for j < n, a few floats: the minibatch gather copies four short rows per sample,
-/// and std::copy_n made each a libc call (8% of a MAPPO profile). The loop stays a loop (GCC would
-/// otherwise turn it back into the call).
+/// and std::copy_n made each a libc call. The loop stays a loop (GCC would otherwise turn it back
+/// into the call).
 __attribute__((optimize("no-tree-loop-distribute-patterns"))) inline void copy_row(const float* __restrict src, int n,
                                                                                    float* __restrict dst) {
   for (int j = 0; j < n; ++j) dst[j] = src[j];
@@ -686,7 +652,7 @@ __attribute__((optimize("no-tree-loop-distribute-patterns"))) inline void copy_r
 }  // namespace
 
 UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng, Minibatch& b,
-                   int threads, double entropy_factor, double teacher_coef) {
+                   int threads, double entropy_factor) {
   const std::size_t S = r.samples();
   // Advantages normalised over the active agents; value targets in normalised units.
   double w = 0, mean = 0, var = 0;
@@ -698,7 +664,7 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
   if (m.value_norm) value_norm.update(r.returns.data(), S);
   auto norm = [&](float x) { return static_cast<float>(m.value_norm ? value_norm.normalise(x) : x); };
 
-  const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef * entropy_factor, m.grad_clip, teacher_coef};
+  const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef * entropy_factor, m.grad_clip};
   const int rows = static_cast<int>(std::max<std::size_t>(1, S / static_cast<std::size_t>(m.minibatches)));
   b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width, b.action_count = r.A, b.dims = r.C;
   b.raw_actions.resize(static_cast<std::size_t>(rows) * r.C);
@@ -707,7 +673,6 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
   b.allowed.resize(static_cast<std::size_t>(rows) * r.A);
   for (auto* v : {&b.logprobs, &b.advantages, &b.returns, &b.values, &b.active}) v->resize(static_cast<std::size_t>(rows));
   b.actions.resize(static_cast<std::size_t>(rows));
-  b.teacher.resize(r.teacher.empty() ? 0 : static_cast<std::size_t>(rows));
 
   UpdateStats mean_stats;
   int steps = 0;
@@ -733,7 +698,6 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
           copy_row(r.allowed.data() + i * r.A, r.A, b.allowed.data() + kk * r.A);
           copy_row(r.raw_actions.data() + i * r.C, r.C, b.raw_actions.data() + kk * r.C);
           b.actions[kk] = r.actions[i];
-          if (!r.teacher.empty()) b.teacher[kk] = r.teacher[i];
           b.logprobs[kk] = r.logprobs[i];
           b.active[kk] = r.active[i];
           b.advantages[kk] = static_cast<float>((r.advantages[i] - mean) * scale);
@@ -796,11 +760,6 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     bar = std::make_unique<Progress>(fmt::format("{} {} steps", m.algo, m.total_steps),
                                      static_cast<std::size_t>((m.total_steps - steps + per_update - 1) / per_update), *opt.progress, 10.0, 2.0);
   Rollout rollout(m.rollout, M, N, obs_width, critic_width, A, C);
-  if (m.teacher_coef > 0) {  // kickstarting from each UAV's one-slot greedy move (config.cpp requires the move gains)
-    rollout.teacher_from = vec.env(0).spec().set_obs.field("move_gains").offset;
-    rollout.teacher.assign(rollout.samples(), 0);
-  }
-  const Schedule teacher_schedule{true};  // marl.teacher_coef falls linearly to 0 at marl.teacher_steps
   Minibatch scratch;
   EpisodeStats stats;
   const Schedule lr_schedule = Schedule::of(m.lr_schedule), entropy_schedule = Schedule::of(m.entropy_schedule);
@@ -808,12 +767,11 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     Rng rng(derive_seed(cfg.run.seed, 0x50504fULL, static_cast<std::uint64_t>(updates)));
     if (lr_schedule.linear) nets->set_learning_rate(m.learning_rate * lr_schedule.factor(steps, m.total_steps));
     const double entropy_factor = entropy_schedule.factor(steps, m.total_steps);
-    const double teacher_coef = m.teacher_coef * teacher_schedule.factor(steps, m.teacher_steps);
     collect(vec, encoder, critic, safety, *nets, value_norm, rng, rollout, stats);
     steps += per_update;
     compute_advantages(rollout, m.gamma, m.gae_lambda);
     const double explained = explained_variance(rollout);
-    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch, cfg.run.threads, entropy_factor, teacher_coef);
+    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch, cfg.run.threads, entropy_factor);
     ++updates;
     const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - run.start).count();
     if (stats.episodes > 0 || steps >= m.total_steps) {
@@ -821,7 +779,6 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
       log.policy_loss = u.policy_loss, log.value_loss = u.value_loss, log.entropy = u.entropy;
       log.old_approx_kl = u.old_approx_kl, log.approx_kl = u.approx_kl, log.clipfrac = u.clipfrac;
       log.explained_variance = explained, log.grad_norm = u.grad_norm;
-      if (m.teacher_coef > 0) log.teacher = u.teacher, log.teacher_agreement = u.teacher_agreement;
       metrics += metrics_row(cfg.run.seed, steps, stats, log, static_cast<double>(steps - start_steps) / std::max(elapsed, 1e-9));
       stats.clear();
     }

@@ -53,10 +53,6 @@ struct Rollout {
   std::vector<float> rewards, dones;   // [T, M]: team reward, 1 when the episode ended with the step
   std::vector<float> next_values;      // [M, N]: V of the state after the last step (bootstrap)
   std::vector<float> advantages;       // [T, M, N] (compute_advantages)
-  /// marl.teacher_coef > 0: [T, M, N] the teacher's move, each UAV's allowed move with the largest
-  /// one-slot gain of R (the observation's move_gains, from column teacher_from); else empty.
-  std::vector<std::int64_t> teacher;
-  int teacher_from = -1;
   std::vector<float> returns;          // [T, M, N] = advantages + values
   std::size_t at(int t, int e, int n) const {
     return (static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)) * N + static_cast<std::size_t>(n);
@@ -71,22 +67,17 @@ struct Minibatch {
   int dims = 0;  // continuous: the command's size; the actor's output is then [mean (dims), log std (dims)]
   std::vector<float> observations, critic_inputs, logprobs, advantages, returns, values, active, allowed, raw_actions;
   std::vector<std::int64_t> actions;
-  std::vector<std::int64_t> teacher;  // the teacher's moves, or empty (no teacher)
 };
 
 struct PpoSettings {
   double clip = 0.2, value_coef = 0.5, entropy_coef = 0.01, grad_clip = 10.0;
-  double teacher_coef = 0;  // weight of the cross-entropy to the minibatch's teacher moves (kickstarting)
 };
 
 /// One gradient step's statistics (CleanRL's names: losses/policy_loss, losses/value_loss,
 /// losses/entropy, losses/old_approx_kl, losses/approx_kl, losses/clipfrac), and the global
-/// gradient norm before clipping. Policy terms are means over active agents; teacher is the
-/// cross-entropy -log pi(teacher's move), with teacher_agreement the share of agents whose most
-/// likely move is the teacher's (0 without a teacher).
+/// gradient norm before clipping. Policy terms are means over active agents.
 struct UpdateStats {
   double policy_loss = 0, value_loss = 0, entropy = 0, old_approx_kl = 0, approx_kl = 0, clipfrac = 0, grad_norm = 0;
-  double teacher = 0, teacher_agreement = 0;
   void add(const UpdateStats& o, double w);
 };
 
@@ -156,13 +147,8 @@ double explained_variance(const Rollout& rollout);
 /// `rng`); normalises the advantages over active agents and (marl.value_norm) updates
 /// `value_norm` with the returns first. Returns the mean statistics over all steps. `threads`
 /// (run.threads) gathers each minibatch in two halves in parallel (the same numbers either way).
-/// The entropy bonus is entropy_factor x marl.entropy_coef (marl.entropy_schedule); with the
-/// rollout's teacher moves, their cross-entropy weighs teacher_coef (marl.teacher_coef, annealed).
+/// The entropy bonus is entropy_factor x marl.entropy_coef (marl.entropy_schedule).
 UpdateStats update(const Rollout& rollout, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng,
-                   Minibatch& scratch, int threads = 1, double entropy_factor = 1.0, double teacher_coef = 0.0);
-
-/// The teacher's move (kickstarting, marl.teacher_coef): the allowed action with the largest gain,
-/// the first of equals; 0 if none is allowed.
-int greedy_move(const float* gains, ActionSet allowed, int actions);
+                   Minibatch& scratch, int threads = 1, double entropy_factor = 1.0);
 
 }  // namespace skyloop::marl

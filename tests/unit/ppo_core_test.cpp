@@ -9,7 +9,6 @@
 #include "../../src/marl/ppo.hpp"
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/core/error.hpp"
-#include "test_util.hpp"
 
 using namespace skyloop;
 using namespace skyloop::marl;
@@ -105,22 +104,7 @@ torch::Tensor torch_loss(const Minibatch& b, const PpoSettings& s, const torch::
   const auto entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
   const auto policy = -masked_mean(clipped_surrogate(logp, t(b.logprobs, {R}), t(b.advantages, {R}), s.clip), active);
   const auto value = clipped_value_loss(v.view({R}), t(b.values, {R}), t(b.returns, {R}), s.clip);
-  auto loss = policy + s.value_coef * value - s.entropy_coef * entropy;
-  if (!b.teacher.empty())  // kickstarting: the cross-entropy to the teacher's moves
-    loss = loss + s.teacher_coef * masked_mean(-logp_all.gather(1, torch::tensor(b.teacher, torch::kInt64).unsqueeze(1)).squeeze(1), active);
-  return loss;
-}
-
-/// Teacher moves for a minibatch: the allowed move with the largest of the observation's first
-/// kGridActions columns (as if they were the move gains), through greedy_move.
-void teach_from_observations(Minibatch& b) {
-  b.teacher.clear();
-  for (int i = 0; i < b.rows; ++i) {
-    ActionSet allowed = 0;
-    for (int k = 0; k < kGridActions; ++k)
-      if (b.allowed[static_cast<std::size_t>(i) * kGridActions + k] > 0) allowed |= 1u << k;
-    b.teacher.push_back(greedy_move(b.observations.data() + static_cast<std::size_t>(i) * b.obs_width, allowed, kGridActions));
-  }
+  return policy + s.value_coef * value - s.entropy_coef * entropy;
 }
 
 }  // namespace
@@ -177,107 +161,52 @@ TEST(PpoCore, FastMlpMatchesAutogradWithinFloat32Rounding) {
 }
 
 // The loss's gradient with respect to the logits and values (written out by hand) against
-// autograd on the same expression in float64; with a teacher (marl.teacher_coef) its
-// cross-entropy adds c_t w (p_k - 1[k = g]) to the logits' gradient.
+// autograd on the same expression in float64.
 TEST(PpoCore, LossGradientMatchesAutograd) {
-  for (const bool taught : {false, true})
-    for (std::uint64_t seed : {1, 2, 3}) {
-      SCOPED_TRACE(std::string(taught ? "with" : "without") + " a teacher, seed " + std::to_string(seed));
-      const PpoSettings s{0.2, 0.5, 0.03, 10.0, taught ? 0.7 : 0.0};
-      auto b = random_minibatch(400, kGridActions, 1, seed);
-      if (taught) teach_from_observations(b);
-      torch::manual_seed(seed);
-      const auto logits = (torch::randn({b.rows, kGridActions}) * 2).to(torch::kDouble).requires_grad_(true);
-      const auto values = torch::randn({b.rows, 1}).to(torch::kDouble).requires_grad_(true);
-      torch_loss(b, s, logits, values, torch::kDouble).backward();
-      const auto l32 = as_vector(logits), v32 = as_vector(values);
-      std::vector<float> dl(l32.size(), 0.0f), dv(v32.size(), 0.0f);
-      const auto u = ppo_loss(b, s, l32.data(), kGridActions, v32.data(), 1, dl.data(), dv.data());
-      const auto dl_t = torch::from_blob(dl.data(), {b.rows, kGridActions}), dv_t = torch::from_blob(dv.data(), {b.rows, 1});
-      const double gl = logits.grad().abs().max().item<double>(), gv = values.grad().abs().max().item<double>();
-      // ppo_loss works in float64 from the float32 inputs and rounds its output to float32.
-      EXPECT_LE(max_error(dl_t, logits.grad()), 1e-6 * gl + 1e-9);
-      EXPECT_LE(max_error(dv_t, values.grad()), 1e-6 * gv + 1e-9);
-      // The statistics are those of the same expression.
-      const auto total = u.policy_loss + s.value_coef * u.value_loss - s.entropy_coef * u.entropy + s.teacher_coef * u.teacher;
-      EXPECT_NEAR(total, torch_loss(b, s, logits.detach(), values.detach(), torch::kDouble).item<double>(), 1e-6);
-      EXPECT_GT(u.clipfrac, 0.05) << "the minibatch should exercise the clip";
-      EXPECT_LT(u.clipfrac, 0.95);
-      if (taught) {
-        EXPECT_GT(u.teacher, 0.0);
-        EXPECT_GT(u.teacher_agreement, 0.0);
-        EXPECT_LT(u.teacher_agreement, 1.0);
-      } else {
-        EXPECT_EQ(u.teacher, 0.0);
-      }
-    }
-}
-
-// The teacher term alone (no advantage, no entropy bonus) teaches the actor the teacher's rule: on
-// minibatches it never trained on, its most likely allowed move is the teacher's for most agents
-// (0.93 of them after 300 steps, from 0.44 at the start).
-TEST(PpoCore, TheTeacherTermTeachesTheTeachersMoves) {
-  const PpoSettings s{0.2, 0.5, 0.0, 10.0, 1.0};
-  auto train = random_minibatch(512, kGridActions, 3, 21), held_out = random_minibatch(512, kGridActions, 3, 22);
-  for (auto* b : {&train, &held_out}) {
-    teach_from_observations(*b);
-    std::fill(b->advantages.begin(), b->advantages.end(), 0.0f);
-  }
-  auto agreement = [&](PpoNetworks& nets, const Minibatch& b) {
-    std::vector<float> out(static_cast<std::size_t>(b.rows) * kGridActions);
-    nets.logits(b.observations.data(), b.rows, out.data());
-    double hit = 0, active = 0;
-    for (int i = 0; i < b.rows; ++i) {
-      if (b.active[static_cast<std::size_t>(i)] <= 0) continue;
-      int best = -1;
-      for (int k = 0; k < kGridActions; ++k)
-        if (b.allowed[static_cast<std::size_t>(i) * kGridActions + k] > 0 &&
-            (best < 0 || out[static_cast<std::size_t>(i) * kGridActions + k] > out[static_cast<std::size_t>(i) * kGridActions + best]))
-          best = k;
-      active += 1, hit += best == b.teacher[static_cast<std::size_t>(i)] ? 1 : 0;
-    }
-    return hit / active;
-  };
-  for (const char* backend : {"fast", "torch"}) {
-    auto nets = make_ppo_networks(backend, kGridActions, 3, 64, 3e-3, torch::kCPU, 3);
-    const double before = agreement(*nets, held_out);
-    UpdateStats u;
-    for (int step = 0; step < 300; ++step) u = nets->step(train, s);
-    const double after = agreement(*nets, held_out);
-    EXPECT_LT(before, 0.5) << backend;
-    EXPECT_GT(after, 0.85) << backend << ": held-out agreement " << before << " -> " << after;
-    EXPECT_GT(u.teacher_agreement, 0.85) << backend;
+  const PpoSettings s{0.2, 0.5, 0.03, 10.0};
+  for (std::uint64_t seed : {1, 2, 3}) {
+    const auto b = random_minibatch(400, 1, 1, seed);
+    torch::manual_seed(seed);
+    const auto logits = (torch::randn({b.rows, kGridActions}) * 2).to(torch::kDouble).requires_grad_(true);
+    const auto values = torch::randn({b.rows, 1}).to(torch::kDouble).requires_grad_(true);
+    torch_loss(b, s, logits, values, torch::kDouble).backward();
+    const auto l32 = as_vector(logits), v32 = as_vector(values);
+    std::vector<float> dl(l32.size(), 0.0f), dv(v32.size(), 0.0f);
+    const auto u = ppo_loss(b, s, l32.data(), kGridActions, v32.data(), 1, dl.data(), dv.data());
+    const auto dl_t = torch::from_blob(dl.data(), {b.rows, kGridActions}), dv_t = torch::from_blob(dv.data(), {b.rows, 1});
+    const double gl = logits.grad().abs().max().item<double>(), gv = values.grad().abs().max().item<double>();
+    // ppo_loss works in float64 from the float32 inputs and rounds its output to float32.
+    EXPECT_LE(max_error(dl_t, logits.grad()), 1e-6 * gl + 1e-9) << "seed " << seed;
+    EXPECT_LE(max_error(dv_t, values.grad()), 1e-6 * gv + 1e-9) << "seed " << seed;
+    // The statistics are those of the same expression.
+    const auto total = u.policy_loss + s.value_coef * u.value_loss - s.entropy_coef * u.entropy;
+    EXPECT_NEAR(total, torch_loss(b, s, logits.detach(), values.detach(), torch::kDouble).item<double>(), 1e-6) << "seed " << seed;
+    EXPECT_GT(u.clipfrac, 0.05) << "the minibatch should exercise the clip";
+    EXPECT_LT(u.clipfrac, 0.95);
   }
 }
 
 // One optimiser step of each backend from the same initial weights on the same minibatch: the
 // same losses, approximate KL, clip fraction and gradient norm, and after 10 steps the same losses.
 TEST(PpoCore, BackendsTakeTheSameSteps) {
-  for (const bool taught : {false, true}) {  // with and without a teacher's cross-entropy
-    SCOPED_TRACE(taught ? "with a teacher" : "without a teacher");
-    const PpoSettings s{0.2, 0.5, 0.03, 0.1, taught ? 0.5 : 0.0};  // a small clip norm, so the clipping is exercised
-    auto b = random_minibatch(512, 11, 37, 5);
-    if (taught) teach_from_observations(b);
-    auto fast = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 9);
-    auto ref = make_ppo_networks("torch", 11, 37, 64, 3e-4, torch::kCPU, 9);
-    std::vector<float> lf(static_cast<std::size_t>(b.rows) * kGridActions), lr(lf.size());
-    fast->logits(b.observations.data(), b.rows, lf.data());
-    ref->logits(b.observations.data(), b.rows, lr.data());
-    for (std::size_t i = 0; i < lf.size(); ++i) ASSERT_NEAR(lf[i], lr[i], 1e-5) << "same initial weights";
-    for (int step = 0; step < 10; ++step) {
-      const auto uf = fast->step(b, s), ur = ref->step(b, s);
-      const double tol = step == 0 ? 1e-5 : 1e-3;  // after the first Adam step, near-zero gradients may differ in sign
-      EXPECT_NEAR(uf.policy_loss, ur.policy_loss, tol * (1 + std::abs(ur.policy_loss))) << "step " << step;
-      EXPECT_NEAR(uf.value_loss, ur.value_loss, tol * (1 + std::abs(ur.value_loss))) << "step " << step;
-      EXPECT_NEAR(uf.entropy, ur.entropy, tol * (1 + std::abs(ur.entropy))) << "step " << step;
-      EXPECT_NEAR(uf.approx_kl, ur.approx_kl, tol) << "step " << step;
-      EXPECT_NEAR(uf.clipfrac, ur.clipfrac, step == 0 ? 1e-6 : 0.01) << "step " << step;
-      EXPECT_NEAR(uf.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
-      EXPECT_NEAR(uf.teacher, ur.teacher, tol * (1 + std::abs(ur.teacher))) << "step " << step;
-      EXPECT_NEAR(uf.teacher_agreement, ur.teacher_agreement, step == 0 ? 1e-6 : 0.01) << "step " << step;
-      if (taught) EXPECT_GT(ur.teacher, 0.1) << "step " << step;
-      if (step == 0) EXPECT_GT(ur.grad_norm, s.grad_clip) << "the clip should act";
-    }
+  const PpoSettings s{0.2, 0.5, 0.03, 0.1};  // a small clip norm, so the clipping is exercised
+  const auto b = random_minibatch(512, 11, 37, 5);
+  auto fast = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 9);
+  auto ref = make_ppo_networks("torch", 11, 37, 64, 3e-4, torch::kCPU, 9);
+  std::vector<float> lf(static_cast<std::size_t>(b.rows) * kGridActions), lr(lf.size());
+  fast->logits(b.observations.data(), b.rows, lf.data());
+  ref->logits(b.observations.data(), b.rows, lr.data());
+  for (std::size_t i = 0; i < lf.size(); ++i) ASSERT_NEAR(lf[i], lr[i], 1e-5) << "same initial weights";
+  for (int step = 0; step < 10; ++step) {
+    const auto uf = fast->step(b, s), ur = ref->step(b, s);
+    const double tol = step == 0 ? 1e-5 : 1e-3;  // after the first Adam step, near-zero gradients may differ in sign
+    EXPECT_NEAR(uf.policy_loss, ur.policy_loss, tol * (1 + std::abs(ur.policy_loss))) << "step " << step;
+    EXPECT_NEAR(uf.value_loss, ur.value_loss, tol * (1 + std::abs(ur.value_loss))) << "step " << step;
+    EXPECT_NEAR(uf.entropy, ur.entropy, tol * (1 + std::abs(ur.entropy))) << "step " << step;
+    EXPECT_NEAR(uf.approx_kl, ur.approx_kl, tol) << "step " << step;
+    EXPECT_NEAR(uf.clipfrac, ur.clipfrac, step == 0 ? 1e-6 : 0.01) << "step " << step;
+    EXPECT_NEAR(uf.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
+    if (step == 0) EXPECT_GT(ur.grad_norm, s.grad_clip) << "the clip should act";
   }
   EXPECT_THROW(make_ppo_networks("jax", 11, 37, 64, 3e-4, torch::kCPU, 9), InputError);
 }
@@ -592,30 +521,4 @@ TEST(PpoCore, BackendsTakeTheSameGaussianSteps) {
     EXPECT_NEAR(uf.approx_kl, ur.approx_kl, tol) << "step " << step;
     EXPECT_NEAR(uf.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
   }
-}
-
-// marl.teacher_coef reads the teacher's move from the move gains: without them, under the
-// continuous model (no moves to imitate) or with a value-decomposition learner, refused in one
-// line naming the field, its value and what is allowed.
-TEST(PpoCore, TheTeacherIsRefusedWhereItHasNoMoves) {
-  Config cfg;
-  cfg.marl.encoder = "set";
-  cfg.marl.lookahead = true;
-  cfg.marl.teacher_coef = 0.5;
-  EXPECT_NO_THROW(validate(cfg));
-  auto refused = [](const Config& c, const std::string& allowed) {
-    const std::string what = test::error_of([&] { validate(c); });
-    EXPECT_NE(what.find("marl.teacher_coef = 0.5"), std::string::npos) << "refusal expected, naming " << allowed << ": " << what;
-    EXPECT_NE(what.find(allowed), std::string::npos) << what;
-    EXPECT_EQ(what.find('\n'), std::string::npos) << what;
-  };
-  Config no_gains = cfg;
-  no_gains.marl.lookahead = false;
-  refused(no_gains, "allowed with marl.lookahead = true");
-  Config continuous = cfg;
-  continuous.trajectory.mobility = "continuous";
-  refused(continuous, "allowed with a discrete mobility model");
-  Config vdn = cfg;
-  vdn.marl.algo = "vdn";
-  refused(vdn, "allowed with the PPO learners (mappo, ippo)");
 }

@@ -192,8 +192,6 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   int rate_map = 0;                 // set observation: R around the UAV within this many lattice steps (UavEnv::write_rate_map; 0 = none, at most kMaxRateMap)
   std::string lr_schedule = "constant";       // constant | linear: the learning rate falls linearly to 0 over total_steps
   std::string entropy_schedule = "constant";  // constant | linear: PPO's entropy_coef falls linearly to 0 over total_steps
-  double teacher_coef = 0;          // PPO: weight of the cross-entropy to each UAV's one-slot greedy move (0 = off; needs lookahead)
-  std::int64_t teacher_steps = 500000;  // environment steps over which teacher_coef falls linearly to 0
   std::string backend = "fast";     // PPO networks: fast (fused float32, CPU) | torch (LibTorch autograd)
   int val_layouts = 0;              // validation layouts scored at each checkpoint; policy.pt = the best (0 = last)
 };

@@ -35,8 +35,8 @@ inline const std::vector<LearnerInfo>& learners() {
 
 /// The names, in display order.
 std::vector<std::string> learner_names();
-/// "mappo, ippo, vdn, qmix" (with `core`: those of that core only, "mappo, ippo" for PPO).
-std::string learner_names_text(const LearnerInfo::Core* core = nullptr);
+/// "mappo, ippo, vdn, qmix".
+std::string learner_names_text();
 /// The learner called `name`; throws InputError "marl.algo = "x" is unknown: allowed mappo, ...".
 const LearnerInfo& find_learner(const std::string& name);
 

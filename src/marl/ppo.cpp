@@ -639,18 +639,6 @@ double explained_variance(const Rollout& r) {
   return vy > 0 ? 1.0 - vd / vy : NAN;
 }
 
-namespace {
-
-/// dst[j] = src[j] for j < n, a few floats: the minibatch gather copies four short rows per sample,
-/// and std::copy_n made each a libc call. The loop stays a loop (GCC would otherwise turn it back
-/// into the call).
-__attribute__((optimize("no-tree-loop-distribute-patterns"))) inline void copy_row(const float* __restrict src, int n,
-                                                                                   float* __restrict dst) {
-  for (int j = 0; j < n; ++j) dst[j] = src[j];
-}
-
-}  // namespace
-
 UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng, Minibatch& b,
                    int threads, double entropy_factor) {
   const std::size_t S = r.samples();
@@ -690,13 +678,13 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
             const std::size_t ahead = order[first + static_cast<std::size_t>(k + kAhead)];
             __builtin_prefetch(r.observations.data() + ahead * r.obs_width);
             __builtin_prefetch(r.critic_inputs.data() + ahead * r.critic_width);
-            __builtin_prefetch(r.critic_inputs.data() + ahead * r.critic_width + 15);
+            __builtin_prefetch(r.critic_inputs.data() + (ahead + 1) * r.critic_width - 1);  // its last line too
             __builtin_prefetch(r.allowed.data() + ahead * r.A);
           }
-          copy_row(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
-          copy_row(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
-          copy_row(r.allowed.data() + i * r.A, r.A, b.allowed.data() + kk * r.A);
-          copy_row(r.raw_actions.data() + i * r.C, r.C, b.raw_actions.data() + kk * r.C);
+          std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
+          std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
+          std::copy_n(r.allowed.data() + i * r.A, r.A, b.allowed.data() + kk * r.A);
+          std::copy_n(r.raw_actions.data() + i * r.C, r.C, b.raw_actions.data() + kk * r.C);
           b.actions[kk] = r.actions[i];
           b.logprobs[kk] = r.logprobs[i];
           b.active[kk] = r.active[i];

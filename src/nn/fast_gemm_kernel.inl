@@ -14,8 +14,8 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline vf load(const f
 
 /// Loads and stores go through the vector type itself (one unaligned vector move), never through
 /// __builtin_memcpy: GCC expands a memcpy inside a target-attribute function with the base
-/// target's 16-byte pieces, through the stack and general registers (3x slower elementwise
-/// passes under AVX2, seen in a profile).
+/// target's 16-byte pieces, through the stack and general registers (under AVX2 tanh took 4x
+/// and its gradient 16x as long; BENCHMARKS.md).
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void store(float* p, vf x) {
   *reinterpret_cast<vf*>(p) = x;
 }

@@ -11,7 +11,7 @@ Every size, bound and action count is read from the environment's spec (``VecEnv
   dones, infos, available_actions)``, arrays [M, N, ...], ``infos[env][agent]`` dicts with
   ``bad_transition`` and ``won``.
 - Under ``trajectory.mobility = "continuous"`` the action spaces of ``ParallelEnv``, ``MappoEnv`` and
-  ``GymVectorEnv`` are velocity commands, Box(-1, 1, (2,)) per agent (``spec["dims"]``), flown
+  ``GymVectorEnv`` are commands (``trajectory.command``), Box(-1, 1, (2,)) per agent (``spec["dims"]``), flown
   through the safety layer of ``marl.action_mask`` / ``marl.shield``; ``SmacEnv`` (EPyMARL is
   discrete) takes the model's primitives, ``spec["actions"]``, with their action mask.
 - ``SmacEnv``: EPyMARL's current ``MultiAgentEnv`` (its episode and parallel runners):

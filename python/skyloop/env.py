@@ -96,8 +96,9 @@ class VecEnv:
     def step(self, actions) -> StepResult:
         """``actions``: integer array [M, N] with values 0..num_actions-1 (``spec["actions"]``); under
         ``trajectory.mobility = "continuous"`` (``spec["dims"]`` = 2) also a float array [M, N, 2] of
-        velocity commands in [-1, 1] (stretched onto the disc of v_max, projected onto what each
-        UAV can fly, then through the safety layer of marl.action_mask and marl.shield)."""
+        commands in [-1, 1] (a velocity, a change of velocity or a speed and a turn, as
+        ``trajectory.command`` says; projected onto what each UAV can fly, then through the safety
+        layer of marl.action_mask and marl.shield)."""
         from . import InputError
         try:
             a = np.asarray(actions)

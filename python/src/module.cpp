@@ -187,14 +187,13 @@ class PyVecEnv {
       throw InputError("actions have shape " + shape_of(in) + ": " + allowed);
     const auto r = a.unchecked<3>();
     std::vector<Positions> v(static_cast<std::size_t>(M), Positions::Zero(N, 2));
-    const MobilityModel& mob = vec_->env(0).mobility();
     for (int i = 0; i < M; ++i)
       for (int n = 0; n < N; ++n) {
         for (int k = 0; k < C; ++k)
           if (!(r(i, n, k) >= -1.0 && r(i, n, k) <= 1.0))
             throw InputError("actions[" + std::to_string(i) + ", " + std::to_string(n) + ", " + std::to_string(k) + "] = " +
                              format_double(r(i, n, k)) + " is invalid: allowed a command in [-1, 1]");
-        mob.velocity(r(i, n, 0), r(i, n, 1), v[static_cast<std::size_t>(i)](n, 0), v[static_cast<std::size_t>(i)](n, 1));
+        vec_->env(i).command_velocity(n, r(i, n, 0), r(i, n, 1), v[static_cast<std::size_t>(i)](n, 0), v[static_cast<std::size_t>(i)](n, 1));
       }
     return v;
   }

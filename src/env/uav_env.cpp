@@ -184,6 +184,10 @@ UavEnv::Landing UavEnv::landing_velocity(int n, double vx, double vy) const {
   return fly(*mobility_, pos_(n, 0), pos_(n, 1), vel_(n, 0), vel_(n, 1), vx, vy, area_x_, area_y_, dest_(n, 0), dest_(n, 1));
 }
 
+void UavEnv::command_velocity(int n, double u0, double u1, double& vx, double& vy) const {
+  mobility_->commanded_velocity(u0, u1, vel_(n, 0), vel_(n, 1), dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1), vx, vy);
+}
+
 void UavEnv::home_velocity(int n, double& vx, double& vy) const {
   mobility_->home_command(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1), vx, vy);
 }

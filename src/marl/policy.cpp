@@ -31,6 +31,7 @@ struct MarlPolicy::Impl {
   SafetyOptions safety;
   ActionSpec actions;    // the action space it was trained on
   std::string mobility;  // trajectory.mobility it was trained with
+  std::string command;   // trajectory.command it was trained with (continuous)
   int input = 0;         // its network's input width (observation, and the Q-networks' agent context)
   WaysMemory ways;       // the ways home reserved, slot to slot (marl.reserve_slack)
 };
@@ -69,6 +70,7 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
     // A policy written by another version may name fields this one lacks: defaults.
   }
   impl->safety = safety_options(trained);
+  impl->command = trained.trajectory.command;
   const int hidden = meta.value("hidden", 0), obs = meta.value("obs_dim", 0), uavs = meta.value("uavs", 0);
   const std::string encoder = meta.value("encoder", "mlp");
   if (encoder != "mlp" && encoder != "set")
@@ -131,13 +133,17 @@ bool MarlPolicy::commands_velocities() const { return impl_->actions.continuous(
 
 Positions MarlPolicy::act_velocities(UavEnv& env) {
   if (!impl_->actions.continuous()) return Planner::act_velocities(env);
+  if (env.mobility().command() != impl_->command)
+    throw InputError("policy " + impl_->algo + " was trained with trajectory.command = \"" + impl_->command +
+                     "\" but the environment has trajectory.command = \"" + env.mobility().command() +
+                     "\": allowed the command it was trained with");
   const auto out = network_outputs(*impl_, env);
   const auto o = out.accessor<float, 2>();
   const int C = impl_->actions.dims;
   // Deployed: the mean command u = tanh(mu) of each UAV, through the safety layer.
   Positions wanted = Positions::Zero(env.uavs(), 2);
   for (int n = 0; n < env.uavs(); ++n)
-    env.mobility().velocity(std::tanh(o[n][0]), C > 1 ? std::tanh(o[n][1]) : 0.0, wanted(n, 0), wanted(n, 1));
+    env.command_velocity(n, std::tanh(o[n][0]), C > 1 ? std::tanh(o[n][1]) : 0.0, wanted(n, 0), wanted(n, 1));
   return safe_velocities(env, impl_->safety, wanted);
 }
 

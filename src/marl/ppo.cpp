@@ -154,19 +154,22 @@ void gaussian_actor_rows(const Minibatch& b, const PpoSettings& s, int first, in
     double logp = 0, entropy = 0;
     for (int k = 0; k < C; ++k) {
       logp += squashed_gaussian_logprob(z[k], o[k], o[C + k]);
-      entropy += clamp_log_std(o[C + k]) + 0.5 + kHalfLog2Pi;
+      entropy += clamp_log_std(o[C + k]) + 0.5 + kHalfLog2Pi + tanh_log_jacobian(z[k]);
     }
     const double w = b.active[static_cast<std::size_t>(i)] * per_active;
     double ratio;
     const double dsurr = surrogate(logp - b.logprobs[static_cast<std::size_t>(i)], b.advantages[static_cast<std::size_t>(i)], s.clip, w, u, ratio);
     const double dlogp = -w * dsurr * ratio;
     u.entropy += w * entropy;
-    // d log N / d mu = e / sigma, d log N / d log sigma = e^2 - 1 (zero where the clamp holds), d H / d log sigma = 1.
+    // d log N / d mu = e / sigma, d log N / d log sigma = e^2 - 1 (zero where the clamp holds). The
+    // entropy estimate at z = mu + sigma e, e held: d H / d mu = -2 tanh(z), d H / d log sigma =
+    // 1 - 2 tanh(z) sigma e (ppo.hpp).
+    const double c = s.entropy_coef * w;
     for (int k = 0; k < C; ++k) {
-      const double ls = clamp_log_std(o[C + k]), sigma = std::exp(ls), e = (z[k] - o[k]) / sigma;
+      const double ls = clamp_log_std(o[C + k]), sigma = std::exp(ls), e = (z[k] - o[k]) / sigma, th = std::tanh(static_cast<double>(z[k]));
       const bool free = o[C + k] >= kLogStdMin && o[C + k] <= kLogStdMax;
-      d[k] = static_cast<float>(dlogp * e / sigma);
-      d[C + k] = free ? static_cast<float>(dlogp * (e * e - 1) - s.entropy_coef * w) : 0.0f;
+      d[k] = static_cast<float>(dlogp * e / sigma + 2 * c * th);
+      d[C + k] = free ? static_cast<float>(dlogp * (e * e - 1) - c * (1 - 2 * th * sigma * e)) : 0.0f;
     }
   }
 }
@@ -283,8 +286,12 @@ class TorchPpo final : public PpoNetworks {
       const auto mu = out.narrow(1, 0, C), log_std = out.narrow(1, C, C).clamp(kLogStdMin, kLogStdMax);
       const auto z = blob(b.raw_actions, {R, C});
       const auto jacobian = 2 * (std::log(2.0) - z - torch::nn::functional::softplus(-2 * z));
-      logp = (-0.5 * ((z - mu) / log_std.exp()).pow(2) - log_std - kHalfLog2Pi - jacobian).sum(1);
-      entropy = masked_mean((log_std + 0.5 + kHalfLog2Pi).sum(1), active);
+      const auto sigma = log_std.exp();
+      logp = (-0.5 * ((z - mu) / sigma).pow(2) - log_std - kHalfLog2Pi - jacobian).sum(1);
+      // The squashed distribution's entropy at the sample, reparameterised (ppo.hpp).
+      const auto zr = mu + sigma * ((z - mu) / sigma).detach();
+      const auto at = 2 * (std::log(2.0) - zr - torch::nn::functional::softplus(-2 * zr));
+      entropy = masked_mean((log_std + 0.5 + kHalfLog2Pi + at).sum(1), active);
     } else {
       const auto logp_all = torch::log_softmax(masked_logits(out, blob(b.allowed, {R, b.action_count})), 1);
       const auto actions = torch::from_blob(const_cast<std::int64_t*>(b.actions.data()), {R}, torch::kInt64).to(device_);
@@ -553,7 +560,7 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
           u[k] = std::tanh(static_cast<double>(z));
         }
         r.logprobs[i] = static_cast<float>(logp);
-        env.mobility().velocity(u[0], u[1], wanted(n, 0), wanted(n, 1));
+        env.command_velocity(n, u[0], u[1], wanted(n, 0), wanted(n, 1));
       }
       velocities[static_cast<std::size_t>(e)] = safe_velocities(env, safety, wanted);
     }

@@ -465,7 +465,9 @@ torch::Tensor torch_gaussian_loss(const Minibatch& b, const PpoSettings& s, cons
                                                        torch::tensor(kLogStdMax, torch::kDouble));
   const auto z = t(b.raw_actions, {R, 2});
   const auto logp = (-0.5 * ((z - mu) / ls.exp()).pow(2) - ls - 0.5 * std::log(2 * M_PI) - torch::log(1 - z.tanh().pow(2))).sum(1);
-  const auto entropy = masked_mean((ls + 0.5 + 0.5 * std::log(2 * M_PI)).sum(1), active);
+  // The squashed distribution's entropy at z = mu + sigma e, e = (z - mu) / sigma held fixed.
+  const auto zr = mu + ls.exp() * ((z - mu) / ls.exp()).detach();
+  const auto entropy = masked_mean((ls + 0.5 + 0.5 * std::log(2 * M_PI) + torch::log(1 - zr.tanh().pow(2))).sum(1), active);
   const auto policy = -masked_mean(clipped_surrogate(logp, t(b.logprobs, {R}), t(b.advantages, {R}), s.clip), active);
   const auto value = clipped_value_loss(v.view({R}), t(b.values, {R}), t(b.returns, {R}), s.clip);
   return policy + s.value_coef * value - s.entropy_coef * entropy;
@@ -505,11 +507,22 @@ TEST(PpoCore, GaussianLossGradientMatchesAutograd) {
     EXPECT_NEAR(total, torch_gaussian_loss(b, s, out.detach(), values.detach()).item<double>(), 1e-6) << "seed " << seed;
     EXPECT_GT(u.clipfrac, 0.05) << "the minibatch should exercise the clip";
     EXPECT_LT(u.clipfrac, 0.95);
+    // With no advantage the actor's gradient is the entropy bonus's alone (the surrogate's, scaled by
+    // 1 / sigma, would hide it above): the squashed entropy's reparameterised gradient.
+    std::fill(b.advantages.begin(), b.advantages.end(), 0.0f);
+    const auto out2 = out.detach().clone().requires_grad_(true);
+    torch_gaussian_loss(b, s, out2, values.detach()).backward();
+    std::fill(dl.begin(), dl.end(), 0.0f);
+    const auto u2 = ppo_loss(b, s, o32.data(), 4, v32.data(), 1, dl.data(), dv.data());
+    const double ge = out2.grad().abs().max().item<double>();
+    EXPECT_GT(ge, 0.0);
+    EXPECT_LE(max_error(torch::from_blob(dl.data(), {b.rows, 4}), out2.grad()), 1e-6 * ge + 1e-12) << "seed " << seed;
+    EXPECT_NEAR(u2.entropy, u.entropy, 1e-12);
   }
 }
 
 TEST(PpoCore, BackendsTakeTheSameGaussianSteps) {
-  const PpoSettings s{0.2, 0.5, 0.0, 0.1};
+  const PpoSettings s{0.2, 0.5, 0.01, 0.1};
   const auto b = gaussian_minibatch(512, 8, 37, 5);
   auto fast = make_ppo_networks("fast", 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
   auto ref = make_ppo_networks("torch", 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);

@@ -102,6 +102,17 @@ class MobilityModel {
   /// The velocity (m/s) of command u in [-1, 1]^2 (each coordinate clamped first): u stretched
   /// radially by |u|_inf / |u|_2, so the square maps onto the disc of radius v_max one to one.
   void velocity(double u0, double u1, double& vx, double& vy) const;
+  /// What trajectory.command makes of command u for a UAV whose last velocity is (px, py) and whose
+  /// destination lies at displacement (tx, ty). The UAV's heading is that of its last velocity, or
+  /// towards its destination from a standstill (east there).
+  ///   velocity: velocity(u0, u1), the same whatever the UAV flew before;
+  ///   acceleration: the last velocity plus u stretched as velocity() does onto the disc of radius
+  ///     dv_max, u0 along the heading and u1 to its left: u = 0 holds the velocity, and every
+  ///     command is a change the UAV can make within a_max (project() only clamps the top speed);
+  ///   polar: speed v_max (u0 + 1) / 2 at the heading turned by pi u1 (u = 0: v_max / 2 straight on).
+  void commanded_velocity(double u0, double u1, double px, double py, double tx, double ty, double& vx, double& vy) const;
+  /// trajectory.command (continuous).
+  const std::string& command() const { return command_; }
   /// The inverse of velocity() for a velocity in the disc (outside: clamped to its rim).
   void command(double vx, double vy, double& u0, double& u1) const;
   /// The nearest velocity to (vx, vy) in {|V| <= v_max} n {|V - (px, py)| <= dv_max}, (px, py) the
@@ -123,6 +134,7 @@ class MobilityModel {
  private:
   std::string name_;
   bool grid_ = true, continuous_ = false;
+  std::string command_ = "velocity";
   ActionSpec actions_;
   std::vector<LatticeStep> steps_;
   std::vector<double> speeds_;

@@ -150,6 +150,9 @@ class UavEnv {
   StepInfo step_velocities(const Positions& v);
   /// Continuous model: the velocity commands (m/s) of a joint action of primitives.
   Positions primitive_velocities(const std::vector<int>& actions) const;
+  /// Continuous model: the velocity (m/s) UAV n's command u in [-1, 1]^2 asks for
+  /// (trajectory.command; MobilityModel::commanded_velocity from its last velocity).
+  void command_velocity(int n, double u0, double u1, double& vx, double& vy) const;
   /// Continuous model: UAV n's velocity command (m/s) for primitive a.
   void primitive_velocity(int n, int a, double& vx, double& vy) const;
   /// UAV n's velocity in the last slot (m/s; 0 before the first step).

@@ -90,19 +90,15 @@ def test_continuous_commands_are_flown_safely_and_every_mission_completes():
             env.step(bad)
 
 
-def test_commands_in_the_uavs_own_frame():
+def test_polar_commands_cruise_at_half_the_top_speed():
     """trajectory.command = polar: u = 0 flies straight on at v_max / 2 from the bearing to the
-    destination (README, mobility models); acceleration: u = 0 holds the velocity (here, hover)."""
+    destination (README, mobility models)."""
     polar = sl.VecEnv(dict(CONTINUOUS, **{"trajectory.command": "polar"}), num_envs=2, seed=4)
     polar.reset()
     for _ in range(3):
         r = polar.step(np.zeros((2, 3, 2)))
         v = polar.field(r.obs, "obs", "previous_velocity")
         assert np.allclose(np.linalg.norm(v, axis=-1), 0.5, atol=1e-6)  # 10 m/s of v_max = 20
-    still = sl.VecEnv(dict(CONTINUOUS, **{"trajectory.command": "acceleration"}), num_envs=1, seed=4)
-    still.reset()
-    r = still.step(np.zeros((1, 3, 2)))
-    assert np.allclose(still.field(r.obs, "obs", "previous_velocity"), 0)
     with pytest.raises(sl.InputError, match="trajectory.command"):
         sl.VecEnv(dict(CONTINUOUS, **{"trajectory.command": "jerk"}), num_envs=1, seed=1)
 

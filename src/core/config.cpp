@@ -241,9 +241,9 @@ std::vector<Field> make_fields() {
   f.push_back(real("trajectory.a_max_mps2", "continuous: the largest acceleration (m/s^2): |V[t] - V[t-1]| <= a_max slot_s", 0.01, 1000,
                    [](Config& c) -> double& { return c.trajectory.a_max_mps2; }));
   f.push_back(text("trajectory.command",
-                   "continuous: what a command u in [-1, 1]^2 sets: velocity (onto the disc of v_max_mps) or acceleration "
-                   "(the change of velocity onto the disc of a_max_mps2 x slot_s, along and across the last velocity)",
-                   {"velocity", "acceleration", "polar"}, [](Config& c) -> std::string& { return c.trajectory.command; }));
+                   "continuous: what a command u in [-1, 1]^2 sets: velocity (onto the disc of v_max_mps) or polar (a speed "
+                   "v_max (u0 + 1) / 2 and a turn of u1 x the widest a_max allows from the last heading)",
+                   {"velocity", "polar"}, [](Config& c) -> std::string& { return c.trajectory.command; }));
   f.push_back(real("trajectory.arrival_m", "continuous: a UAV this close to its destination at a slot's end has arrived (m)", 0.001,
                    1000, [](Config& c) -> double& { return c.trajectory.arrival_m; }));
   // [energy]

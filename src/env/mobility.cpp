@@ -91,24 +91,18 @@ void MobilityModel::commanded_velocity(double u0, double u1, double px, double p
   const double p = std::hypot(px, py), t = std::hypot(tx, ty);
   const double heading = p > 1e-9 ? std::atan2(py, px) : t > 1e-9 ? std::atan2(ty, tx) : 0.0;
   const double fx = std::cos(heading), fy = std::sin(heading);
-  if (command_ == "polar") {
-    u0 = std::max(-1.0, std::min(1.0, u0)), u1 = std::max(-1.0, std::min(1.0, u1));
-    // The widest turn that keeps |V[t] - V[t-1]| <= dv_max at this speed: s^2 + p^2 - 2 s p cos(turn) <= dv_max^2.
-    constexpr double kPi = 3.14159265358979323846;
-    const double speed = v_max_ * (u0 + 1) / 2;
-    double widest = kPi;
-    if (p > 1e-9 && speed > 1e-9) {
-      const double c = (speed * speed + p * p - dv_max_ * dv_max_) / (2 * speed * p);
-      widest = c <= -1 ? kPi : c >= 1 ? 0.0 : std::acos(c);
-    }
-    const double turn = widest * u1;
-    vx = speed * (fx * std::cos(turn) - fy * std::sin(turn)), vy = speed * (fy * std::cos(turn) + fx * std::sin(turn));
-    return;
+  // polar: a speed and a turn, the turn a share of the widest that keeps |V[t] - V[t-1]| <= dv_max
+  // at that speed: s^2 + p^2 - 2 s p cos(turn) <= dv_max^2.
+  u0 = std::max(-1.0, std::min(1.0, u0)), u1 = std::max(-1.0, std::min(1.0, u1));
+  constexpr double kPi = 3.14159265358979323846;
+  const double speed = v_max_ * (u0 + 1) / 2;
+  double widest = kPi;
+  if (p > 1e-9 && speed > 1e-9) {
+    const double c = (speed * speed + p * p - dv_max_ * dv_max_) / (2 * speed * p);
+    widest = c <= -1 ? kPi : c >= 1 ? 0.0 : std::acos(c);
   }
-  double a, b;  // acceleration: the change along and across the heading
-  velocity(u0, u1, a, b);
-  a *= dv_max_ / v_max_, b *= dv_max_ / v_max_;
-  vx = px + a * fx - b * fy, vy = py + a * fy + b * fx;
+  const double turn = widest * u1;
+  vx = speed * (fx * std::cos(turn) - fy * std::sin(turn)), vy = speed * (fy * std::cos(turn) + fx * std::sin(turn));
 }
 
 void MobilityModel::command(double vx, double vy, double& u0, double& u1) const {

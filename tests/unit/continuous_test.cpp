@@ -78,63 +78,20 @@ TEST(Continuous, CommandsMapOneToOneOntoTheDisc) {
   }
 }
 
-TEST(Continuous, CommandsInTheUavsOwnFrameAreMovesItCanFly) {
+TEST(Continuous, PolarCommandsAreASpeedAndATurnTheUavCanMake) {
   Config c = continuous();  // v_max 20 m/s, a_max 5 m/s^2 x 2 s: dv_max 10 m/s
-  c.trajectory.command = "acceleration";
-  const MobilityModel m(c);
-  ASSERT_EQ(m.command(), "acceleration");
-  ASSERT_EQ(MobilityModel(continuous()).command(), "velocity");
-  double vx, vy;
-  // Flying north-east at 10 m/s: u = 0 holds the velocity, u0 = 1 speeds up along it by dv_max,
-  // u1 = 1 turns it to the left (north-west) by dv_max, u0 = -1 stops the UAV.
-  const double p = 10 / std::sqrt(2.0);
-  m.commanded_velocity(0, 0, p, p, 100, -50, vx, vy);
-  EXPECT_NEAR(vx, p, 1e-12);
-  EXPECT_NEAR(vy, p, 1e-12);
-  m.commanded_velocity(1, 0, p, p, 100, -50, vx, vy);
-  EXPECT_NEAR(vx, 2 * p, 1e-12);
-  EXPECT_NEAR(vy, 2 * p, 1e-12);
-  m.commanded_velocity(0, 1, p, p, 100, -50, vx, vy);
-  EXPECT_NEAR(vx, p - p, 1e-12);
-  EXPECT_NEAR(vy, p + p, 1e-12);
-  m.commanded_velocity(-1, 0, p, p, 100, -50, vx, vy);
-  EXPECT_NEAR(vx, 0, 1e-12);
-  EXPECT_NEAR(vy, 0, 1e-12);
-  // From a standstill the forward axis points at the destination (here south), then east.
-  m.commanded_velocity(0.5, 0, 0, 0, 0, -30, vx, vy);
-  EXPECT_NEAR(vx, 0, 1e-12);
-  EXPECT_NEAR(vy, -5, 1e-12);
-  m.commanded_velocity(0.5, 0, 0, 0, 0, 0, vx, vy);
-  EXPECT_NEAR(vx, 5, 1e-12);
-  EXPECT_NEAR(vy, 0, 1e-12);
-  // Every command is a change the UAV can make: the projection only clamps the top speed, and
-  // below it the map is one to one onto the disc of dv_max around the last velocity.
-  Rng rng(5);
-  for (int i = 0; i < 1000; ++i) {
-    const double speed = 20 * rng.uniform(), heading = 6.283185307179586 * rng.uniform();
-    const double px = speed * std::cos(heading), py = speed * std::sin(heading);
-    const double u0 = 2 * rng.uniform() - 1, u1 = 2 * rng.uniform() - 1;
-    m.commanded_velocity(u0, u1, px, py, 40, 40, vx, vy);
-    const double change = std::hypot(vx - px, vy - py);
-    EXPECT_LE(change, 10 + 1e-9);
-    EXPECT_NEAR(change, 10 * std::max(std::abs(u0), std::abs(u1)), 1e-9);  // the radial stretch of velocity()
-    double fx, fy;
-    m.project(vx, vy, px, py, fx, fy);
-    if (std::hypot(vx, vy) <= 20) {
-      EXPECT_NEAR(fx, vx, 1e-9);
-      EXPECT_NEAR(fy, vy, 1e-9);
-    } else {
-      EXPECT_NEAR(std::hypot(fx, fy), 20, 1e-9);
-    }
-  }
-  // polar: a speed in [0, v_max] from u0 and a turn from the heading, u1 times the widest that
-  // a_max allows at that speed; u = 0 cruises straight on at v_max / 2, a constant u1 flies a circle.
+  ASSERT_EQ(MobilityModel(c).command(), "velocity");
   c.trajectory.command = "polar";
   const MobilityModel polar(c);
+  ASSERT_EQ(polar.command(), "polar");
+  double vx, vy;
+  // Flying north-east at 10 m/s. u = 0 cruises straight on at v_max / 2; u1 turns by u1 times the
+  // widest turn a_max allows at the speed asked for: at 10 m/s on 10 m/s, 60 degrees
+  // (|dV| = 2 x 10 sin 30 = dv_max), so a constant u1 flies a circle.
+  const double p = 10 / std::sqrt(2.0);
   polar.commanded_velocity(0, 0, p, p, 100, -50, vx, vy);
   EXPECT_NEAR(vx, p, 1e-12);
   EXPECT_NEAR(vy, p, 1e-12);
-  // 10 m/s on at 10 m/s: the widest turn is 60 degrees (|dV| = 2 x 10 sin 30 = dv_max).
   polar.commanded_velocity(0, 1, p, p, 100, -50, vx, vy);
   EXPECT_NEAR(std::hypot(vx, vy), 10, 1e-12);
   EXPECT_NEAR(std::atan2(vy, vx), M_PI / 4 + M_PI / 3, 1e-12);
@@ -147,28 +104,45 @@ TEST(Continuous, CommandsInTheUavsOwnFrameAreMovesItCanFly) {
   EXPECT_NEAR(vy, 20 / std::sqrt(2.0), 1e-12);
   polar.commanded_velocity(-1, 0.3, p, p, 100, -50, vx, vy);  // speed 0
   EXPECT_NEAR(std::hypot(vx, vy), 0, 1e-12);
-  polar.commanded_velocity(0.2, -1.0 / 3, 0, 0, 0, -30, vx, vy);  // from a standstill: from the bearing to the destination
-  EXPECT_NEAR(std::hypot(vx, vy), 12, 1e-12);
+  // From a standstill the heading is the bearing to the destination (here south), or east on it.
+  polar.commanded_velocity(-0.5, -1.0 / 3, 0, 0, 0, -30, vx, vy);
+  EXPECT_NEAR(std::hypot(vx, vy), 5, 1e-12);
   EXPECT_NEAR(std::atan2(vy, vx), -M_PI / 2 - M_PI / 3, 1e-12);
-  for (int i = 0; i < 1000; ++i) {  // a speed within reach comes with a turn the UAV can make
+  polar.commanded_velocity(-0.5, 0, 0, 0, 0, 0, vx, vy);
+  EXPECT_NEAR(vx, 5, 1e-12);
+  EXPECT_NEAR(vy, 0, 1e-12);
+  // Any speed within reach of the last one comes with a turn the UAV can make (the projection
+  // leaves it as asked); the velocity command ignores what the UAV flew before.
+  Rng rng(5);
+  for (int i = 0; i < 1000; ++i) {
     const double speed = 20 * rng.uniform(), heading = 6.283185307179586 * rng.uniform();
     const double px = speed * std::cos(heading), py = speed * std::sin(heading);
     const double u0 = 2 * rng.uniform() - 1, u1 = 2 * rng.uniform() - 1;
     polar.commanded_velocity(u0, u1, px, py, 40, 40, vx, vy);
     EXPECT_NEAR(std::hypot(vx, vy), 10 * (u0 + 1), 1e-9);
-    if (std::abs(10 * (u0 + 1) - speed) <= 10) EXPECT_LE(std::hypot(vx - px, vy - py), 10 + 1e-9);
+    if (std::abs(10 * (u0 + 1) - speed) <= 10) {
+      EXPECT_LE(std::hypot(vx - px, vy - py), 10 + 1e-9);
+      double fx, fy;
+      polar.project(vx, vy, px, py, fx, fy);
+      EXPECT_NEAR(fx, vx, 1e-9);
+      EXPECT_NEAR(fy, vy, 1e-9);
+    }
+    double wx, wy, ux, uy;
+    MobilityModel(continuous()).commanded_velocity(u0, u1, px, py, 40, 40, wx, wy);
+    polar.velocity(u0, u1, ux, uy);
+    EXPECT_EQ(wx, ux);
+    EXPECT_EQ(wy, uy);
   }
-  c.trajectory.command = "acceleration";
   // The environment asks the model with each UAV's own last velocity and destination.
   auto env = make_env(c);
-  env->command_velocity(0, 1, 0, vx, vy);
+  env->command_velocity(0, 0, 0, vx, vy);
   const double tx = c.trajectory.destinations[0].x - c.trajectory.starts[0].x;
   const double ty = c.trajectory.destinations[0].y - c.trajectory.starts[0].y;
   EXPECT_NEAR(vx, 10 * tx / std::hypot(tx, ty), 1e-9);
   EXPECT_NEAR(vy, 10 * ty / std::hypot(tx, ty), 1e-9);
   const std::string bad = error_of([&] { apply_override(c, "trajectory.command=jerk"); });
   EXPECT_NE(bad.find("trajectory.command"), std::string::npos) << bad;
-  EXPECT_NE(bad.find("acceleration"), std::string::npos) << bad;
+  EXPECT_NE(bad.find("polar"), std::string::npos) << bad;
 }
 
 TEST(Continuous, ProjectionIsTheNearestVelocityTheUavCanFly) {

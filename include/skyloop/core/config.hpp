@@ -112,7 +112,7 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   double slot_s = 2.0;              // slot duration delta_t (s); the grid model flies V = D_fly / delta_t
   double v_max_mps = 20.0;          // continuous: the velocity lies in the disc of this radius (m/s)
   double a_max_mps2 = 5.0;          // continuous: |V[t] - V[t-1]| <= a_max slot_s (m/s^2)
-  std::string command = "velocity";  // continuous: what u in [-1, 1]^2 commands: velocity | acceleration (own frame)
+  std::string command = "velocity";  // continuous: what u in [-1, 1]^2 commands: velocity | polar (speed, turn)
   double arrival_m = 1.0;           // continuous: a UAV within this distance of its destination has arrived (m)
 };
 

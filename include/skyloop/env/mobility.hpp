@@ -103,13 +103,13 @@ class MobilityModel {
   /// radially by |u|_inf / |u|_2, so the square maps onto the disc of radius v_max one to one.
   void velocity(double u0, double u1, double& vx, double& vy) const;
   /// What trajectory.command makes of command u for a UAV whose last velocity is (px, py) and whose
-  /// destination lies at displacement (tx, ty). The UAV's heading is that of its last velocity, or
-  /// towards its destination from a standstill (east there).
-  ///   velocity: velocity(u0, u1), the same whatever the UAV flew before;
-  ///   acceleration: the last velocity plus u stretched as velocity() does onto the disc of radius
-  ///     dv_max, u0 along the heading and u1 to its left: u = 0 holds the velocity, and every
-  ///     command is a change the UAV can make within a_max (project() only clamps the top speed);
-  ///   polar: speed v_max (u0 + 1) / 2 at the heading turned by pi u1 (u = 0: v_max / 2 straight on).
+  /// destination lies at displacement (tx, ty).
+  ///   velocity: velocity(u0, u1), whatever the UAV flew before;
+  ///   polar: speed s = v_max (u0 + 1) / 2 at the UAV's heading (that of its last velocity, or the
+  ///     bearing to its destination from a standstill, east on it) turned by u1 times the widest
+  ///     turn that a_max allows at s (|V[t] - V[t-1]| <= dv_max; none if the speed change alone
+  ///     takes more): u = 0 cruises straight on at v_max / 2, a constant u1 flies a circle, and a
+  ///     speed within reach comes with a turn the UAV can make.
   void commanded_velocity(double u0, double u1, double px, double py, double tx, double ty, double& vx, double& vy) const;
   /// trajectory.command (continuous).
   const std::string& command() const { return command_; }

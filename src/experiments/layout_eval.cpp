@@ -232,7 +232,7 @@ Config lattice_twin(const Config& cfg) {
   // The continuous settings do not act on headings: defaults, so that twins share cached optima.
   const TrajectoryConfig defaults;
   twin.trajectory.v_max_mps = defaults.v_max_mps, twin.trajectory.a_max_mps2 = defaults.a_max_mps2;
-  twin.trajectory.arrival_m = defaults.arrival_m;
+  twin.trajectory.arrival_m = defaults.arrival_m, twin.trajectory.command = defaults.command;
   if (lattice_steps(t.v_max_mps / 2, t.slot_s, t.d_fly_m) < 1 || lattice_steps(t.v_max_mps, t.slot_s, t.d_fly_m) < 1)
     throw InputError("trajectory.v_max_mps = " + format_double(t.v_max_mps) + ": the continuous model's reference is the optimum "
                      "of its lattice twin (headings at v_max / 2 and v_max), which needs v_max / 2 x trajectory.slot_s to be a "

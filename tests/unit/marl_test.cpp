@@ -415,5 +415,10 @@ TEST(Marl, ContinuousMappoLearnsEnergyEfficientFlight) {
     auto policy = MarlPolicy::load(opt.out_dir);
     EXPECT_TRUE(policy->commands_velocities());
     EXPECT_EQ(run_episode(env, *policy).objective, r.evaluation.objective) << "the saved policy replays its evaluation";
+    Config polar = cfg;  // a policy flies the command it was trained with (trajectory.command)
+    polar.trajectory.command = "polar";
+    validate(polar);
+    UavEnv other(polar, oracle);
+    EXPECT_THROW(policy->act_velocities(other), InputError);
   }
 }

@@ -375,6 +375,19 @@ TEST(Marl, BadPoliciesAreRejected) {
   EXPECT_NO_THROW(MarlPolicy::load(dir));
 }
 
+// The reference of eval --layouts under continuous mobility, the optimum of the lattice twin, does not
+// depend on trajectory.command: policies of either command share its cached optima.
+TEST(Marl, ContinuousPoliciesOfEitherCommandShareTheTwinsOptima) {
+  Config velocity;
+  velocity.trajectory.mobility = "continuous";
+  validate(velocity);
+  Config polar = velocity;
+  polar.trajectory.command = "polar";
+  validate(polar);
+  EXPECT_EQ(lattice_twin(polar).trajectory.mobility, "headings");
+  EXPECT_EQ(to_toml(lattice_twin(polar)), to_toml(lattice_twin(velocity)));
+}
+
 // Continuous-action MAPPO (the squashed Gaussian, ppo.hpp) on the small scenario under the
 // continuous model, energy efficiency, the objective reward, the mask and the shield, no entropy
 // bonus: 2e5 steps on three seeds. The deployed policy, tanh(mu) through the safety layer, is judged

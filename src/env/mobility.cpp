@@ -32,7 +32,7 @@ MobilityModel::MobilityModel(const Config& cfg)
   if (continuous_) {
     const auto& t = cfg.trajectory;
     v_max_ = t.v_max_mps, dv_max_ = t.a_max_mps2 * slot_s_, arrival_m_ = t.arrival_m;
-    command_ = t.command;
+    command_ = t.command, polar_ = command_ == "polar";
     actions_.dims = 2;
     for (const double v : {v_max_ / 2, v_max_})
       for (int h = 0; h < 8; ++h) {
@@ -84,7 +84,7 @@ void MobilityModel::velocity(double u0, double u1, double& vx, double& vy) const
 
 void MobilityModel::commanded_velocity(double u0, double u1, double px, double py, double tx, double ty, double& vx,
                                        double& vy) const {
-  if (command_ == "velocity") {
+  if (!polar_) {
     velocity(u0, u1, vx, vy);
     return;
   }

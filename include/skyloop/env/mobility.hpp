@@ -133,7 +133,7 @@ class MobilityModel {
 
  private:
   std::string name_;
-  bool grid_ = true, continuous_ = false;
+  bool grid_ = true, continuous_ = false, polar_ = false;  // polar_: command_ == "polar", resolved once
   std::string command_ = "velocity";
   ActionSpec actions_;
   std::vector<LatticeStep> steps_;

@@ -283,8 +283,16 @@ std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions&
   return actions;
 }
 
+namespace {
+/// The turns (degrees, each side) safe_velocities tries on a command that would leave the area.
+constexpr double kSlideDegrees[] = {15, 30, 45, 60, 90, 120, 180};
+/// Nodes the shields' depth-first searches over joint moves may visit before they give up.
+constexpr long kShieldNodes = 200000;
+}  // namespace
+
 Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const Positions& wanted) {
-  // Each UAV's candidates in order of preference: its command if the mask lets it fly it, then the
+  // Each UAV's candidates in order of preference: its command if the mask lets it fly it; a command
+  // that would leave the area turned by growing angles (a slide along the boundary); then the
   // allowed primitives by how near their flown velocity is to the one asked for.
   struct Candidate {
     double vx, vy, x, y;
@@ -299,6 +307,20 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
     const bool reach = !safety.mask || (want.inside && env.min_moves(n, want) <= left_after - keep);
     std::vector<Candidate> c;
     if (reach) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y});
+    if (safety.mask && !want.inside) {
+      // The command turned by growing angles, each side, at its speed where a_max allows: a UAV
+      // that meets the boundary slides along it instead of stopping at hover power (of the
+      // primitives, HOVER is often the nearest to a command at cruise speed; BENCHMARKS.md, mobility).
+      for (const double deg : kSlideDegrees)
+        for (const double sign : {1.0, -1.0}) {
+          if ((deg == 180.0 && sign < 0) || (wanted(n, 0) == 0 && wanted(n, 1) == 0)) continue;
+          const double r = sign * deg * std::acos(-1.0) / 180.0, cs = std::cos(r), sn = std::sin(r);
+          const double vx = cs * wanted(n, 0) - sn * wanted(n, 1), vy = sn * wanted(n, 0) + cs * wanted(n, 1);
+          const UavEnv::Landing l = env.landing_velocity(n, vx, vy);
+          if (!l.inside || (safety.mask && env.min_moves(n, l) > left_after - keep)) continue;
+          c.push_back({vx, vy, l.x, l.y});
+        }
+    }
     if (!reach || safety.shield) {
       ActionSet options = allowed_moves(env, n, safety);
       if (safety.mask && safety.margin > 0) options |= reachable_moves(env, n, 0, safety.clearance);  // the shield may spend the margin
@@ -331,7 +353,7 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
     std::function<bool(std::size_t)> dfs = [&](std::size_t i) {
       if (i == order.size()) return true;
       for (std::size_t k = 0; k < candidates[i].size(); ++k) {
-        if (++nodes > 20000) return false;
+        if (++nodes > kShieldNodes) return false;
         const Candidate& c = candidates[i][k];
         if (!placed.clear(c.x, c.y, env.d_min())) continue;
         placed.x.push_back(c.x), placed.y.push_back(c.y);
@@ -378,13 +400,12 @@ struct Search {
   std::vector<int>& actions;
   Placed placed;
   long nodes = 0;
-  static constexpr long kBudget = 200000;
 
   bool dfs(std::size_t i) {
     if (i == order.size()) return true;
     const int n = order[i];
     for (const int a : candidates[i]) {
-      if (++nodes > kBudget) return false;
+      if (++nodes > kShieldNodes) return false;
       double x, y;
       landing(env, n, a, x, y);
       if (!placed.clear(x, y, env.d_min())) continue;

@@ -251,6 +251,44 @@ TEST(Continuous, MaskBringsEveryUavHomeUnderAnyCommands) {
   }
 }
 
+TEST(Continuous, ACommandThatWouldLeaveTheAreaSlidesAlongTheBoundary) {
+  // UAV 0 from (20, 20) west at 5 m/s to (10, 20), then asked for 10 m/s west: flown, it would land
+  // at x = -10. The safety layer turns the command by 15, 30, 45, 60, ... degrees, each side:
+  // turned by 15, 30 and 45 degrees it still lands west of x = 0 (10 - 20 cos 45 < 0). Turned by
+  // +60 degrees, (-5, -5 sqrt 3), it lands inside at (0, 20 - 10 sqrt 3) but heading south-west
+  // into the corner, from where the HOME command meets the boundary: out of reach. Turned by
+  // -60 degrees, (-5, 5 sqrt 3), within a_max delta_t = 10 m/s of (-5, 0) (|dV| = 5 sqrt 3), it
+  // lands at (0, 20 + 10 sqrt 3): inside, reachable, at the commanded 10 m/s (126 W) instead of a
+  // stop at hover power (168 W).
+  for (const bool shield : {false, true}) {
+    const Config c = continuous();
+    auto env = make_env(c);
+    Positions v = Positions::Zero(3, 2);
+    v(0, 0) = -5;
+    env->step_velocities(v);
+    ASSERT_NEAR(env->positions()(0, 0), 10, 1e-12);
+    ASSERT_NEAR(env->positions()(0, 1), 20, 1e-12);
+    v(0, 0) = -10;
+    ASSERT_FALSE(env->landing_velocity(0, -10, 0).inside);
+    const auto corner = env->landing_velocity(0, -5, -5 * std::sqrt(3.0));
+    ASSERT_TRUE(corner.inside);
+    ASSERT_GT(env->min_moves(0, corner), c.trajectory.t_max);
+    const Positions flown = safe_velocities(*env, SafetyOptions{true, shield, 0}, v);
+    EXPECT_NEAR(flown(0, 0), -5, 1e-9) << "shield " << shield;
+    EXPECT_NEAR(flown(0, 1), 5 * std::sqrt(3.0), 1e-9) << "shield " << shield;
+    const auto l = env->landing_velocity(0, flown(0, 0), flown(0, 1));
+    EXPECT_TRUE(l.inside);
+    EXPECT_NEAR(l.speed, 10, 1e-9);
+    EXPECT_NEAR(l.x, 0, 1e-9);
+    EXPECT_NEAR(l.y, 20 + 10 * std::sqrt(3.0), 1e-9);
+    EXPECT_LE(env->min_moves(0, l), c.trajectory.t_max - 2);
+    // Without the mask the command is flown as asked (and cancelled at the boundary).
+    const Positions raw = safe_velocities(*env, SafetyOptions{false, shield, 0}, v);
+    EXPECT_EQ(raw(0, 0), -10);
+    EXPECT_EQ(raw(0, 1), 0);
+  }
+}
+
 TEST(Continuous, EnergyBookkeepingAddsUp) {
   const Config c = continuous();
   auto env = make_env(c, 2);

@@ -24,9 +24,12 @@
 //  - continuous model (safe_velocities): the UAVs choose in shield order; a UAV keeps its velocity
 //    command if, projected and flown, it leaves the area untouched and the destination reachable
 //    (the HOME simulation, UavEnv::min_moves) and, with the shield, lands D_min clear of the UAVs
-//    placed; else it flies the allowed primitive (HOME, HOVER, the headings) whose flown velocity is
-//    nearest to the one it asked for (the shielded primitives first). HOME is always allowed from a
-//    state the mask led to, so the mask brings every UAV home by T_max under any commands.
+//    placed; a command that would leave the area slides along the boundary: the command turned by
+//    15, 30, 45, 60, 90, 120 and 180 degrees, each side, smallest turn first, where the turned
+//    command keeps the destination reachable; else it flies the allowed primitive (HOME, HOVER, the
+//    headings) whose flown velocity is nearest to the one it asked for (the shielded primitives
+//    first). HOME is always allowed from a state the mask led to, so the mask brings every UAV
+//    home by T_max under any commands.
 //
 // Training samples through sequential_safe_actions (each UAV's allowed set is its action mask in
 // the PPO / Q-learning update); execution uses shielded_argmax, which searches the joint action

@@ -307,18 +307,17 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
     const bool reach = !safety.mask || (want.inside && env.min_moves(n, want) <= left_after - keep);
     std::vector<Candidate> c;
     if (reach) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y});
-    if (safety.mask && !want.inside) {
+    if (safety.mask && !want.inside && (wanted(n, 0) != 0 || wanted(n, 1) != 0)) {
       // The command turned by growing angles, each side, at its speed where a_max allows: a UAV
       // that meets the boundary slides along it instead of stopping at hover power (of the
       // primitives, HOVER is often the nearest to a command at cruise speed; BENCHMARKS.md, mobility).
       for (const double deg : kSlideDegrees)
         for (const double sign : {1.0, -1.0}) {
-          if ((deg == 180.0 && sign < 0) || (wanted(n, 0) == 0 && wanted(n, 1) == 0)) continue;
+          if (deg == 180.0 && sign < 0) continue;  // one reversal
           const double r = sign * deg * std::acos(-1.0) / 180.0, cs = std::cos(r), sn = std::sin(r);
           const double vx = cs * wanted(n, 0) - sn * wanted(n, 1), vy = sn * wanted(n, 0) + cs * wanted(n, 1);
           const UavEnv::Landing l = env.landing_velocity(n, vx, vy);
-          if (!l.inside || (safety.mask && env.min_moves(n, l) > left_after - keep)) continue;
-          c.push_back({vx, vy, l.x, l.y});
+          if (l.inside && env.min_moves(n, l) <= left_after - keep) c.push_back({vx, vy, l.x, l.y});
         }
     }
     if (!reach || safety.shield) {

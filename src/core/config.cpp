@@ -325,8 +325,7 @@ std::vector<Field> make_fields() {
   f.push_back(integer("marl.rollout", "steps per environment between PPO updates", 1, 1e6, [](Config& c) -> int& { return c.marl.rollout; }));
   f.push_back(integer("marl.minibatches", "PPO mini-batches per epoch", 1, 4096, [](Config& c) -> int& { return c.marl.minibatches; }));
   f.push_back(integer("marl.epochs", "PPO epochs per update", 1, 1000, [](Config& c) -> int& { return c.marl.epochs; }));
-  f.push_back(text("marl.critic_state", "MAPPO critic input: global state, agent-specific state, or that and the other agents' observations",
-                   {"global", "agent", "joint"},
+  f.push_back(text("marl.critic_state", "MAPPO critic input: global state or agent-specific state", {"global", "agent"},
                    [](Config& c) -> std::string& { return c.marl.critic_state; }));
   {
     Field b{"marl.value_norm", Type::Boolean, "normalise value targets with running mean and variance", 0, 0, {}, {}, {}};

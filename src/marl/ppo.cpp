@@ -42,9 +42,7 @@ CriticReader CriticReader::of(const Config& cfg, const Encoder& encoder) {
   CriticReader r;
   r.encoder = encoder;
   if (find_learner(cfg.marl.algo).local_critic) r.input = Input::LocalObservation;
-  else if (cfg.marl.critic_state == "global") r.input = Input::GlobalState;
-  else if (cfg.marl.critic_state == "joint") r.input = Input::JointState;
-  else r.input = Input::AgentState;
+  else r.input = cfg.marl.critic_state == "global" ? Input::GlobalState : Input::AgentState;
   return r;
 }
 
@@ -52,52 +50,34 @@ const char* CriticReader::name() const {
   switch (input) {
     case Input::GlobalState: return "global";
     case Input::AgentState: return "agent";
-    case Input::JointState: return "joint";
     case Input::LocalObservation: break;
   }
   return "local";
 }
 
 int CriticReader::width(const UavEnv& e) const {
-  const int others = input == Input::JointState ? (e.uavs() - 1) * encoder.width(e) : 0;
-  if (encoder.set) return encoder.width(e) + (input != Input::LocalObservation ? UavEnv::compact_state_size() : 0) + others;
+  if (encoder.set) return encoder.width(e) + (input != Input::LocalObservation ? UavEnv::compact_state_size() : 0);
   switch (input) {
     case Input::GlobalState: return e.state_size();
     case Input::AgentState: return e.agent_state_size();
-    case Input::JointState: return e.agent_state_size() + others;
     case Input::LocalObservation: break;
   }
   return e.observation_size();
 }
 
-void CriticReader::write(const UavEnv& e, int n, float* out, const float* observations) const {
-  const int width = encoder.width(e);
-  const auto row = [&](int m) { return observations + static_cast<std::size_t>(m) * static_cast<std::size_t>(width); };
-  float* rest = out;  // where the other agents' rows go (joint)
+void CriticReader::write(const UavEnv& e, int n, float* out, const float* observation) const {
   if (encoder.set) {
-    if (observations) std::copy_n(row(n), width, out);
+    if (observation) std::copy_n(observation, encoder.width(e), out);
     else encoder.write(e, n, out);
-    if (input != Input::LocalObservation) e.write_compact_state(out + width);
-    rest = out + width + (input != Input::LocalObservation ? UavEnv::compact_state_size() : 0);
-  } else {
-    switch (input) {
-      case Input::GlobalState: return e.write_state(out);
-      case Input::AgentState: return e.write_agent_state(n, out);
-      case Input::JointState:
-        e.write_agent_state(n, out);
-        rest = out + e.agent_state_size();
-        break;
-      case Input::LocalObservation: return e.write_observation(n, out);
-    }
+    if (input != Input::LocalObservation) e.write_compact_state(out + encoder.width(e));
+    return;
   }
-  if (input != Input::JointState) return;
-  // The others in cyclic order from n (n + 1, ..., n - 1): each agent sees its team from its own place.
-  for (int k = 1; k < e.uavs(); ++k) {
-    const int m = (n + k) % e.uavs();
-    float* to = rest + static_cast<std::size_t>(k - 1) * static_cast<std::size_t>(width);
-    if (observations) std::copy_n(row(m), width, to);
-    else encoder.write(e, m, to);
+  switch (input) {
+    case Input::GlobalState: return e.write_state(out);
+    case Input::AgentState: return e.write_agent_state(n, out);
+    case Input::LocalObservation: break;
   }
+  e.write_observation(n, out);
 }
 
 // ---- storage -------------------------------------------------------------------------------------
@@ -547,17 +527,15 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
   for (int t = 0; t < r.T; ++t) {
     float* obs = r.observations.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.obs_width);
     float* crit = r.critic_inputs.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.critic_width);
-    for (int e = 0; e < M; ++e) {
-      float* env_obs = obs + static_cast<std::size_t>(e * N) * static_cast<std::size_t>(r.obs_width);
-      for (int n = 0; n < N; ++n) encoder.write(vec.env(e), n, env_obs + static_cast<std::size_t>(n) * static_cast<std::size_t>(r.obs_width));
+    for (int e = 0; e < M; ++e)
       for (int n = 0; n < N; ++n) {
         const auto i = static_cast<std::size_t>(e * N + n);
-        critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width), env_obs);
+        encoder.write(vec.env(e), n, obs + i * static_cast<std::size_t>(r.obs_width));
+        critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width), obs + i * static_cast<std::size_t>(r.obs_width));
         r.active[r.at(t, e, n)] = static_cast<float>(vec.env(e).mask(n));
         r.logprobs[r.at(t, e, n)] = 0.0f;  // agents that STAY without sampling (arrived) keep these
         std::fill_n(r.allowed.data() + r.at(t, e, n) * A, A, 1.0f);
       }
-    }
     nets.logits(obs, static_cast<int>(step_rows), logits.data());
     float* values = r.values.data() + r.at(t, 0, 0);
     nets.values(crit, static_cast<int>(step_rows), values);

@@ -22,19 +22,17 @@ namespace skyloop::marl {
 /// What the critic reads, resolved once from marl.algo / marl.critic_state / marl.encoder.
 /// mlp encoder: the global state (MAPPO, critic_state = global), the agent-specific global state
 /// (agent) or the local observation (IPPO). set encoder: the agent's set observation, plus the
-/// compact state for MAPPO. joint (MAPPO): what agent reads, then the other agents' actor inputs in
-/// cyclic order n + 1, ..., n - 1 (the team's view, in the spirit of the MAPPO paper's
-/// concatenated local observations; its width grows with N).
+/// compact state for MAPPO.
 struct CriticReader {
-  enum class Input { GlobalState, AgentState, JointState, LocalObservation };
+  enum class Input { GlobalState, AgentState, LocalObservation };
   Input input = Input::AgentState;
   Encoder encoder;
   static CriticReader of(const Config& cfg, const Encoder& encoder);
-  const char* name() const;  // global | agent | joint | local (the policy header's critic_input)
+  const char* name() const;  // global | agent | local (the policy header's critic_input)
   int width(const UavEnv& env) const;
-  /// `observations`, when given, are the environment's N rows of the actor's input (the same
-  /// encoder) just written: they are copied rather than computed again.
-  void write(const UavEnv& env, int n, float* out, const float* observations = nullptr) const;
+  /// `observation`, when given, is agent n's row of the actor's input (the same encoder) just
+  /// written: the set observation is copied from it rather than computed again.
+  void write(const UavEnv& env, int n, float* out, const float* observation = nullptr) const;
 };
 
 /// One rollout: T steps of M environments with N agents. Per-agent arrays are [T, M, N, ...]

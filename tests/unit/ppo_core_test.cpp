@@ -321,40 +321,6 @@ TEST(PpoCore, CollectFillsEveryCellOfTheRollout) {
   EXPECT_EQ(again.next_values, r.next_values);
 }
 
-TEST(PpoCore, TheJointCriticReadsEachAgentThenTheOthersInCyclicOrder) {
-  Config cfg = small_scene();
-  cfg.trajectory.starts.push_back({60, 0});
-  cfg.trajectory.destinations.push_back({60, 120});
-  cfg.marl.encoder = "set";
-  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, 6, 3));
-  const Encoder enc = encoder_of(cfg, false);
-  ASSERT_TRUE(enc.set);
-  const CriticReader agent = CriticReader::of(cfg, enc);
-  cfg.marl.critic_state = "joint";
-  const CriticReader joint = CriticReader::of(cfg, enc);
-  EXPECT_STREQ(joint.name(), "joint");
-  VecEnv vec(cfg, oracle, 1);
-  const UavEnv& env = vec.env(0);
-  ASSERT_EQ(env.uavs(), 3);
-  const int W = enc.width(env), A = agent.width(env), J = joint.width(env);
-  ASSERT_EQ(J, A + 2 * W) << "what `agent` reads, then the two other agents' set observations";
-  std::vector<float> obs(3 * static_cast<std::size_t>(W));
-  for (int n = 0; n < 3; ++n) enc.write(env, n, obs.data() + n * W);
-  for (int n = 0; n < 3; ++n) {
-    std::vector<float> mine(static_cast<std::size_t>(A)), team(static_cast<std::size_t>(J)), afresh(team.size());
-    agent.write(env, n, mine.data(), obs.data());
-    joint.write(env, n, team.data(), obs.data());
-    joint.write(env, n, afresh.data());
-    EXPECT_EQ(afresh, team) << "agent " << n << ": the rows copied equal the rows computed";
-    EXPECT_TRUE(std::equal(mine.begin(), mine.end(), team.begin())) << "agent " << n;
-    for (int k = 1; k < 3; ++k) {
-      const float* other = obs.data() + ((n + k) % 3) * W;
-      EXPECT_TRUE(std::equal(other, other + W, team.begin() + A + (k - 1) * W)) << "agent " << n << ", the " << k << "th other";
-    }
-  }
-  EXPECT_FALSE(std::equal(obs.begin(), obs.begin() + W, obs.begin() + W)) << "the agents' observations differ";
-}
-
 TEST(PpoCore, AdvantagesAreGaePerEnvironmentAndAgent) {
   Rollout r(9, 3, 2, 1, 1);
   std::mt19937_64 g(4);

@@ -170,7 +170,7 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   int rollout = 256;                // steps per environment between updates
   int minibatches = 4;
   int epochs = 10;
-  std::string critic_state = "agent";  // mappo critic input: global (s[t]) | agent (s[t] + id + o_n) | joint (agent + the others' o_m)
+  std::string critic_state = "agent";  // mappo critic input: global (s[t]) | agent (s[t] + id + o_n)
   bool value_norm = true;           // normalise value targets with running statistics
   double grad_clip = 10.0;          // max global gradient norm (0 = off)
   // value decomposition (VDN / QMIX)

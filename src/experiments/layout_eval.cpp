@@ -60,15 +60,9 @@ LayoutRow reference_of(const Config& cfg, UavEnv& env, const std::string& cache_
   const std::string name = layout_reference(env);
   std::string path;
   if (!cache_dir.empty()) {
-    // Everything the optimum depends on: the resolved scenario, channel, oracle and trajectory
-    // settings, and the users (not the learners' settings or the run seed).
-    Config key = cfg;
-    key.marl = MarlConfig{};
-    key.run = RunConfig{};
-    key.env.resample_users = false;
-    key.env.users_min = key.env.users_max = 0;
+    // Everything the optimum depends on (optimum_key) and the users.
     const auto& u = env.oracle().users();
-    std::string text = to_toml(key);
+    std::string text = optimum_key(cfg);
     text.append(reinterpret_cast<const char*>(u.data()), sizeof(double) * static_cast<std::size_t>(u.size()));
     if (name != "optimal") text += "|reference " + name;  // the optimum's keys as before
     path = (std::filesystem::path(cache_dir) / fmt::format("{:016x}.csv", hash_bytes(text.data(), text.size()))).string();

@@ -18,11 +18,9 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
   if (opt.planners.empty() && opt.extra.empty()) throw InputError("--planner is empty: allowed " + builtin_planners().names_text());
   std::vector<std::shared_ptr<Planner>> planners;
   const Positions users = make_users(cfg, cfg.scenario.users, opt.seed);
-  // The exact optimum depends on the resolved config (not the learners' [marl] settings) and the
-  // users only: solved once per process for all of them.
-  Config key = cfg;
-  key.marl = MarlConfig{};
-  const std::string memo = to_toml(key) + "|users " +
+  // The exact optimum depends on optimum_key's settings and the users only: solved once per
+  // process for every run with the same (reproduce's stages share it).
+  const std::string memo = optimum_key(cfg) + "|users " +
                            std::to_string(hash_bytes(users.data(), sizeof(double) * static_cast<std::size_t>(users.size())));
   for (const auto& p : opt.planners) {
     PlannerArgs args;

@@ -9,6 +9,7 @@
 #include <ostream>
 #include <stdexcept>
 
+#include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 
@@ -201,6 +202,20 @@ void require_lattice(const UavEnv& env, const std::string& who) {
   if (env.mobility().continuous())
     throw InputError(who + " searches the D_fly lattice, which trajectory.mobility = \"continuous\" leaves: allowed "
                      "trajectory.mobility = grid or headings (continuous missions: random, greedy, seqgreedy, the learners)");
+}
+
+std::string optimum_key(const Config& cfg) {
+  Config key = cfg;
+  key.marl = MarlConfig{};
+  key.run = RunConfig{};
+  const EnvConfig plain;
+  key.env.w_rate = plain.w_rate, key.env.w_arr = plain.w_arr, key.env.w_bud = plain.w_bud, key.env.w_col = plain.w_col,
+  key.env.w_fea = plain.w_fea;
+  key.env.reward = plain.reward;
+  key.env.state = plain.state;
+  key.env.resample_users = false;
+  key.env.users_min = key.env.users_max = 0;
+  return to_toml(key);
 }
 
 bool fits_optimal(const UavEnv& env) {

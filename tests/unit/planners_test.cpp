@@ -138,6 +138,39 @@ TEST(Planners, BestKnownAgainstTheExactOptimum) {
     }
 }
 
+// optimum_key names what the exact optimum depends on, so that reproduce's stages and the layout
+// evaluation's --cache share one solve: the learners' settings, the run's, the reward's and the
+// drawing of layouts leave both the key and the DP's plan as they are; the scenario, the channel,
+// the oracle, the objective and the horizon change the key.
+TEST(Planners, OptimumKeyNamesWhatTheOptimumDependsOn) {
+  const std::vector<std::string> small = {"scenario.uavs=2", "scenario.users=8", "scenario.area_x_m=120", "scenario.area_y_m=120",
+                                          "trajectory.layout=generated", "trajectory.t_max=14", "env.oracle=zf"};
+  auto with = [&](const std::vector<std::string>& more) {
+    auto all = small;
+    all.insert(all.end(), more.begin(), more.end());
+    return scene(all);
+  };
+  const Config base = with({});
+  UavEnv base_env(base, oracle_of(base, 5));
+  const OptimalPlan plan = solve_optimal(base_env);
+  for (const auto& same : std::vector<std::vector<std::string>>{{"marl.algo=ippo", "marl.envs=3"},
+                                                                 {"run.seed=7", "run.threads=1"},
+                                                                 {"env.w_arr=10", "env.w_rate=0.5", "env.w_col=9"},
+                                                                 {"env.reward=objective", "env.state=compact"},
+                                                                 {"env.resample_users=true", "env.users_min=4", "env.users_max=9", "env.state=compact"}}) {
+    const Config cfg = with(same);
+    EXPECT_EQ(optimum_key(cfg), optimum_key(base)) << same.front();
+    UavEnv env(cfg, oracle_of(cfg, 5));
+    const OptimalPlan other = solve_optimal(env);
+    EXPECT_EQ(other.objective, plan.objective) << same.front();
+    EXPECT_EQ(other.actions, plan.actions) << same.front();
+  }
+  for (const auto& differs : std::vector<std::string>{"scenario.altitude_m=120", "channel.pathloss=3gpp-uma-av", "channel.seed=2",
+                                                       "env.oracle=mrt", "env.objective=energy-efficiency", "trajectory.t_max=15",
+                                                       "trajectory.layout_seed=2"})
+    EXPECT_NE(optimum_key(with({differs})), optimum_key(base)) << differs;
+}
+
 // Beyond the DP (10 UAVs, 300 m, 150 users): every UAV home without a collision, at least the
 // sequential greedy's objective.
 TEST(Planners, BestKnownScalesBeyondTheDp) {

@@ -110,13 +110,19 @@ def test_bad_construction():
         sl.VecEnv(SMALL, 1, 1, oracle="nosuch")
 
 
+# A 120 m square (7 x 7 cells, three UAVs from a generated layout): the exact optimum in a fraction
+# of a second where the paper's 200 m square takes several, for the tests that solve it.
+SMALL = {"scenario.area_x_m": 120, "scenario.area_y_m": 120, "trajectory.layout": "generated", "env.oracle": "zf"}
+SMALL_SET = [a for k, v in SMALL.items() for a in ("--set", f"{k}={v}")]
+
+
 def test_planners_from_python_equal_the_cli(skyloop_bin, tmp_path):
     import csv
     from conftest import run_cli
-    r = run_cli("plan", "--planner", "random,greedy,optimal", "--seed", "3", "--oracle", "zf", "--out", str(tmp_path))
+    r = run_cli("plan", "--planner", "random,greedy,optimal", "--seed", "3", *SMALL_SET, "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr
     rows = {row["planner"]: row for row in csv.DictReader(open(tmp_path / "summary.csv"))}
-    cfg = sl.config(env={"oracle": "zf"})
+    cfg = sl.config(overrides=SMALL)
     results = {p: sl.plan(cfg, p, users_seed=3) for p in ("random", "greedy", "optimal")}
     for p, res in results.items():
         assert res["objective"] == float(rows[p]["objective"]), p
@@ -134,13 +140,14 @@ def test_planners_from_python_equal_the_cli(skyloop_bin, tmp_path):
 def test_trained_policy_from_python(skyloop_bin, tmp_path):
     from conftest import run_cli
     out = tmp_path / "pol"
-    r = run_cli("train", "--algo", "mappo", "--steps", "512", "--out", str(out), "--set", "env.oracle=zf",
+    r = run_cli("train", "--algo", "mappo", "--steps", "512", "--out", str(out), *SMALL_SET,
                 "--set", "marl.envs=2", "--set", "marl.rollout=64", "--set", "run.threads=1")
     assert r.returncode == 0, r.stderr
-    res = sl.plan(sl.config(env={"oracle": "zf"}), str(out), users_seed=3)
+    small = sl.config(overrides=SMALL)
+    res = sl.plan(small, str(out), users_seed=3)
     assert res["planner"] and res["positions"].shape[1:] == (3, 2)
     # The policy as a rollout's base: never below its own mission on any layout (failures first).
-    ev = sl.evaluate_layouts(sl.config(env={"oracle": "zf"}), [str(out)], planners=[], layouts=2, threads=1, rollout=True)
+    ev = sl.evaluate_layouts(small, [str(out)], planners=[], layouts=2, threads=1, rollout=True)
     rows = ev["rows"]
     assert [r["planner"] for r in rows[:3]] == ["mappo", "mappo+rollout", "optimal"]
     for base, roll in zip(rows[0::3], rows[1::3]):
@@ -149,7 +156,7 @@ def test_trained_policy_from_python(skyloop_bin, tmp_path):
             assert roll["objective"] >= base["objective"]
     # A policy carrying reserved ways from slot to slot cannot be a rollout's base: one line.
     with pytest.raises(sl.InputError, match="--rollout with marl.reserve_slack = 2: allowed -1"):
-        sl.evaluate_layouts(sl.config(env={"oracle": "zf"}, marl={"reserve_slack": 2}), [str(out)], planners=[], layouts=1,
+        sl.evaluate_layouts(sl.config(overrides={**SMALL, "marl.reserve_slack": 2}), [str(out)], planners=[], layouts=1,
                             threads=1, rollout=True)
 
 

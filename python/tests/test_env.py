@@ -110,19 +110,13 @@ def test_bad_construction():
         sl.VecEnv(SMALL, 1, 1, oracle="nosuch")
 
 
-# A 120 m square (7 x 7 cells, three UAVs from a generated layout): the exact optimum in a fraction
-# of a second where the paper's 200 m square takes several, for the tests that solve it.
-SMALL = {"scenario.area_x_m": 120, "scenario.area_y_m": 120, "trajectory.layout": "generated", "env.oracle": "zf"}
-SMALL_SET = [a for k, v in SMALL.items() for a in ("--set", f"{k}={v}")]
-
-
 def test_planners_from_python_equal_the_cli(skyloop_bin, tmp_path):
     import csv
-    from conftest import run_cli
-    r = run_cli("plan", "--planner", "random,greedy,optimal", "--seed", "3", *SMALL_SET, "--out", str(tmp_path))
+    from conftest import run_cli, SQUARE, SQUARE_SET
+    r = run_cli("plan", "--planner", "random,greedy,optimal", "--seed", "3", *SQUARE_SET, "--out", str(tmp_path))
     assert r.returncode == 0, r.stderr
     rows = {row["planner"]: row for row in csv.DictReader(open(tmp_path / "summary.csv"))}
-    cfg = sl.config(overrides=SMALL)
+    cfg = sl.config(overrides=SQUARE)
     results = {p: sl.plan(cfg, p, users_seed=3) for p in ("random", "greedy", "optimal")}
     for p, res in results.items():
         assert res["objective"] == float(rows[p]["objective"]), p
@@ -138,12 +132,12 @@ def test_planners_from_python_equal_the_cli(skyloop_bin, tmp_path):
 
 @pytest.mark.skipif(not sl._skyloop.HAS_TORCH, reason="trained policies need a LibTorch build")
 def test_trained_policy_from_python(skyloop_bin, tmp_path):
-    from conftest import run_cli
+    from conftest import run_cli, SQUARE, SQUARE_SET
     out = tmp_path / "pol"
-    r = run_cli("train", "--algo", "mappo", "--steps", "512", "--out", str(out), *SMALL_SET,
+    r = run_cli("train", "--algo", "mappo", "--steps", "512", "--out", str(out), *SQUARE_SET,
                 "--set", "marl.envs=2", "--set", "marl.rollout=64", "--set", "run.threads=1")
     assert r.returncode == 0, r.stderr
-    small = sl.config(overrides=SMALL)
+    small = sl.config(overrides=SQUARE)
     res = sl.plan(small, str(out), users_seed=3)
     assert res["planner"] and res["positions"].shape[1:] == (3, 2)
     # The policy as a rollout's base: never below its own mission on any layout (failures first).
@@ -156,7 +150,7 @@ def test_trained_policy_from_python(skyloop_bin, tmp_path):
             assert roll["objective"] >= base["objective"]
     # A policy carrying reserved ways from slot to slot cannot be a rollout's base: one line.
     with pytest.raises(sl.InputError, match="--rollout with marl.reserve_slack = 2: allowed -1"):
-        sl.evaluate_layouts(sl.config(overrides={**SMALL, "marl.reserve_slack": 2}), [str(out)], planners=[], layouts=1,
+        sl.evaluate_layouts(sl.config(overrides={**SQUARE, "marl.reserve_slack": 2}), [str(out)], planners=[], layouts=1,
                             threads=1, rollout=True)
 
 

@@ -98,9 +98,8 @@ def test_bad_input_raises_one_line_input_error(name, call):
 
 @pytest.mark.skipif(not sl._skyloop.HAS_TORCH, reason="evaluate_layouts needs a LibTorch build")
 def test_a_single_planner_name_is_one_name():
-    # A 120 m square keeps the optimum each layout row carries to a fraction of a second.
-    out = sl.evaluate_layouts({"env.oracle": "zf", "scenario.users": 6, "scenario.area_x_m": 120, "scenario.area_y_m": 120,
-                               "trajectory.layout": "generated"}, planners="random", layouts=1)
+    from conftest import SQUARE  # the optimum each layout row carries, in a fraction of a second
+    out = sl.evaluate_layouts({**SQUARE, "scenario.users": 6}, planners="random", layouts=1)
     assert [r["planner"] for r in out["summary"]] == ["random", "optimal"] or \
         sorted(r["planner"] for r in out["summary"]) == ["optimal", "random"]
     assert all(r["layouts"] == 1 for r in out["summary"])

@@ -6,12 +6,15 @@
 //   1. the models (phase 0: the other pieces' cache keys hold their bytes), then every process
 //      loads them;
 //   2. the other pieces (phase 1): over the ranks of an MPI job (farm.hpp), or one slice of them
-//      (--shard i/n), or in this process (MARL runs in parallel child processes with --jobs);
+//      (--shard i/n), or in this process (--jobs at a time: MARL runs as child processes, planner
+//      and layout evaluations as threads);
 //   3. the assembly: each experiment's CSVs from its pieces (computing any that is missing), the
 //      manifest, then the figures and report. Rank 0 assembles; a shard does not.
 #include "skyloop/experiments/reproduce.hpp"
 
 #include <algorithm>
+#include <condition_variable>
+#include <exception>
 #include <ctime>
 #include <fmt/format.h>
 #include <fstream>
@@ -32,7 +35,31 @@ namespace skyloop {
 namespace {
 using namespace repro;
 
-constexpr int kPendingTag = 10;  // rank 0 -> workers: which pieces of a phase still need work
+constexpr int kPendingTag = 10;
+
+/// A stream buffer that several threads write through: each write holds one lock.
+class LockedBuf : public std::streambuf {
+ public:
+  explicit LockedBuf(std::streambuf* target) : target_(target) {}
+
+ protected:
+  int_type overflow(int_type c) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return traits_type::eq_int_type(c, traits_type::eof()) ? traits_type::not_eof(c) : target_->sputc(traits_type::to_char_type(c));
+  }
+  std::streamsize xsputn(const char* s, std::streamsize n) override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return target_->sputn(s, n);
+  }
+  int sync() override {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return target_->pubsync();
+  }
+
+ private:
+  std::streambuf* target_;
+  std::mutex mutex_;
+};  // rank 0 -> workers: which pieces of a phase still need work
 
 class Runner {
  public:
@@ -152,8 +179,9 @@ class Runner {
     const bool scale_out = t_ || shard_;
     if (rank_ == 0) announce(phase, pieces, scale_out ? std::max(1, ranks_) : std::max(1, jobs_));
     if (!scale_out) {
-      // One process: the assembly computes each piece in turn; MARL runs go first, --jobs at a time.
-      if (phase == 1 && jobs_ > 1) prefetch_marl(pieces);
+      // One process: MARL runs and evaluations go first, --jobs at a time; the assembly computes
+      // the rest (a sweep's chunks, each on --threads cores) in turn.
+      if (phase == 1 && jobs_ > 1) prefetch(pieces);
       return;
     }
     // A shard slices every piece, done or not, so the slices do not depend on when each shard
@@ -312,72 +340,161 @@ class Runner {
                      {"overhead_median_ms", 1e3 * med}, {"overhead_max_ms", 1e3 * max}});
   }
 
-  /// Trains every MARL run not done yet, `jobs` at a time, each as a child `skyloop train`
-  /// process on one thread (the assembly then finds them trained).
-  void prefetch_marl(const std::vector<Piece>& pieces) {
-    std::vector<const Piece*> need;
-    for (const auto& p : pieces)
-      if (p.kind == "marl" && !fs::exists(ctx_.out / p.id / "train.json")) need.push_back(&p);
-    if (need.empty()) return;
-    const std::string exe = fs::read_symlink("/proc/self/exe").string();
-    log_ << fmt::format("training {} MARL runs, {} at a time (logs: <run>/train.log)\n", need.size(), jobs_) << std::flush;
+  /// One process, --jobs J > 1: J workers share the MARL runs (each a child `skyloop train`
+  /// process on one thread, first) and the planner and layout evaluations (threads of this
+  /// process, one core each, once the runs and pieces they read are done). The assembly then finds
+  /// them done; a sweep's chunks stay in the assembly, where each uses --threads cores.
+  void prefetch(const std::vector<Piece>& pieces) {
+    std::vector<const Piece*> runs, evals;
+    std::unordered_map<std::string, const Piece*> by_id;
+    for (const auto& p : pieces) {
+      by_id[p.id] = &p;
+      if (p.kind == "marl" && !p.done()) runs.push_back(&p);
+      if (p.kind == "eval" && !p.done()) evals.push_back(&p);
+    }
+    if (runs.empty() && evals.empty()) return;
+    // The longest evaluations first, so that the last ones to start are short.
+    std::stable_sort(evals.begin(), evals.end(), [](const Piece* a, const Piece* b) { return a->cost > b->cost; });
+    std::size_t to_train = 0;
+    for (const auto* r : runs) to_train += !trained(*r);
+    log_ << fmt::format("training {} MARL runs and computing {} evaluations, {} at a time (run logs: <run>/train.log)\n", to_train,
+                        evals.size(), jobs_)
+         << std::flush;
+    // Lines from the workers and from the pieces they run go through one lock.
+    LockedBuf locked(ctx_.log.rdbuf());
+    std::streambuf* const shown = ctx_.log.rdbuf(&locked);
+    std::ostream out(&locked);
     std::mutex mu;
-    std::size_t next = 0, done = 0;
+    std::condition_variable changed;
+    std::size_t next_run = 0, running = 0, runs_done = 0, evals_done = 0;
+    std::vector<char> taken(evals.size(), 0);
+    std::unordered_map<std::string, char> finished;  // ids of pieces this pool completed
     double busy = 0;
     std::vector<std::string> failed;
+    std::exception_ptr error;
     const auto t0 = Clock::now();
-    auto worker = [&] {
-      for (;;) {
-        std::size_t i;
-        {
-          std::lock_guard<std::mutex> lock(mu);
-          if (next >= need.size()) return;
-          i = next++;
-        }
-        const Config& cfg = need[i]->train_config;
-        const fs::path dir = ctx_.out / need[i]->id;
-        int rc = 0;
-        double sec = 0;
-        const bool ran = ctx_.cache.ensure(
-            need[i]->id, [&] { return fs::exists(dir / "train.json") && fs::exists(dir / "policy.pt"); },
-            [&] {
-              write_file_atomic((dir / "request.toml").string(), to_toml(cfg));
-              std::vector<std::string> argv = {exe, "train", "--config", (dir / "request.toml").string(), "--out", dir.string()};
-              if (fs::exists(dir / "last.pt")) log_ << restart_note(dir) << std::flush;
-              argv.push_back("--force");
-              const auto tr = Clock::now();
-              rc = run_process(argv, (dir / "train.log").string());
-              sec = since(tr);
-              if (rc == 0) {
-                ctx_.record_timing(need[i]->id, "marl-train", need[i]->cost, sec);
-                nlohmann::json j = {{"seconds", sec},
-                                    {"steps_per_second", static_cast<double>(cfg.marl.total_steps) / sec},
-                                    {"env_steps", cfg.marl.total_steps},
-                                    {"process", true}};
-                write_file_atomic((dir / "train.json").string(), j.dump(2) + "\n");
-              }
-            },
-            &log_);
+    // A dependency is met when its piece is done (a MARL run: trained; its own evaluation is run
+    // by whichever piece reads it) or is no piece of this phase (the models).
+    auto met = [&](const std::string& dep) {
+      if (finished.count(dep)) return true;
+      const auto it = by_id.find(dep);
+      if (it == by_id.end()) return true;
+      return it->second->kind == "marl" ? trained(*it->second) : it->second->done();
+    };
+    auto ready = [&](std::size_t e) {
+      for (const auto& d : evals[e]->deps)
+        if (!met(d)) return false;
+      return true;
+    };
+    auto eta = [&](std::size_t done, std::size_t total) {
+      if (done >= total) return std::string();
+      const double per = busy / static_cast<double>(done) / static_cast<double>(jobs_);
+      return fmt::format(", ETA {:.0f} s", per * static_cast<double>(total - done));
+    };
+    auto train = [&](const Piece& piece) {
+      const Config& cfg = piece.train_config;
+      const fs::path dir = ctx_.out / piece.id;
+      int rc = 0;
+      double sec = 0;
+      const bool ran = ctx_.cache.ensure(
+          piece.id, [&] { return trained(piece); },
+          [&] {
+            write_file_atomic((dir / "request.toml").string(), to_toml(cfg));
+            std::vector<std::string> argv = {exe_path(), "train", "--config", (dir / "request.toml").string(), "--out", dir.string()};
+            if (fs::exists(dir / "last.pt")) out << restart_note(dir) << std::flush;
+            argv.push_back("--force");
+            const auto tr = Clock::now();
+            rc = run_process(argv, (dir / "train.log").string());
+            sec = since(tr);
+            if (rc == 0) {
+              ctx_.record_timing(piece.id, "marl-train", piece.cost, sec);
+              nlohmann::json j = {{"seconds", sec},
+                                  {"steps_per_second", static_cast<double>(cfg.marl.total_steps) / sec},
+                                  {"env_steps", cfg.marl.total_steps},
+                                  {"process", true}};
+              write_file_atomic((dir / "train.json").string(), j.dump(2) + "\n");
+            }
+          },
+          &out);
+      std::lock_guard<std::mutex> lock(mu);
+      if (rc != 0) {
+        failed.push_back(fmt::format("{} (exit status {})", (dir / "train.log").string(), rc));
+        return;
+      }
+      busy += sec;
+      ++runs_done;
+      out << fmt::format("  {} K = {} seed {}: {:.0f} s{} ({}/{} runs, {:.0f} s elapsed{})\n", cfg.marl.algo, cfg.scenario.users,
+                         cfg.run.seed, sec, ran ? "" : " (by another process)", runs_done, runs.size(), since(t0),
+                         eta(runs_done, runs.size()))
+          << std::flush;
+    };
+    auto evaluate = [&](const Piece& piece, bool counted) {
+      const auto te = Clock::now();
+      try {
+        ctx_.ensure(piece);
+      } catch (...) {
         std::lock_guard<std::mutex> lock(mu);
-        if (rc != 0) {
-          failed.push_back(fmt::format("{} (exit status {})", (dir / "train.log").string(), rc));
-          continue;
+        if (!error) error = std::current_exception();
+        return;
+      }
+      std::lock_guard<std::mutex> lock(mu);
+      finished[piece.id] = 1;
+      if (!counted) return;
+      ++evals_done;
+      out << fmt::format("  {}: {:.1f} s ({}/{} evaluations, {:.0f} s elapsed)\n", piece.label, since(te), evals_done,
+                         evals.size(), since(t0))
+          << std::flush;
+    };
+    auto worker = [&] {
+      std::unique_lock<std::mutex> lock(mu);
+      for (;;) {
+        if (error) return;
+        const Piece* run = nullptr;
+        const Piece* eval = nullptr;
+        if (next_run < runs.size()) {
+          run = runs[next_run++];
+        } else {
+          std::size_t open = 0;
+          for (std::size_t e = 0; e < evals.size() && !eval; ++e) {
+            if (taken[e]) continue;
+            ++open;
+            if (ready(e)) taken[e] = 1, eval = evals[e];
+          }
+          if (!eval) {
+            // Nothing to start: done, or wait for a running piece that may make one ready.
+            if (open == 0 || running == 0) return;
+            changed.wait(lock);
+            continue;
+          }
         }
-        busy += sec;
-        ++done;
-        const double per = busy / static_cast<double>(done) / static_cast<double>(jobs_);
-        log_ << fmt::format("  {} K = {} seed {}: {:.0f} s{} ({}/{}, {:.0f} s elapsed{})\n", cfg.marl.algo, cfg.scenario.users,
-                            cfg.run.seed, sec, ran ? "" : " (by another process)", done, need.size(), since(t0),
-                            done < need.size() ? fmt::format(", ETA {:.0f} s", per * static_cast<double>(need.size() - done)) : "")
-             << std::flush;
+        ++running;
+        lock.unlock();
+        if (run) {
+          if (!trained(*run)) train(*run);
+          if (trained(*run)) evaluate(*run, false);  // its policy on its own users
+        } else {
+          evaluate(*eval, true);
+        }
+        lock.lock();
+        --running;
+        changed.notify_all();
       }
     };
     std::vector<std::thread> pool;
     for (int j = 0; j < jobs_; ++j) pool.emplace_back(worker);
     for (auto& t : pool) t.join();
+    ctx_.log.rdbuf(shown);
     if (!failed.empty())
-      throw std::runtime_error(fmt::format("{} of {} MARL runs failed; see {}", failed.size(), need.size(), failed.front()));
+      throw std::runtime_error(fmt::format("{} of {} MARL runs failed; see {}", failed.size(), runs.size(), failed.front()));
+    if (error) std::rethrow_exception(error);
   }
+
+  bool trained(const Piece& run) const {
+    const fs::path dir = ctx_.out / run.id;
+    return fs::exists(dir / "train.json") && fs::exists(dir / "policy.pt");
+  }
+
+  static std::string exe_path() { return fs::read_symlink("/proc/self/exe").string(); }
 
   void assemble(const std::vector<const ExperimentSpec*>& selected, double compute_s, Clock::time_point t_all) {
     nlohmann::json manifest;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <future>
 #include <map>
 #include <mutex>
 #include <cmath>
@@ -487,20 +488,38 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
 }
 
 void OptimalPlanner::reset(UavEnv& env) {
+  if (memo_key_.empty()) {
+    plan_ = solve_optimal(env, progress_);
+    return;
+  }
+  // One solve per key and process: a second thread asking for a key being solved waits for it
+  // (reproduce evaluates pieces on several threads, and pieces share optima).
   static std::mutex mutex;
-  static std::map<std::string, OptimalPlan> memo;
-  if (!memo_key_.empty()) {
+  static std::map<std::string, std::shared_future<OptimalPlan>> memo;
+  std::promise<OptimalPlan> mine;
+  std::shared_future<OptimalPlan> plan;
+  bool solve = false;
+  {
     std::lock_guard<std::mutex> lock(mutex);
-    if (const auto it = memo.find(memo_key_); it != memo.end()) {
-      plan_ = it->second;
-      return;
+    auto it = memo.find(memo_key_);
+    if (it == memo.end()) {
+      it = memo.emplace(memo_key_, mine.get_future().share()).first;
+      solve = true;
+    }
+    plan = it->second;
+  }
+  if (solve) {
+    try {
+      mine.set_value(solve_optimal(env, progress_));
+    } catch (...) {
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        memo.erase(memo_key_);  // a failed solve is not remembered: the next caller gets its own error
+      }
+      mine.set_exception(std::current_exception());
     }
   }
-  plan_ = solve_optimal(env, progress_);
-  if (!memo_key_.empty()) {
-    std::lock_guard<std::mutex> lock(mutex);
-    memo.emplace(memo_key_, plan_);
-  }
+  plan_ = plan.get();
 }
 
 std::vector<int> replay(const std::vector<std::vector<int>>& actions, const UavEnv& env) {

@@ -27,12 +27,13 @@ namespace {
 const std::string kSrc = SKYLOOP_SOURCE_DIR;
 const std::string kExperiments = kSrc + "/configs/experiments";
 
-/// The data rows of a CSV (no quoting in skyloop's CSVs), each split at the commas.
-std::vector<std::vector<std::string>> csv_rows(const std::string& csv) {
+/// The data rows of a CSV (no quoting in skyloop's CSVs), each split at the commas; the header
+/// first with `header`.
+std::vector<std::vector<std::string>> csv_rows(const std::string& csv, bool header = false) {
   std::vector<std::vector<std::string>> rows;
   std::istringstream in(csv);
   std::string line;
-  std::getline(in, line);  // header
+  if (!header) std::getline(in, line);
   while (std::getline(in, line)) {
     std::vector<std::string> f;
     std::stringstream ls(line);
@@ -334,6 +335,33 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   ASSERT_EQ(forced_traj.code, 0) << forced_traj.err;
   EXPECT_NE(forced_traj.err.find("training 1 MARL runs"), std::string::npos) << forced_traj.err;
   EXPECT_EQ(slurp(out / "trajectories" / "trajectories.csv"), traj);  // seeded: the same paths again
+
+  // The evaluations ran two at a time beside the MARL runs (--jobs = --threads = 2): the layout
+  // evaluations and the planners' (exact optima, a policy) one at a time in another directory give
+  // the same CSVs, less the columns that time them.
+  {
+    const fs::path one = tmp("tiny_one_job");
+    const auto serial = run("reproduce --profile tiny --threads 1 --jobs 1 --no-plots --only generalisation,rate_energy --out " +
+                                one.string(),
+                            one / "logs");
+    ASSERT_EQ(serial.code, 0) << serial.err;
+    EXPECT_EQ(serial.err.find("evaluations, "), std::string::npos) << "--jobs 1 computes in the assembly";
+    const auto untimed = [](const std::string& csv) {
+      std::vector<std::vector<std::string>> rows;
+      const auto all = csv_rows(csv, true);
+      std::vector<std::size_t> keep;
+      for (std::size_t c = 0; c < all.at(0).size(); ++c)
+        if (all[0][c] != "seconds") keep.push_back(c);
+      for (const auto& r : all) {
+        rows.emplace_back();
+        for (auto c : keep) rows.back().push_back(r.at(c));
+      }
+      return rows;
+    };
+    for (const std::string f : {"generalisation/generalisation.csv", "generalisation/layouts.csv", "rate_energy/front.csv",
+                                "rate_energy/paths.csv"})
+      EXPECT_EQ(untimed(slurp(one / f)), untimed(slurp(out / f))) << f;
+  }
 
   const auto a = means(slurp(out / "power_sweep" / "power_sweep.csv")), b = means(before);
   ASSERT_EQ(a.size(), b.size());

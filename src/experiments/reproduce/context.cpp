@@ -92,28 +92,34 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
   run_planners(cfg, p, builtin_beamformers(), &quiet, &seconds);
 }
 
-// Rough seconds on one core (the farm's order, --plan, the ETA; never a result), calibrated from
-// the timings.csv of a quick-profile run on the 2-core machine (2026-11-23; BENCHMARKS.md,
-// "Reproduce: estimates") and the fast PPO backend's runs (2026-11-24): MAPPO / IPPO 2.5e-5 s per
-// environment step at N = 3 (the GNN oracle; 1.3e-4 on marl.backend = torch), VDN / QMIX 0.45e-4;
-// the set encoder with validation layouts adds 7e-5 and the shared spectrum's interference-aware
-// oracle 1.7e-4; the per-step cost grows as N^1.3 (measured at N = 16).
+// Rough seconds on one core (the farm's order, --plan, the ETA; never a result). The per-step
+// costs by learner, encoder and spectrum come from a quick-profile run's timings.csv on the
+// 2-core AVX-512 VM (2026-11-23) and the fast PPO backend's runs (2026-11-24): MAPPO / IPPO
+// 2.5e-5 s per environment step at N = 3 (the GNN oracle; 1.3e-4 on marl.backend = torch),
+// VDN / QMIX 0.45e-4; the set encoder with validation layouts adds 7e-5 and the shared spectrum's
+// interference-aware oracle 1.7e-4; the per-step cost grows as N^1.3 (measured at N = 16). They
+// are scaled to the slower AVX2-only VM (2026-11-26: 19 runs, two at a time, took 804 s against
+// 306 s estimated): x 2.4, plus 3 s per run for the child process's start, its models and the
+// policy's last evaluation. The AVX-512 VM runs them 1.4-3.5x faster: the ETA is the slow machine's.
+constexpr double kMarlMachine = 2.4, kMarlRunSetup = 3.0;
 double marl_cost(const Config& cfg) {
   const auto& learner = find_learner(cfg.marl.algo);
   const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? 0.45e-4
                       : cfg.marl.backend == "torch"                          ? 1.3e-4
                                                                              : 2.5e-5;
   const double per_step = base + (cfg.marl.encoder == "set" ? 7e-5 : 0.0) + (cfg.channel.spectrum == "shared" ? 1.7e-4 : 0.0);
-  return per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
+  return kMarlRunSetup +
+         kMarlMachine * per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
 }
-/// The exact optimum of one layout: about 0.35 s per user on the paper's grid (1.77e6 joint states),
-/// in proportion to the joint states; one shared-spectrum network per state costs about 90x more
-/// (7.5 minutes measured for the paper scenario).
+/// The exact optimum of one layout: about 0.55 s per user on the paper's grid (1.77e6 joint
+/// states; 0.35 s on the AVX-512 VM, x 1.56 on the AVX2 VM, 2026-11-26), in proportion to the
+/// joint states; one shared-spectrum network per state costs about 90x more (7.5 minutes measured
+/// for the paper scenario).
 double dp_cost(const Config& cfg, int users) {
   const double cells = (std::floor(cfg.scenario.area_x_m / cfg.trajectory.d_fly_m) + 1) *
                        (std::floor(cfg.scenario.area_y_m / cfg.trajectory.d_fly_m) + 1);
   const double states = std::pow(cells, static_cast<double>(cfg.trajectory.starts.size())) / std::pow(121.0, 3);
-  return 0.35 * users * states * (cfg.channel.spectrum == "shared" ? 90.0 : 1.0) + 0.3;
+  return 0.55 * users * states * (cfg.channel.spectrum == "shared" ? 90.0 : 1.0) + 0.3;
 }
 double planner_cost(const Config& cfg, const std::string& p) {
   const double shared = cfg.channel.spectrum == "shared" ? 3.0 : 1.0;

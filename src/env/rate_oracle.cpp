@@ -60,8 +60,14 @@ double total_of(const std::vector<double>& per_uav) {
 std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, const std::vector<const Positions*>& uavs) {
   using Key = RateOracle::Key;
   const std::size_t m = oracles.size();
-  std::vector<std::vector<Key>> keys(m);
-  std::vector<std::vector<std::vector<int>>> members(m);
+  // One association at a time (reused storage); what R needs of it is kept flat: per position set
+  // its clusters' rates in UAV order, a hit's value at once, a miss's looked up once computed.
+  thread_local std::vector<Key> keys;
+  thread_local std::vector<std::vector<int>> members;
+  std::vector<std::size_t> parts_begin(m + 1, 0);
+  std::vector<double> part_rate;        // the cluster's rate, or NaN until its miss is computed
+  std::vector<std::size_t> part_later;  // parts whose rate is a miss of this batch: (part, key index)
+  std::vector<Key> later_keys;
   // Misses per beamformer. Per-cluster (orthogonal): (oracle, key) and its cluster. Joint
   // (shared): (oracle, joint key) and its network.
   // A miss holds its fast slots' clusters (or networks) at [first, first + slots); its rate is
@@ -95,9 +101,11 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
   std::unordered_map<const RateOracle*, std::unordered_map<Key, char, RateOracle::KeyHash>> pending;
   std::unordered_map<const RateOracle*, std::unordered_map<std::vector<double>, char, RateOracle::JointHash>> joint_pending;
   std::vector<std::vector<double>> jkeys(m);
+  std::vector<RateOracle*> later_oracle;
   for (std::size_t s = 0; s < m; ++s) {
     RateOracle& o = *oracles[s];
-    o.keys_of(*uavs[s], keys[s], members[s]);
+    o.keys_of(*uavs[s], keys, members);
+    parts_begin[s] = part_rate.size();
     if (o.joint()) {
       jkeys[s] = RateOracle::joint_key(*uavs[s]);
       auto& mine = joint_pending[&o];
@@ -110,27 +118,39 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
       const std::size_t g = group_of(o.beamformer_.get());
       const int slots = o.model_.fast_slots();
       joint_misses[g].push_back({&o, jkeys[s], networks[g].size(), slots});
-      for (int slot = 0; slot < slots; ++slot) networks[g].push_back(o.model_.network(*uavs[s], o.users_, members[s], slot));
+      for (int slot = 0; slot < slots; ++slot) networks[g].push_back(o.model_.network(*uavs[s], o.users_, members, slot));
       continue;
     }
-    for (std::size_t i = 0; i < keys[s].size(); ++i) {
-      if (members[s][i].empty()) continue;
-      const Key& key = keys[s][i];
-      auto& mine = pending[&o];
-      if (o.cache_.count(key) || mine.count(key)) {
+    std::unordered_map<Key, char, RateOracle::KeyHash>* mine = nullptr;
+    for (std::size_t i = 0; i < keys.size(); ++i) {
+      if (members[i].empty()) continue;
+      const Key& key = keys[i];
+      const std::size_t part = part_rate.size();
+      part_rate.push_back(std::numeric_limits<double>::quiet_NaN());
+      if (const auto it = o.cache_.find(key); it != o.cache_.end()) {
+        ++o.stats_.hits;
+        part_rate.back() = it->second;
+        continue;
+      }
+      part_later.push_back(part);
+      later_keys.push_back(key);
+      later_oracle.push_back(&o);
+      if (!mine) mine = &pending[&o];
+      if (mine->count(key)) {
         ++o.stats_.hits;
         continue;
       }
       ++o.stats_.misses;
-      mine.emplace(key, 1);
+      mine->emplace(key, 1);
       const std::size_t g = group_of(o.beamformer_.get());
       const int slots = o.model_.fast_slots();
       misses[g].push_back({&o, key, clusters[g].size(), slots});
       for (int slot = 0; slot < slots; ++slot)
-        clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[s][i],
+        clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[i],
                                                     static_cast<int>(uavs[s]->rows()), slot));
     }
   }
+  parts_begin[m] = part_rate.size();
   for (std::size_t g = 0; g < groups.size(); ++g) {
     if (!clusters[g].empty()) {
       const auto W = groups[g]->design_batch(clusters[g]);
@@ -162,14 +182,14 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
       }
     }
   }
+  for (std::size_t j = 0; j < part_later.size(); ++j) part_rate[part_later[j]] = later_oracle[j]->cache_.at(later_keys[j]);
   std::vector<double> out(m, 0.0);
   for (std::size_t s = 0; s < m; ++s) {
     if (oracles[s]->joint()) {
       out[s] = total_of(oracles[s]->joint_cache_.at(jkeys[s]));
       continue;
     }
-    for (std::size_t i = 0; i < keys[s].size(); ++i)
-      if (!members[s][i].empty()) out[s] += oracles[s]->cache_.at(keys[s][i]);
+    for (std::size_t p = parts_begin[s]; p < parts_begin[s + 1]; ++p) out[s] += part_rate[p];  // in UAV order, as total_of
   }
   return out;
 }

@@ -6,6 +6,7 @@
 #include <map>
 #include <mutex>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <ostream>
 #include <stdexcept>
@@ -357,29 +358,41 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
   for (double r : R) plan.evaluated_states += !std::isnan(r);
   // Value tables V[t] for slots t = 1..Tmax (index t - 1).
   std::vector<std::vector<double>> V(static_cast<std::size_t>(Tmax), std::vector<double>(S, kNegInf));
-  plan.memory_bytes = static_cast<std::size_t>(Tmax) * S * sizeof(double) + S * sizeof(double) * 3;
+  plan.memory_bytes = static_cast<std::size_t>(Tmax) * S * sizeof(double) + S * sizeof(double) * 3 + S * sizeof(std::int32_t) * 2;
   std::vector<double> M(S), tmp(S);
-  auto all_home = [&](std::size_t s) {
-    for (int n = 0; n < N; ++n)
-      if (cell(s, n) != d_cell[static_cast<std::size_t>(n)]) return false;
-    return true;
-  };
-  auto alive_at = [&](std::size_t s, int t) {  // reachable from the start by slot t and home by T_max
-    for (int n = 0; n < N; ++n) {
-      const int c = cell(s, n);
-      if (from_start[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] > t - 1 ||
-          to_dest[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] > Tmax - t)
-        return false;
-    }
-    return true;
-  };
   const std::size_t s0 = [&] {
     std::size_t s = 0;
     for (int n = 0; n < N; ++n) s += stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(s_cell[static_cast<std::size_t>(n)]);
     return s;
   }();
+  const std::size_t s_home = [&] {
+    std::size_t s = 0;
+    for (int n = 0; n < N; ++n) s += stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(d_cell[static_cast<std::size_t>(n)]);
+    return s;
+  }();
+  auto all_home = [&](std::size_t s) { return s == s_home; };
   if (std::isnan(R[s0])) throw InputError("the start positions collide or cannot reach the destinations by trajectory.t_max");
-
+  // A state is alive at slot t when every UAV can have reached its cell from its start by slot t
+  // and can reach its destination by T_max: first[s] <= t <= last[s] (first > last: never,
+  // including the states with no rate, i.e. impossible or colliding ones).
+  std::vector<std::int32_t> first(S), last(S);
+  for (std::size_t s = 0; s < S; ++s) {
+    int from = 0, to = 0;
+    for (int n = 0; n < N; ++n) {
+      const auto c = static_cast<std::size_t>(cell(s, n));
+      from = std::max(from, from_start[static_cast<std::size_t>(n)][c]);
+      to = std::max(to, to_dest[static_cast<std::size_t>(n)][c]);
+    }
+    const bool never = std::isnan(R[s]);
+    first[s] = static_cast<std::int32_t>(never ? Tmax + 1 : from + 1);
+    last[s] = static_cast<std::int32_t>(never ? 0 : Tmax - to);
+  }
+  // The moves of UAV n out of cell c: the offset of the successor state and the move's index.
+  struct Move {
+    std::ptrdiff_t offset;
+    int action;
+  };
+  std::vector<std::vector<Move>> moves(static_cast<std::size_t>(G));
   double lambda = 0.0;
   std::vector<std::size_t> path;
   const long joint = joint_count(A, N);
@@ -398,26 +411,44 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
         // (arrived UAVs only hover).
         M = V[static_cast<std::size_t>(t)];
         for (int n = 0; n < N; ++n) {
-          const std::size_t st = stride[static_cast<std::size_t>(n)];
-          for (std::size_t s = 0; s < S; ++s) {
-            const int c = cell(s, n);
-            double best = g != 0 ? M[s] - hover_cost : M[s];
+          // States in blocks of equal cell c of UAV n: s = (upper * G + c) * st + lower.
+          const std::size_t st = stride[static_cast<std::size_t>(n)], block = st * static_cast<std::size_t>(G);
+          for (int c = 0; c < G; ++c) {
+            auto& mv = moves[static_cast<std::size_t>(c)];
+            mv.clear();
             if (c != d_cell[static_cast<std::size_t>(n)])
               for (int a = 0; a < A; ++a) {
-                if (a == hover) continue;
                 const int c2 = neighbour[static_cast<std::size_t>(c * A + a)];
-                if (c2 >= 0) {
-                  const double v = M[s + st * static_cast<std::size_t>(c2) - st * static_cast<std::size_t>(c)];
-                  best = std::max(best, g != 0 ? v - cost[static_cast<std::size_t>(a)] : v);
+                if (a != hover && c2 >= 0)
+                  mv.push_back({static_cast<std::ptrdiff_t>(st) * (c2 - c), a});
+              }
+          }
+          for (std::size_t upper = 0; upper < S; upper += block)
+            for (int c = 0; c < G; ++c) {
+              const auto& mv = moves[static_cast<std::size_t>(c)];
+              const std::size_t from = upper + static_cast<std::size_t>(c) * st;
+              const double* m = M.data() + from;
+              double* out = tmp.data() + from;
+              if (g != 0) {
+                for (std::size_t i = 0; i < st; ++i) out[i] = m[i] - hover_cost;
+                for (const Move& x : mv) {
+                  const double* m2 = m + x.offset;
+                  const double cx = cost[static_cast<std::size_t>(x.action)];
+                  for (std::size_t i = 0; i < st; ++i) out[i] = std::max(out[i], m2[i] - cx);
+                }
+              } else {
+                for (std::size_t i = 0; i < st; ++i) out[i] = m[i];
+                for (const Move& x : mv) {
+                  const double* m2 = m + x.offset;
+                  for (std::size_t i = 0; i < st; ++i) out[i] = std::max(out[i], m2[i]);
                 }
               }
-            tmp[s] = best;
-          }
+            }
           M.swap(tmp);
         }
       }
       for (std::size_t s = 0; s < S; ++s) {
-        if (std::isnan(R[s]) || !alive_at(s, t)) {
+        if (t < first[s] || t > last[s]) {
           Vt[s] = kNegInf;
           continue;
         }

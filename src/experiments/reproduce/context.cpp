@@ -111,15 +111,15 @@ double marl_cost(const Config& cfg) {
   return kMarlRunSetup +
          kMarlMachine * per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
 }
-/// The exact optimum of one layout: about 0.55 s per user on the paper's grid (1.77e6 joint
-/// states; 0.35 s on the AVX-512 VM, x 1.56 on the AVX2 VM, 2026-11-26), in proportion to the
-/// joint states; one shared-spectrum network per state costs about 90x more (7.5 minutes measured
+/// The exact optimum of one layout: about 0.3 s per user on the paper's grid (1.77e6 joint
+/// states; `skyloop plan --planner optimal --users 12`: 3.8 s on the AVX2 VM, 2026-11-26), in
+/// proportion to the joint states; one shared-spectrum network per state costs about 90x more (7.5 minutes measured
 /// for the paper scenario).
 double dp_cost(const Config& cfg, int users) {
   const double cells = (std::floor(cfg.scenario.area_x_m / cfg.trajectory.d_fly_m) + 1) *
                        (std::floor(cfg.scenario.area_y_m / cfg.trajectory.d_fly_m) + 1);
   const double states = std::pow(cells, static_cast<double>(cfg.trajectory.starts.size())) / std::pow(121.0, 3);
-  return 0.55 * users * states * (cfg.channel.spectrum == "shared" ? 90.0 : 1.0) + 0.3;
+  return 0.3 * users * states * (cfg.channel.spectrum == "shared" ? 90.0 : 1.0) + 0.3;
 }
 double planner_cost(const Config& cfg, const std::string& p) {
   const double shared = cfg.channel.spectrum == "shared" ? 3.0 : 1.0;

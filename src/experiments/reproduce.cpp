@@ -29,6 +29,7 @@
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/process.hpp"
 #include "skyloop/experiments/farm.hpp"
+#include "skyloop/nn/learned.hpp"
 
 namespace skyloop {
 
@@ -446,6 +447,7 @@ class Runner {
           << std::flush;
     };
     auto worker = [&] {
+      set_torch_threads(1);  // one core per worker, denormals flushed as on the main thread
       std::unique_lock<std::mutex> lock(mu);
       for (;;) {
         if (error) return;

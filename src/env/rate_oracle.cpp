@@ -66,7 +66,7 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
   thread_local std::vector<std::vector<int>> members;
   std::vector<std::size_t> parts_begin(m + 1, 0);
   std::vector<double> part_rate;        // the cluster's rate, or NaN until its miss is computed
-  std::vector<std::size_t> part_later;  // parts whose rate is a miss of this batch: (part, key index)
+  std::vector<std::size_t> part_later;  // parts whose rate is a miss of this batch (with its key and oracle below)
   std::vector<Key> later_keys;
   // Misses per beamformer. Per-cluster (orthogonal): (oracle, key) and its cluster. Joint
   // (shared): (oracle, joint key) and its network.

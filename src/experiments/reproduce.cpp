@@ -36,7 +36,7 @@ namespace skyloop {
 namespace {
 using namespace repro;
 
-constexpr int kPendingTag = 10;
+constexpr int kPendingTag = 10;  // rank 0 -> workers: which pieces of a phase still need work
 
 /// A stream buffer that several threads write through: each write holds one lock.
 class LockedBuf : public std::streambuf {
@@ -60,7 +60,7 @@ class LockedBuf : public std::streambuf {
  private:
   std::streambuf* target_;
   std::mutex mutex_;
-};  // rank 0 -> workers: which pieces of a phase still need work
+};
 
 class Runner {
  public:
@@ -472,7 +472,12 @@ class Runner {
         ++running;
         lock.unlock();
         if (run) {
-          if (!trained(*run)) train(*run);
+          try {
+            if (!trained(*run)) train(*run);
+          } catch (...) {  // the cache's lock or a file: stop the pool, report it after
+            std::lock_guard<std::mutex> guard(mu);
+            if (!error) error = std::current_exception();
+          }
           if (trained(*run)) evaluate(*run, false);  // its policy on its own users
         } else {
           evaluate(*eval, true);

@@ -429,19 +429,12 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
               const std::size_t from = upper + static_cast<std::size_t>(c) * st;
               const double* m = M.data() + from;
               double* out = tmp.data() + from;
-              if (g != 0) {
-                for (std::size_t i = 0; i < st; ++i) out[i] = m[i] - hover_cost;
-                for (const Move& x : mv) {
-                  const double* m2 = m + x.offset;
-                  const double cx = cost[static_cast<std::size_t>(x.action)];
-                  for (std::size_t i = 0; i < st; ++i) out[i] = std::max(out[i], m2[i] - cx);
-                }
-              } else {
-                for (std::size_t i = 0; i < st; ++i) out[i] = m[i];
-                for (const Move& x : mv) {
-                  const double* m2 = m + x.offset;
-                  for (std::size_t i = 0; i < st; ++i) out[i] = std::max(out[i], m2[i]);
-                }
+              // Without an energy term every cost is 0, and v - 0 is v exactly.
+              for (std::size_t i = 0; i < st; ++i) out[i] = m[i] - hover_cost;
+              for (const Move& x : mv) {
+                const double* m2 = m + x.offset;
+                const double cx = cost[static_cast<std::size_t>(x.action)];
+                for (std::size_t i = 0; i < st; ++i) out[i] = std::max(out[i], m2[i] - cx);
               }
             }
           M.swap(tmp);

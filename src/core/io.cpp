@@ -1,5 +1,6 @@
 #include "skyloop/core/io.hpp"
 
+#include <atomic>
 #include <cerrno>
 #include <cmath>
 #include <csignal>
@@ -80,7 +81,15 @@ void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>&
 
 namespace {
 
-fs::path temp_for(const fs::path& target) { return target.string() + ".tmp." + std::to_string(::getpid()); }
+/// "<pid>-<serial>": unique per write in this process, so threads that write the same file at once
+/// (reproduce's evaluations share optima) never share a temporary. remove_stale_temporaries reads
+/// the pid back.
+std::string writer_tag() {
+  static std::atomic<unsigned long> serial{0};
+  return std::to_string(::getpid()) + "-" + std::to_string(serial.fetch_add(1, std::memory_order_relaxed));
+}
+
+fs::path temp_for(const fs::path& target) { return target.string() + ".tmp." + writer_tag(); }
 
 /// Writes `content` to `tmp`, flushed to disk; removes `tmp` and throws on failure.
 void write_temp(const fs::path& tmp, const std::string& content) {
@@ -128,7 +137,7 @@ void write_files_atomic(const std::vector<std::pair<std::string, std::string>>& 
   std::vector<fs::path> backups(files.size());
   for (std::size_t i = 0; i < files.size(); ++i) {
     if (!fs::exists(targets[i], ec)) continue;
-    backups[i] = targets[i].string() + ".bak." + std::to_string(::getpid());
+    backups[i] = targets[i].string() + ".bak." + writer_tag();
     fs::remove(backups[i], ec);
     fs::create_hard_link(targets[i], backups[i], ec);
     if (ec) backups[i].clear();  // e.g. a file system without hard links: no rollback for this one
@@ -166,8 +175,14 @@ void remove_stale_temporaries(const std::string& dir, bool recursive) {
     for (const char* tag : {".tmp.", ".bak."}) {
       const auto at = name.rfind(tag);
       if (at == std::string::npos) continue;
-      const std::string pid = name.substr(at + 5);
-      if (pid.empty() || pid.find_first_not_of("0123456789") != std::string::npos) continue;
+      // "<pid>" (older writers) or "<pid>-<serial>".
+      std::string pid = name.substr(at + 5);
+      if (const auto dash = pid.find('-'); dash != std::string::npos) {
+        const std::string serial = pid.substr(dash + 1);
+        if (serial.empty() || serial.find_first_not_of("0123456789") != std::string::npos) continue;
+        pid.resize(dash);
+      }
+      if (pid.empty() || pid.size() > 10 || pid.find_first_not_of("0123456789") != std::string::npos) continue;
       const long p = std::strtol(pid.c_str(), nullptr, 10);
       // A temporary of a process that is gone (killed mid-write) is debris; a live writer's is not.
       if (p != ::getpid() && ::kill(static_cast<pid_t>(p), 0) != 0 && errno == ESRCH) {

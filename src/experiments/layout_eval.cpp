@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fmt/format.h>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <ostream>
 
@@ -66,6 +67,21 @@ LayoutRow reference_of(const Config& cfg, UavEnv& env, const std::string& cache_
     text.append(reinterpret_cast<const char*>(u.data()), sizeof(double) * static_cast<std::size_t>(u.size()));
     if (name != "optimal") text += "|reference " + name;  // the optimum's keys as before
     path = (std::filesystem::path(cache_dir) / fmt::format("{:016x}.csv", hash_bytes(text.data(), text.size()))).string();
+  }
+  // One computation per cached reference and process: reproduce evaluates on several threads, and
+  // two evaluations of the same layouts (the planners' and the policy's) would solve it twice.
+  std::unique_lock<std::mutex> computing;
+  if (!path.empty()) {
+    static std::mutex guard;
+    static std::map<std::string, std::unique_ptr<std::mutex>> per_path;
+    std::mutex* m = nullptr;
+    {
+      std::lock_guard<std::mutex> lock(guard);
+      auto& slot = per_path[path];
+      if (!slot) slot = std::make_unique<std::mutex>();
+      m = slot.get();
+    }
+    computing = std::unique_lock<std::mutex>(*m);
     if (std::filesystem::exists(path)) {
       const auto t = CsvTable::parse(read_file(path, "optimum cache"), path);
       LayoutRow r;

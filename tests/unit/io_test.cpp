@@ -2,10 +2,13 @@
 // clean-up of what killed processes leave behind.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <sys/stat.h>
+#include <thread>
+#include <vector>
 #include <unistd.h>
 
 #include "skyloop/core/error.hpp"
@@ -49,6 +52,30 @@ TEST(Io, PairWritesBothOrNeither) {
   EXPECT_EQ(entries(d), 3u);
 }
 
+TEST(Io, ThreadsWritingOneFileAtOnceAllSucceed) {
+  // reproduce evaluates on several threads, and two evaluations may cache the same optimum: each
+  // write must land whole, and no temporary may be left.
+  const auto d = fresh("threads");
+  const std::string target = (d / "optimum.csv").string();
+  std::vector<std::thread> pool;
+  std::atomic<int> failures{0};
+  for (int t = 0; t < 8; ++t)
+    pool.emplace_back([&, t] {
+      for (int i = 0; i < 25; ++i) {
+        try {
+          write_file_atomic(target, "writer " + std::to_string(t) + "\n");
+        } catch (const std::exception&) {
+          ++failures;
+        }
+      }
+    });
+  for (auto& th : pool) th.join();
+  EXPECT_EQ(failures.load(), 0);
+  const std::string got = slurp(target);
+  EXPECT_EQ(got.rfind("writer ", 0), 0u) << got;
+  EXPECT_EQ(entries(d), 1u);
+}
+
 TEST(Io, SpecialFilesAreRefusedAndSymlinksWrittenThrough) {
   const auto d = fresh("special");
   fs::create_directories(d / "dir");
@@ -74,7 +101,11 @@ TEST(Io, StaleTemporariesOfDeadProcessesAreRemoved) {
   std::ofstream(d / ("model.pt" + live)) << "being written";
   std::ofstream(d / "sub" / ("x.csv" + dead)) << "debris";
   std::ofstream(d / "metrics.csv.bak.2147483646") << "earlier";  // interrupted pair write, target gone
+  std::ofstream(d / ("summary.csv" + dead + "-7")) << "debris";  // a writer's "<pid>-<serial>" tag
+  std::ofstream(d / ("summary.csv" + live + "-7")) << "being written";
   remove_stale_temporaries(d.string());
+  EXPECT_FALSE(fs::exists(d / ("summary.csv" + dead + "-7")));
+  EXPECT_TRUE(fs::exists(d / ("summary.csv" + live + "-7")));
   EXPECT_FALSE(fs::exists(d / ("model.pt" + dead)));
   EXPECT_TRUE(fs::exists(d / ("model.pt" + live)));
   EXPECT_TRUE(fs::exists(d / "sub" / ("x.csv" + dead)));  // not recursive

@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 #include <sstream>
 
+#include "skyloop/core/csv.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/rng.hpp"
@@ -14,6 +15,10 @@
 #include "skyloop/nn/learned.hpp"
 
 namespace skyloop::marl {
+
+namespace {
+constexpr const char* kValidationHeader = "seed,env_steps,layouts,complete,objective,best\n";
+}  // namespace
 
 const nn::ArchiveKind& policy_kind() {
   static const nn::ArchiveKind k{"policy", "a policy.pt written by `skyloop train`", kFormat, kVersion};
@@ -176,7 +181,7 @@ Run::Run(const Config& cfg, const MarlTrainOptions& opt)
 }
 
 nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int size, Learned& learned,
-                           std::string& metrics) const {
+                           std::string& metrics) {
   const auto old = read_meta(last);
   if (old.value("algo", "") != cfg.marl.algo || old.value("hidden", 0) != cfg.marl.hidden || old.value(size_key, 0) != size)
     throw InputError("--resume: '" + last + "' holds a " + old.value("algo", std::string("?")) +
@@ -186,7 +191,26 @@ nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int s
                      "\": allowed the same backend as the run it continues");
   learned.load(last, true);
   if (std::filesystem::exists(dir / "metrics.csv")) metrics = read_file((dir / "metrics.csv").string());
+  restore_validation(cfg, old.value("env_steps", std::int64_t{0}));
   return old;
+}
+
+void Run::restore_validation(const Config& cfg, std::int64_t steps) {
+  const auto path = dir / "validation.csv";
+  if (cfg.marl.val_layouts <= 0 || !std::filesystem::exists(path)) return;
+  // Model selection goes on where it stopped: the earlier rows stay in validation.csv, and the
+  // best of them (policy.pt) is what a later checkpoint must beat. Rows scored on another number
+  // of layouts are kept but not compared: selection starts over on the new validation set.
+  const auto table = CsvTable::parse(read_file(path.string(), "validation.csv"), path.string());
+  validation_csv = kValidationHeader;
+  for (std::size_t i = 0; i < table.size(); ++i) {
+    const auto at = static_cast<std::int64_t>(table.number(i, "env_steps"));
+    if (at > steps) continue;  // scored after last.pt was written (a run stopped in between): redone
+    validation_csv += fmt::format("{},{},{},{},{},{}\n", table.at(i, "seed"), table.at(i, "env_steps"), table.at(i, "layouts"),
+                                  table.at(i, "complete"), table.at(i, "objective"), table.at(i, "best"));
+    if (table.number(i, "layouts") == cfg.marl.val_layouts && table.number(i, "best") > 0)
+      best_complete = table.number(i, "complete"), best_objective = table.number(i, "objective");
+  }
 }
 
 void Run::checkpoint(const nlohmann::json& meta, Learned& learned, const std::string& metrics) const {
@@ -206,7 +230,7 @@ void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohman
     complete += (r.success && r.collisions == 0 && r.boundary == 0) ? 1.0 / V : 0.0;
     objective += r.objective / V;
   }
-  if (validation_csv.empty()) validation_csv = "seed,env_steps,layouts,complete,objective,best\n";
+  if (validation_csv.empty()) validation_csv = kValidationHeader;
   const bool best = complete > best_complete + 1e-12 || (std::abs(complete - best_complete) <= 1e-12 && objective > best_objective);
   if (best) {
     best_complete = complete, best_objective = objective;

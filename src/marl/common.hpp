@@ -140,7 +140,12 @@ struct Run {
   /// For --resume: checks that last.pt holds a run of the same algo, hidden size and
   /// `size_key` = `size`, loads its networks and optimiser and the earlier metrics.csv into
   /// `metrics`, and returns its header.
-  nlohmann::json resume(const Config& cfg, const std::string& size_key, int size, Learned& learned, std::string& metrics) const;
+  /// With marl.val_layouts, the earlier validation.csv is kept and its best row (policy.pt) stays
+  /// the one to beat.
+  nlohmann::json resume(const Config& cfg, const std::string& size_key, int size, Learned& learned, std::string& metrics);
+  /// validation.csv's rows up to `steps` (last.pt's) into validation_csv, and the best of those
+  /// scored on as many layouts as cfg's into best_complete / best_objective.
+  void restore_validation(const Config& cfg, std::int64_t steps);
   /// Resumable checkpoint: last.pt (networks and optimiser) and metrics.csv, both atomically.
   void checkpoint(const nlohmann::json& meta, Learned& learned, const std::string& metrics) const;
   /// After the loop: writes the final policy (final_path) and the last checkpoint, then returns

@@ -7,6 +7,7 @@
 
 #include "../../src/marl/nets.hpp"
 #include "skyloop/beamforming/linear.hpp"
+#include "skyloop/core/csv.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/experiments/builtin.hpp"
@@ -261,6 +262,60 @@ TEST(Marl, EveryAlgorithmRunsSeededAndResumes) {
     const auto rc = train_marl(more, a);
     EXPECT_GE(rc.env_steps, 8192) << variant;
   }
+}
+
+// --resume keeps model selection going: the earlier validation rows stay in validation.csv, and
+// the best of them (policy.pt) stays the one to beat. The pre-resume best is made unbeatable
+// here, so a resumed run that forgot it would flag its first new row best and replace policy.pt.
+// Rows scored on another number of layouts are kept, and selection starts over.
+TEST(Marl, ResumeKeepsTheBestValidatedPolicy) {
+  Config cfg = small_scenario("mappo", 4096);  // 8 updates of 512 steps
+  cfg.marl.val_layouts = 2;
+  cfg.marl.checkpoint_every = 2;
+  MarlTrainOptions opt;
+  opt.out_dir = fresh("resume_best");
+  opt.registry = &zf_registry();
+  train_marl(cfg, opt);
+  const std::string csv_path = opt.out_dir + "/validation.csv", policy_path = opt.out_dir + "/policy.pt";
+  auto rows = text_lines(read_file(csv_path));
+  ASSERT_EQ(rows.size(), 5u) << "a header and 4 validations (updates 2, 4, 6, 8)";
+  ASSERT_EQ(rows[0], "seed,env_steps,layouts,complete,objective,best");
+  std::size_t best = 0;
+  for (std::size_t i = 1; i < rows.size(); ++i)
+    if (split_csv_line(rows[i]).back() == "1") best = i;
+  ASSERT_GT(best, 0u);
+  auto fields = split_csv_line(rows[best]);
+  fields[4] = "1000000000";  // an objective no checkpoint reaches
+  rows[best] = fields[0];
+  for (std::size_t k = 1; k < fields.size(); ++k) rows[best] += "," + fields[k];
+  std::string before;
+  for (const auto& r : rows) before += r + "\n";
+  write_file_atomic(csv_path, before);
+  const std::string policy_before = read_file(policy_path);
+
+  Config more = cfg;
+  more.marl.total_steps = 6144;  // 4 more updates: validations at updates 10 and 12
+  opt.resume = true;
+  train_marl(more, opt);
+  const std::string after = read_file(csv_path);
+  ASSERT_EQ(after.substr(0, before.size()), before) << "the earlier rows are kept as they were";
+  const auto added = text_lines(after.substr(before.size()));
+  ASSERT_EQ(added.size(), 2u) << after;
+  for (const auto& r : added) EXPECT_EQ(split_csv_line(r).back(), "0") << "no checkpoint beats the best: " << r;
+  EXPECT_EQ(read_file(policy_path), policy_before) << "policy.pt is still the best validated policy";
+
+  // Another validation set: rows kept, selection over the new one starts afresh.
+  Config wider = more;
+  wider.marl.total_steps = 7168;  // 2 more updates: one validation, at update 14
+  wider.marl.val_layouts = 3;
+  train_marl(wider, opt);
+  const std::string last = read_file(csv_path);
+  ASSERT_EQ(last.substr(0, after.size()), after);
+  const auto fresh_rows = text_lines(last.substr(after.size()));
+  ASSERT_EQ(fresh_rows.size(), 1u) << last;
+  EXPECT_EQ(split_csv_line(fresh_rows[0])[2], "3");
+  EXPECT_EQ(split_csv_line(fresh_rows[0]).back(), "1");
+  EXPECT_NE(read_file(policy_path), policy_before);
 }
 
 // Every learner reads the action space from the mobility model: under `headings` (17 actions) each

@@ -1,0 +1,52 @@
+# One CTest test per GoogleTest suite of a test binary (`skyloop_add_gtest_suites` in
+# tests/CMakeLists.txt), instead of one per test as gtest_discover_tests does.
+#
+# Why: every process that links Debian's LibTorch spends about a second before main (the dynamic
+# loader resolving ~290 libraries, LibTorch registering its operators; BENCHMARKS.md, "The test
+# suite's repeated work"). One process per test made the unit tests' 162 tests cost 162 of those
+# seconds; one per suite costs 34. A suite's tests run in one process, as they do when the binary
+# is run by hand (and as scripts/test-sanitizers runs them), so they must not rely on a fresh
+# process; each test's own pass or failure is still printed by GoogleTest in the output.
+#
+# Run at build time (POST_BUILD) as a script:
+#   cmake -D TEST_EXECUTABLE=... -D CTEST_FILE=... -D WORKING_DIRECTORY=... -D TEST_TIMEOUT=...
+#         -D DISCOVERY_TIMEOUT=... -P gtest_suites.cmake
+# It writes CTEST_FILE, which CTest includes (the directory's TEST_INCLUDE_FILES).
+
+foreach(var TEST_EXECUTABLE CTEST_FILE WORKING_DIRECTORY TEST_TIMEOUT DISCOVERY_TIMEOUT)
+  if(NOT DEFINED ${var})
+    message(FATAL_ERROR "gtest_suites.cmake: ${var} is not set")
+  endif()
+endforeach()
+
+execute_process(
+  COMMAND "${TEST_EXECUTABLE}" --gtest_list_tests
+  WORKING_DIRECTORY "${WORKING_DIRECTORY}"
+  TIMEOUT ${DISCOVERY_TIMEOUT}
+  OUTPUT_VARIABLE listing
+  ERROR_VARIABLE listing_error
+  RESULT_VARIABLE result)
+if(NOT result EQUAL 0)
+  message(FATAL_ERROR "gtest_suites.cmake: ${TEST_EXECUTABLE} --gtest_list_tests failed (${result}):\n${listing}${listing_error}")
+endif()
+
+# A suite line starts in column 0 and ends with '.', possibly followed by a comment
+# ("Prefix/Suite.  # TypeParam = ..."); test lines are indented.
+string(REPLACE ";" "\\;" listing "${listing}")
+string(REPLACE "\n" ";" lines "${listing}")
+set(script "")
+set(names "")
+foreach(line IN LISTS lines)
+  if(line MATCHES "^([^ #][^ #]*)\\.")
+    set(suite "${CMAKE_MATCH_1}")
+    string(APPEND script
+      "add_test([=[${suite}]=] [==[${TEST_EXECUTABLE}]==] [==[--gtest_filter=${suite}.*]==])\n"
+      "set_tests_properties([=[${suite}]=] PROPERTIES WORKING_DIRECTORY [==[${WORKING_DIRECTORY}]==]"
+      " TIMEOUT ${TEST_TIMEOUT})\n")
+    list(APPEND names "${suite}")
+  endif()
+endforeach()
+if(names STREQUAL "")
+  message(FATAL_ERROR "gtest_suites.cmake: ${TEST_EXECUTABLE} lists no test suite")
+endif()
+file(WRITE "${CTEST_FILE}" "${script}")

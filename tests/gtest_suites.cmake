@@ -10,8 +10,12 @@
 #
 # Run at build time (POST_BUILD) as a script:
 #   cmake -D TEST_EXECUTABLE=... -D CTEST_FILE=... -D WORKING_DIRECTORY=... -D TEST_TIMEOUT=...
-#         -D DISCOVERY_TIMEOUT=... -P gtest_suites.cmake
+#         -D DISCOVERY_TIMEOUT=... [-D PER_TEST=Suite1,Suite2] -P gtest_suites.cmake
+# The suites named in PER_TEST get one CTest test per test ("Suite.Test"): a suite of long tests
+# is better balanced over `ctest --parallel` that way, and its start-ups are a small share.
 # It writes CTEST_FILE, which CTest includes (the directory's TEST_INCLUDE_FILES).
+
+cmake_policy(SET CMP0057 NEW)  # if(... IN_LIST ...)
 
 foreach(var TEST_EXECUTABLE CTEST_FILE WORKING_DIRECTORY TEST_TIMEOUT DISCOVERY_TIMEOUT)
   if(NOT DEFINED ${var})
@@ -32,18 +36,31 @@ endif()
 
 # A suite line starts in column 0 and ends with '.', possibly followed by a comment
 # ("Prefix/Suite.  # TypeParam = ..."); test lines are indented.
+string(REPLACE "," ";" per_test "${PER_TEST}")
 string(REPLACE ";" "\\;" listing "${listing}")
 string(REPLACE "\n" ";" lines "${listing}")
 set(script "")
 set(names "")
+set(suite "")
+# A test of its own that GoogleTest skipped is reported as skipped; a suite in which one test was
+# skipped and the rest passed is reported as passed (GoogleTest's output names the skipped one).
+function(add_one name filter properties)
+  string(APPEND script
+    "add_test([=[${name}]=] [==[${TEST_EXECUTABLE}]==] [==[--gtest_filter=${filter}]==])\n"
+    "set_tests_properties([=[${name}]=] PROPERTIES WORKING_DIRECTORY [==[${WORKING_DIRECTORY}]==]"
+    " TIMEOUT ${TEST_TIMEOUT}${properties})\n")
+  list(APPEND names "${name}")
+  set(script "${script}" PARENT_SCOPE)
+  set(names "${names}" PARENT_SCOPE)
+endfunction()
 foreach(line IN LISTS lines)
   if(line MATCHES "^([^ #][^ #]*)\\.")
     set(suite "${CMAKE_MATCH_1}")
-    string(APPEND script
-      "add_test([=[${suite}]=] [==[${TEST_EXECUTABLE}]==] [==[--gtest_filter=${suite}.*]==])\n"
-      "set_tests_properties([=[${suite}]=] PROPERTIES WORKING_DIRECTORY [==[${WORKING_DIRECTORY}]==]"
-      " TIMEOUT ${TEST_TIMEOUT})\n")
-    list(APPEND names "${suite}")
+    if(NOT suite IN_LIST per_test)
+      add_one("${suite}" "${suite}.*" "")
+    endif()
+  elseif(line MATCHES "^  ([^ #]+)" AND suite IN_LIST per_test)
+    add_one("${suite}.${CMAKE_MATCH_1}" "${suite}.${CMAKE_MATCH_1}" " SKIP_REGULAR_EXPRESSION [==[\\[  SKIPPED \\]]==]")
   endif()
 endforeach()
 if(names STREQUAL "")

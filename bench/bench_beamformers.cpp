@@ -44,7 +44,7 @@ BENCHMARK(BM_ZfSel)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMicroseco
 BENCHMARK(BM_Rzf)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMicrosecond)->Complexity();
 BENCHMARK(BM_Wmmse)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMicrosecond)->Complexity();
 BENCHMARK(BM_WmmseRzfStart)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_Ga2000)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMillisecond)->Iterations(4);
+BENCHMARK(BM_Ga2000)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMillisecond)->Iterations(bench::iterations(4));
 
 // Coordinated beamformers under the shared spectrum: one decision = one network of N UAVs, K = 12.
 static void network_run(benchmark::State& state, const std::string& method) {

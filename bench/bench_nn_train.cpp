@@ -11,6 +11,7 @@
 
 #include "../src/marl/ppo.hpp"
 #include "../src/nn/fast_gemm.hpp"
+#include "bench_util.hpp"
 #include "skyloop/nn/learned.hpp"
 
 using namespace skyloop;
@@ -40,10 +41,10 @@ static void BM_TrainGnn(benchmark::State& s) { train(s, "gnn", "direct"); }
 static void BM_TrainGnnStructured(benchmark::State& s) { train(s, "gnn", "structured"); }
 static void BM_TrainDeepSets(benchmark::State& s) { train(s, "deepsets", "direct"); }
 static void BM_TrainMsPointNet(benchmark::State& s) { train(s, "mspointnet", "direct"); }
-BENCHMARK(BM_TrainGnn)->Unit(benchmark::kMillisecond)->Iterations(2);
-BENCHMARK(BM_TrainGnnStructured)->Unit(benchmark::kMillisecond)->Iterations(2);
-BENCHMARK(BM_TrainDeepSets)->Unit(benchmark::kMillisecond)->Iterations(2);
-BENCHMARK(BM_TrainMsPointNet)->Unit(benchmark::kMillisecond)->Iterations(2);
+BENCHMARK(BM_TrainGnn)->Unit(benchmark::kMillisecond)->Iterations(bench::iterations(2));
+BENCHMARK(BM_TrainGnnStructured)->Unit(benchmark::kMillisecond)->Iterations(bench::iterations(2));
+BENCHMARK(BM_TrainDeepSets)->Unit(benchmark::kMillisecond)->Iterations(bench::iterations(2));
+BENCHMARK(BM_TrainMsPointNet)->Unit(benchmark::kMillisecond)->Iterations(bench::iterations(2));
 
 // One PPO step of marl.backend = "fast" (src/marl/ppo.hpp) on a minibatch of 1,536 agent samples
 // (8 environments x 256 steps x 3 UAVs over 4 minibatches: the paper scenario's), the paper's

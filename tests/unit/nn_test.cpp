@@ -11,6 +11,7 @@
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/experiments/builtin.hpp"
 #include "skyloop/nn/learned.hpp"
 #include "test_util.hpp"
 
@@ -134,6 +135,18 @@ TEST(Learned, PowerBudgetAlwaysHolds) {
         }
     }
   }
+}
+
+// The shipped models, created through the registry every command uses, meet eq:power_constraint
+// as every classical beamformer does (PowerBudget.EveryBeamformerOnRandomClusters, which runs
+// LibTorch-free).
+TEST(Learned, ShippedModelsMeetTheBudgetOnRandomClusters) {
+  BeamformerRegistry learned;
+  register_learned_beamformers(learned, "");
+  std::vector<std::string> names;
+  for (const auto& [name, desc] : learned.list()) names.push_back(name);
+  ASSERT_GE(names.size(), 4u);
+  test::expect_budget_on_random_clusters(builtin_beamformers(), names);
 }
 
 TEST(Learned, BatchedEqualsOneByOne) {

@@ -4,6 +4,10 @@
 #include <string>
 #include <vector>
 
+#include <gtest/gtest.h>
+
+#include "skyloop/beamforming/registry.hpp"
+#include "skyloop/channel/rates.hpp"
 #include "skyloop/channel/system_model.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/rng.hpp"
@@ -41,6 +45,34 @@ inline std::vector<Cluster> clusters_of_size(const Config& cfg, int k, int count
     out.push_back(model.make_cluster(0, 100, 100, users, idx));
   }
   return out;
+}
+
+/// eq:power_constraint for each of `names` in `registry` on random clusters of every size 1..8,
+/// including K_n > L, under both scalings: the output has the cluster's shape, stays within the
+/// budget, gives a positive sum rate, and with full scaling spends exactly the budget.
+inline void expect_budget_on_random_clusters(const BeamformerRegistry& registry, const std::vector<std::string>& names) {
+  for (const char* scaling : {"full", "cap"}) {
+    Config cfg;
+    cfg.ga.generations = 20;
+    cfg.ga.population = 16;
+    cfg.wmmse.restarts = 1;
+    cfg.beamforming.power_scaling = std::string(scaling) == "cap" ? PowerScaling::Cap : PowerScaling::Full;
+    for (const std::string& name : names) {
+      const auto bf = registry.create(name, cfg);
+      for (int k = 1; k <= 8; ++k)
+        for (const auto& c : clusters_of_size(cfg, k, 3, 100 + k)) {
+          const MatrixXcd W = bf->design(c);
+          ASSERT_EQ(W.rows(), 4);
+          ASSERT_EQ(W.cols(), k);
+          EXPECT_NO_THROW(check_beamformer_output(*bf, c, W)) << name;
+          EXPECT_LE(W.squaredNorm(), c.p_max * (1 + 1e-9)) << name << " K_n=" << k;
+          EXPECT_GT(sum_rate(c, W), 0.0) << name;
+          if (std::string(scaling) == "full") {
+            EXPECT_NEAR(W.squaredNorm(), c.p_max, 1e-9 * c.p_max) << name;
+          }
+        }
+    }
+  }
 }
 
 /// A tiny learned-beamformer training config (d = 16, 2 layers, 40 snapshots, one epoch, one

@@ -10,9 +10,9 @@
 #
 # Run at build time (POST_BUILD) as a script:
 #   cmake -D TEST_EXECUTABLE=... -D CTEST_FILE=... -D WORKING_DIRECTORY=... -D TEST_TIMEOUT=...
-#         -D DISCOVERY_TIMEOUT=... [-D PER_TEST=Suite1,Suite2] -P gtest_suites.cmake
-# The suites named in PER_TEST get one CTest test per test ("Suite.Test"): a suite of long tests
-# is better balanced over `ctest --parallel` that way, and its start-ups are a small share.
+#         -D DISCOVERY_TIMEOUT=... [-D ALONE=Suite.TestA,Suite.TestB] -P gtest_suites.cmake
+# The tests named in ALONE (long ones) get a CTest test of their own ("Suite.TestA"), so that
+# `ctest --parallel` can balance them; the rest of their suite stays one test ("Suite").
 # It writes CTEST_FILE, which CTest includes (the directory's TEST_INCLUDE_FILES).
 
 cmake_policy(SET CMP0057 NEW)  # if(... IN_LIST ...)
@@ -36,12 +36,11 @@ endif()
 
 # A suite line starts in column 0 and ends with '.', possibly followed by a comment
 # ("Prefix/Suite.  # TypeParam = ..."); test lines are indented.
-string(REPLACE "," ";" per_test "${PER_TEST}")
+string(REPLACE "," ";" alone "${ALONE}")
 string(REPLACE ";" "\\;" listing "${listing}")
 string(REPLACE "\n" ";" lines "${listing}")
 set(script "")
 set(names "")
-set(suite "")
 # A test of its own that GoogleTest skipped is reported as skipped; a suite in which one test was
 # skipped and the rest passed is reported as passed (GoogleTest's output names the skipped one).
 function(add_one name filter properties)
@@ -53,15 +52,45 @@ function(add_one name filter properties)
   set(script "${script}" PARENT_SCOPE)
   set(names "${names}" PARENT_SCOPE)
 endfunction()
+# The suites in listing order, each with its tests.
+set(suites "")
 foreach(line IN LISTS lines)
   if(line MATCHES "^([^ #][^ #]*)\\.")
     set(suite "${CMAKE_MATCH_1}")
-    if(NOT suite IN_LIST per_test)
-      add_one("${suite}" "${suite}.*" "")
-    endif()
-  elseif(line MATCHES "^  ([^ #]+)" AND suite IN_LIST per_test)
-    add_one("${suite}.${CMAKE_MATCH_1}" "${suite}.${CMAKE_MATCH_1}" " SKIP_REGULAR_EXPRESSION [==[\\[  SKIPPED \\]]==]")
+    list(APPEND suites "${suite}")
+    set("tests_of_${suite}" "")
+  elseif(line MATCHES "^  ([^ #]+)" AND DEFINED suite)
+    list(APPEND "tests_of_${suite}" "${suite}.${CMAKE_MATCH_1}")
   endif()
+endforeach()
+foreach(listed IN LISTS alone)
+  set(found FALSE)
+  foreach(suite IN LISTS suites)
+    if(listed IN_LIST "tests_of_${suite}")
+      set(found TRUE)
+    endif()
+  endforeach()
+  if(NOT found)
+    message(FATAL_ERROR "gtest_suites.cmake: ${TEST_EXECUTABLE} has no test ${listed} (ALONE)")
+  endif()
+endforeach()
+foreach(suite IN LISTS suites)
+  set(rest "")
+  foreach(test IN LISTS "tests_of_${suite}")
+    if(test IN_LIST alone)
+      add_one("${test}" "${test}" " SKIP_REGULAR_EXPRESSION [==[\\[  SKIPPED \\]]==]")
+    else()
+      list(APPEND rest "${test}")
+    endif()
+  endforeach()
+  if(rest STREQUAL "")
+    continue()
+  endif()
+  set(filter "${suite}.*")
+  if(NOT rest STREQUAL "${tests_of_${suite}}")
+    string(REPLACE ";" ":" filter "${rest}")
+  endif()
+  add_one("${suite}" "${filter}" "")
 endforeach()
 if(names STREQUAL "")
   message(FATAL_ERROR "gtest_suites.cmake: ${TEST_EXECUTABLE} lists no test suite")

@@ -7,12 +7,12 @@
 
 namespace skyloop::bench {
 
-/// `count` clusters of exactly `k` users, cut from seeded random paper-setting snapshots with
-/// the UAV at the centre, so their geometry is the one the beamformers meet in practice.
 /// Iterations of a benchmark that fixes its own count: `n`, or 1 under the ctest smoke run
 /// (SKYLOOP_BENCH_SMOKE set: each benchmark once, to show it still runs, not to time it).
 inline int iterations(int n) { return std::getenv("SKYLOOP_BENCH_SMOKE") ? 1 : n; }
 
+/// `count` clusters of exactly `k` users, cut from seeded random paper-setting snapshots with
+/// the UAV at the centre, so their geometry is the one the beamformers meet in practice.
 inline std::vector<Cluster> clusters(int k, int count = 64, std::uint64_t seed = 1) {
   const Config cfg;
   const SystemModel model(cfg);

@@ -2,8 +2,8 @@
 # tests/CMakeLists.txt), instead of one per test as gtest_discover_tests does.
 #
 # Why: every process that links Debian's LibTorch spends about a second before main (the dynamic
-# loader resolving ~290 libraries, LibTorch registering its operators; BENCHMARKS.md, "The test
-# suite's repeated work"). One process per test made the unit tests' 162 tests cost 162 of those
+# loader resolving 275 libraries, LibTorch registering its operators; BENCHMARKS.md, "The test
+# suite's process start-ups"). One process per test made the unit tests' 162 tests cost 162 of those
 # seconds; one per suite costs 34. A suite's tests run in one process, as they do when the binary
 # is run by hand (and as scripts/test-sanitizers runs them), so they must not rely on a fresh
 # process; each test's own pass or failure is still printed by GoogleTest in the output.

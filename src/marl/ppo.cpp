@@ -4,6 +4,7 @@
 #include "ppo.hpp"
 
 #include <cmath>
+#include <cstdint>
 #include <fmt/format.h>
 #include <numeric>
 #include <ostream>
@@ -192,13 +193,15 @@ UpdateStats ppo_loss_rows(const Minibatch& b, const PpoSettings& s, int first, i
     for (int k = 0; k < A; ++k)
       if (allowed[k] > 0) mx = std::max(mx, static_cast<double>(z[k]));
     double sum = 0;
-    for (int k = 0; k < A; ++k)
-      if (allowed[k] > 0) sum += std::exp(z[k] - mx);
+    for (int k = 0; k < A; ++k) {  // p holds exp(z_k - max) until divided by their sum
+      p[k] = allowed[k] > 0 ? std::exp(z[k] - mx) : 0.0;
+      sum += p[k];
+    }
     const double log_sum = mx + std::log(sum);
     double entropy = 0;
     for (int k = 0; k < A; ++k) {
       logp[k] = allowed[k] > 0 ? z[k] - log_sum : 0.0;
-      p[k] = allowed[k] > 0 ? std::exp(logp[k]) : 0.0;
+      p[k] /= sum;
       entropy -= p[k] * logp[k];
     }
     const auto a = static_cast<std::size_t>(b.actions[static_cast<std::size_t>(i)]);
@@ -384,17 +387,21 @@ class FastPpo final : public PpoNetworks {
       const int last = static_cast<int>(static_cast<long>(R) * static_cast<long>(c + 1) / kChunks);
       auto& g = chunk_grad_[c];
       g.assign(np, 0.0f);
-      if (last <= first) return;
-      float* lg = logits_.data() + static_cast<std::size_t>(first) * as;
-      float* vl = values_.data() + static_cast<std::size_t>(first) * vs;
-      float* dl = dlogits_.data() + static_cast<std::size_t>(first) * as;
-      float* dv = dvalues_.data() + static_cast<std::size_t>(first) * vs;
-      actor_.forward(b.observations.data() + static_cast<std::size_t>(first) * b.obs_width, last - first, lg, &actor_cache_[c]);
-      critic_.forward(b.critic_inputs.data() + static_cast<std::size_t>(first) * b.critic_width, last - first, vl,
-                      &critic_cache_[c]);
-      parts[c] = ppo_loss_rows(b, s, first, last, per_active, lg, as, vl, vs, dl, dv);
-      actor_.backward(actor_cache_[c], dl, g.data());
-      critic_.backward(critic_cache_[c], dv, g.data() + na);
+      // In pieces of kPieceRows rows, whose activations stay in the core's L2 cache from the
+      // forward pass to the backward; each weight's gradient still sums its rows in order, so the
+      // pieces change no bit of it.
+      for (int lo = first; lo < last; lo += kPieceRows) {
+        const int hi = std::min(last, lo + kPieceRows);
+        float* lg = logits_.data() + static_cast<std::size_t>(lo) * as;
+        float* vl = values_.data() + static_cast<std::size_t>(lo) * vs;
+        float* dl = dlogits_.data() + static_cast<std::size_t>(lo) * as;
+        float* dv = dvalues_.data() + static_cast<std::size_t>(lo) * vs;
+        actor_.forward(b.observations.data() + static_cast<std::size_t>(lo) * b.obs_width, hi - lo, lg, &actor_cache_[c]);
+        critic_.forward(b.critic_inputs.data() + static_cast<std::size_t>(lo) * b.critic_width, hi - lo, vl, &critic_cache_[c]);
+        parts[c].add(ppo_loss_rows(b, s, lo, hi, per_active, lg, as, vl, vs, dl, dv), 1.0);
+        actor_.backward(actor_cache_[c], dl, g.data());
+        critic_.backward(critic_cache_[c], dv, g.data() + na);
+      }
     });
     UpdateStats u;
     grad_.assign(np, 0.0f);
@@ -492,6 +499,7 @@ class FastPpo final : public PpoNetworks {
   }
 
   static constexpr std::size_t kChunks = 2;
+  static constexpr int kPieceRows = 192;
   Nets torch_;  // the archive's form of the weights (written on save, read on load)
   fast::Mlp actor_, critic_;
   fast::Adam actor_adam_, critic_adam_;
@@ -646,6 +654,14 @@ double explained_variance(const Rollout& r) {
   return vy > 0 ? 1.0 - vd / vy : NAN;
 }
 
+/// Asks for every cache line of the floats [p, p + n).
+inline void prefetch_span(const float* p, int n) {
+  if (n <= 0) return;
+  const auto first = reinterpret_cast<std::uintptr_t>(p) & ~std::uintptr_t{63};
+  const auto last = reinterpret_cast<std::uintptr_t>(p + n - 1);
+  for (std::uintptr_t a = first; a <= last; a += 64) __builtin_prefetch(reinterpret_cast<const void*>(a));
+}
+
 UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng, Minibatch& b,
                    int threads, double entropy_factor) {
   const std::size_t S = r.samples();
@@ -683,10 +699,9 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
           const std::size_t i = order[first + static_cast<std::size_t>(k)], kk = static_cast<std::size_t>(k);
           if (k + kAhead < end) {  // the rows are scattered over the rollout: ask for a later one's now
             const std::size_t ahead = order[first + static_cast<std::size_t>(k + kAhead)];
-            __builtin_prefetch(r.observations.data() + ahead * r.obs_width);
-            __builtin_prefetch(r.critic_inputs.data() + ahead * r.critic_width);
-            __builtin_prefetch(r.critic_inputs.data() + (ahead + 1) * r.critic_width - 1);  // its last line too
-            __builtin_prefetch(r.allowed.data() + ahead * r.A);
+            prefetch_span(r.observations.data() + ahead * r.obs_width, r.obs_width);
+            prefetch_span(r.critic_inputs.data() + ahead * r.critic_width, r.critic_width);
+            prefetch_span(r.allowed.data() + ahead * r.A, r.A);
           }
           std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
           std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);

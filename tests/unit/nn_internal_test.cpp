@@ -271,9 +271,10 @@ TEST(NnInternal, ShippedModelsFastPathIsWithinRoundingOfFloat64) {
 }
 
 // The fast path's vectorised tanh (the learners' fused MLPs) against the float64 tanh, on every
-// kernel variant (ATEN_CPU_CAPABILITY picks it): below |x| = 0.4 its Taylor series is within a few
-// float32 ulps relative; above, (1 - e) / (1 + e) from a float32 exp is within a few ulps of 1
-// absolute. Signs, zeros, saturation and infinities hold exactly.
+// kernel variant (ATEN_CPU_CAPABILITY picks it). The rational fit's own error is 9.4e-9 relative
+// (fast_gemm_kernel.inl); its float32 evaluation, emulated over these points, stays within 1.5
+// ulps relative below |x| = 0.4 and 2.5 ulps absolute above, with or without FMA: 3 ulps here.
+// Signs, zeros, saturation and infinities hold exactly; a NaN stays a NaN.
 TEST(NnInternal, FastTanhIsWithinFloat32RoundingOfTanh) {
   std::vector<float> x;
   for (double v = -20; v <= 20; v += 1.0 / 1024) x.push_back(static_cast<float>(v));
@@ -287,10 +288,13 @@ TEST(NnInternal, FastTanhIsWithinFloat32RoundingOfTanh) {
   for (std::size_t i = 0; i < x.size(); ++i) {
     const double ref = std::tanh(static_cast<double>(x[i]));
     const double err = std::abs(static_cast<double>(y[i]) - ref);
-    if (std::abs(x[i]) < 0.4f) EXPECT_LE(err, 4 * ulp1 * std::abs(ref)) << "x = " << x[i];
-    else EXPECT_LE(err, 4 * ulp1) << "x = " << x[i];
+    if (std::abs(x[i]) < 0.4f) EXPECT_LE(err, 3 * ulp1 * std::abs(ref)) << "x = " << x[i];
+    else EXPECT_LE(err, 3 * ulp1) << "x = " << x[i];
     EXPECT_EQ(std::signbit(y[i]), std::signbit(x[i])) << "x = " << x[i];
   }
   EXPECT_EQ(y[y.size() - 2], 1.0f);
   EXPECT_EQ(y.back(), -1.0f);
+  std::vector<float> nan(9, std::numeric_limits<float>::quiet_NaN());  // a whole vector and a tail
+  skyloop::nn::fast::tanh_inplace(nan.data(), static_cast<long>(nan.size()));
+  for (float v : nan) EXPECT_TRUE(std::isnan(v));
 }

@@ -100,17 +100,15 @@ void Mlp::backward(Cache& c, const float* dout, float* grad) const {
   if (rows <= 0) return;
   const std::size_t hn = static_cast<std::size_t>(rows) * hidden_pad_;
   grow(c.dh, hn);
-  // Layer 3: dW3^T += h2^T dout, db3 += sum dout, dh2 = dout W3.
+  // Layer 3: dW3^T += h2^T dout, db3 += sum dout, dz2 = (dout W3) * (1 - h2^2).
   gemm::matmul_at(c.h2.data(), hidden_pad_, hidden_, dout, rows, out_pad_, grad + w3_, out_pad_, out_);
   gemm::column_sums(dout, rows, out_pad_, out_pad_, grad + b3_);
-  gemm::matmul(dout, out_pad_, rows, w3_rows_.data(), out_, hidden_pad_, nullptr, c.dh.data(), hidden_pad_, false);
-  gemm::tanh_backward(c.h2.data(), c.dh.data(), static_cast<long>(hn));
+  gemm::matmul_tanh_backward(dout, out_pad_, rows, w3_rows_.data(), out_, hidden_pad_, c.h2.data(), c.dh.data(), hidden_pad_);
   // Layer 2 (dh holds dz2).
   gemm::matmul_at(c.h1.data(), hidden_pad_, hidden_, c.dh.data(), rows, hidden_pad_, grad + w2_, hidden_pad_);
   gemm::column_sums(c.dh.data(), rows, hidden_pad_, hidden_pad_, grad + b2_);
-  // dh1 = dz2 W2 goes into h2's buffer (h2 is no longer needed), then dz1.
-  gemm::matmul(c.dh.data(), hidden_pad_, rows, w2_rows_.data(), hidden_, hidden_pad_, nullptr, c.h2.data(), hidden_pad_, false);
-  gemm::tanh_backward(c.h1.data(), c.h2.data(), static_cast<long>(hn));
+  // dz1 = (dz2 W2) * (1 - h1^2) goes into h2's buffer (h2 is no longer needed).
+  gemm::matmul_tanh_backward(c.dh.data(), hidden_pad_, rows, w2_rows_.data(), hidden_, hidden_pad_, c.h1.data(), c.h2.data(), hidden_pad_);
   // Layer 1.
   gemm::matmul_at(c.x, in_, in_, c.h2.data(), rows, hidden_pad_, grad + w1_, hidden_pad_);
   gemm::column_sums(c.h2.data(), rows, hidden_pad_, hidden_pad_, grad + b1_);

@@ -35,6 +35,7 @@ namespace {
 #endif
 
 using Kernel = void (*)(const float*, int, int, const float*, int, int, int, const float*, float*, int, bool);
+using GatedKernel = void (*)(const float*, int, int, const float*, int, int, int, const float*, float*, int);
 using Elementwise = void (*)(float*, long);
 using Sums = void (*)(const float*, int, int, int, float*);
 using TanhGrad = void (*)(const float*, float*, long);
@@ -43,6 +44,7 @@ using SumSquares = double (*)(const float*, long);
 
 struct Choice {
   Kernel fn, fn_at;
+  GatedKernel gated;
   Elementwise tanh;
   Sums sums;
   TanhGrad tanh_grad;
@@ -52,7 +54,7 @@ struct Choice {
 };
 
 #define SKYLOOP_GEMM_CHOICE(ns, name) \
-  Choice { ns::gemm, ns::gemm_at, ns::tanh_inplace, ns::column_sums, ns::tanh_backward, ns::adam_step, ns::sum_squares, name }
+  Choice { ns::gemm, ns::gemm_at, ns::gemm_gated, ns::tanh_inplace, ns::column_sums, ns::tanh_backward, ns::adam_step, ns::sum_squares, name }
 
 Choice choose() {
   const char* env = std::getenv("ATEN_CPU_CAPABILITY");
@@ -102,6 +104,12 @@ void matmul(const float* A, int lda, int rows, const float* B, int inner, int co
   if (cols < 0) cols = cols_pad;
   if (cols_pad % kColBlock != 0 || ldc < cols_pad || cols > cols_pad) throw std::logic_error("fast::matmul: unpadded buffers");
   chosen().fn(A, lda, rows, B, inner, cols_pad, cols, bias, C, ldc, accumulate);
+}
+
+void matmul_tanh_backward(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* h, float* C,
+                          int ldc) {
+  if (cols_pad % kColBlock != 0 || ldc < cols_pad) throw std::logic_error("fast::matmul_tanh_backward: unpadded buffers");
+  chosen().gated(A, lda, rows, B, inner, cols_pad, cols_pad, h, C, ldc);
 }
 
 void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, float* C, int ldc, int cols) {

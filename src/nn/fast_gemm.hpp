@@ -37,6 +37,12 @@ void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, 
 void matmul(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* bias, float* C, int ldc,
             bool accumulate, int cols = -1);
 
+/// C[i, :cols_pad] = (A[i, :inner] B) * (1 - h[i, :cols_pad]^2) element-wise, h of C's row stride
+/// ldc: the gradient into a tanh layer from the gradient at the next layer's input, in one pass
+/// (the same floats as matmul, then tanh_backward).
+void matmul_tanh_backward(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* h, float* C,
+                          int ldc);
+
 /// C[:rows, :cols_pad] += A^T B for A [inner x rows] of row stride lda: a weight's gradient
 /// X^T dY straight from the activations X [batch x in] (rows = in, inner = batch). cols as matmul's.
 void matmul_at(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, float* C, int ldc, int cols = -1);

@@ -27,7 +27,8 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void store(floa
 template <int MR, int NV, bool TA = false>
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void block(const float* A, int lda, const float* w,
                                                                             int in, int out_pad, const float* bias,
-                                                                            float* C, int ldc, bool accumulate) {
+                                                                            float* C, int ldc, bool accumulate,
+                                                                            const float* gate) {
   vf s[MR][NV];
   for (int r = 0; r < MR; ++r)
     for (int v = 0; v < NV; ++v) {
@@ -47,6 +48,14 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void block(cons
       for (int v = 0; v < NV; ++v) s[r][v] += a * wv[v];
     }
   }
+  if (gate) {  // through tanh backwards: times 1 - h^2, h the layer's output (tanh_backward's arithmetic)
+    const vf one = vf{} + 1.0f;
+    for (int r = 0; r < MR; ++r)
+      for (int v = 0; v < NV; ++v) {
+        const vf h = load(gate + r * ldc + v * V);
+        s[r][v] = s[r][v] * (one - h * h);
+      }
+  }
   for (int r = 0; r < MR; ++r)
     for (int v = 0; v < NV; ++v) *reinterpret_cast<vf*>(C + r * ldc + v * V) = s[r][v];
 }
@@ -57,29 +66,33 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void block(cons
 template <int MR, bool TA>
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void row_block(const float* A, int lda, const float* wt, int in,
                                                                                 int out_pad, int live, const float* bias, float* C,
-                                                                                bool accumulate, int ldc) {
+                                                                                bool accumulate, int ldc, const float* gate) {
   for (int j = 0; j < live; j += 2 * V) {
     const float* b = bias ? bias + j : nullptr;
-    if (live - j >= 2 * V) block<MR, 2, TA>(A, lda, wt + j, in, out_pad, b, C + j, ldc, accumulate);
-    else block<MR, 1, TA>(A, lda, wt + j, in, out_pad, b, C + j, ldc, accumulate);
+    const float* g = gate ? gate + j : nullptr;
+    if (live - j >= 2 * V) block<MR, 2, TA>(A, lda, wt + j, in, out_pad, b, C + j, ldc, accumulate, g);
+    else block<MR, 1, TA>(A, lda, wt + j, in, out_pad, b, C + j, ldc, accumulate, g);
   }
 }
 
 /// Every row of C over the columns [0, width), in blocks of 6 rows.
 template <bool TA>
 SKYLOOP_GEMM_TARGET static void gemm_rows(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int width,
-                                          const float* bias, float* C, int ldc, bool accumulate) {
+                                          const float* bias, float* C, int ldc, bool accumulate, const float* gate) {
   auto a_at = [&](int i) { return A + (TA ? static_cast<long>(i) : static_cast<long>(i) * lda); };
+  auto g_at = [&](int i) { return gate ? gate + static_cast<long>(i) * ldc : nullptr; };
   int i = 0;
-  for (; i + 6 <= rows; i += 6) row_block<6, TA>(a_at(i), lda, wt, in, out_pad, width, bias, C + static_cast<long>(i) * ldc, accumulate, ldc);
+  for (; i + 6 <= rows; i += 6)
+    row_block<6, TA>(a_at(i), lda, wt, in, out_pad, width, bias, C + static_cast<long>(i) * ldc, accumulate, ldc, g_at(i));
   const float* a = a_at(i);
+  const float* g = g_at(i);
   float* c = C + static_cast<long>(i) * ldc;
   switch (rows - i) {
-    case 5: row_block<5, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc); break;
-    case 4: row_block<4, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc); break;
-    case 3: row_block<3, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc); break;
-    case 2: row_block<2, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc); break;
-    case 1: row_block<1, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc); break;
+    case 5: row_block<5, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
+    case 4: row_block<4, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
+    case 3: row_block<3, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
+    case 2: row_block<2, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
+    case 1: row_block<1, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
     default: break;
   }
 }
@@ -90,18 +103,25 @@ SKYLOOP_GEMM_TARGET static void gemm_rows(const float* A, int lda, int rows, con
 /// sweeps the panels once, each across every row block (B's panel stays in the L1 cache).
 template <bool TA>
 SKYLOOP_GEMM_TARGET static void gemm_any(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
-                                         const float* bias, float* C, int ldc, bool accumulate) {
+                                         const float* bias, float* C, int ldc, bool accumulate, const float* gate = nullptr) {
   const int live = (cols + V - 1) / V * V;
-  if (!TA) return gemm_rows<TA>(A, lda, rows, wt, in, out_pad, live, bias, C, ldc, accumulate);
+  if (!TA) return gemm_rows<TA>(A, lda, rows, wt, in, out_pad, live, bias, C, ldc, accumulate, gate);
   for (int j = 0; j < live; j += 2 * V)
     gemm_rows<TA>(A, lda, rows, wt + j, in, out_pad, live - j >= 2 * V ? 2 * V : V, bias ? bias + j : nullptr, C + j, ldc,
-                  accumulate);
+                  accumulate, nullptr);
 }
 
 /// C = A B (+ bias) with A [rows x in] of row stride lda.
 SKYLOOP_GEMM_TARGET static void gemm(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
                                      const float* bias, float* C, int ldc, bool accumulate) {
   gemm_any<false>(A, lda, rows, wt, in, out_pad, cols, bias, C, ldc, accumulate);
+}
+
+/// C = (A B) * (1 - H^2) element-wise, H of C's shape and row stride: the gradient into a tanh
+/// layer's input from the gradient at its output (tanh_backward fused into the GEMM's store).
+SKYLOOP_GEMM_TARGET static void gemm_gated(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
+                                           const float* H, float* C, int ldc) {
+  gemm_any<false>(A, lda, rows, wt, in, out_pad, cols, nullptr, C, ldc, false, H);
 }
 
 /// C (+)= A^T B with A [in x rows] of row stride lda (the weight gradient X^T dY, where in is the

@@ -2,8 +2,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <limits>
+#include <random>
 
 #include "../../src/nn/batch.hpp"
 #include "../../src/nn/checkpoint.hpp"
@@ -297,4 +299,32 @@ TEST(NnInternal, FastTanhIsWithinFloat32RoundingOfTanh) {
   std::vector<float> nan(9, std::numeric_limits<float>::quiet_NaN());  // a whole vector and a tail
   skyloop::nn::fast::tanh_inplace(nan.data(), static_cast<long>(nan.size()));
   for (float v : nan) EXPECT_TRUE(std::isnan(v));
+}
+
+// The learners' backward pass through a tanh layer in one pass (matmul_tanh_backward) gives the
+// floats of the two passes it replaces (matmul, then tanh_backward) bit for bit, on every kernel
+// variant: row counts off the 6-row block, an inner width of 5 (the actor's logits) and 64, and a
+// stride wider than the columns.
+TEST(NnInternal, FusedTanhBackwardEqualsItsTwoPasses) {
+  std::mt19937 g(11);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (const int rows : {1, 7, 13, 192})
+    for (const int inner : {5, 64})
+      for (const int ldc : {64, 80}) {
+        const int cols = 64;
+        std::vector<float> A(static_cast<std::size_t>(rows) * inner), B(static_cast<std::size_t>(inner) * cols);
+        std::vector<float> h(static_cast<std::size_t>(rows) * ldc);
+        for (auto* v : {&A, &B, &h})
+          for (auto& x : *v) x = u(g);
+        std::vector<float> two(h.size(), 7.0f), one(h.size(), 7.0f);
+        skyloop::nn::fast::matmul(A.data(), inner, rows, B.data(), inner, cols, nullptr, two.data(), ldc, false);
+        for (int r = 0; r < rows; ++r)
+          skyloop::nn::fast::tanh_backward(h.data() + static_cast<std::size_t>(r) * ldc, two.data() + static_cast<std::size_t>(r) * ldc, cols);
+        skyloop::nn::fast::matmul_tanh_backward(A.data(), inner, rows, B.data(), inner, cols, h.data(), one.data(), ldc);
+        for (int r = 0; r < rows; ++r)
+          for (int c = 0; c < ldc; ++c) {
+            const std::size_t i = static_cast<std::size_t>(r) * ldc + static_cast<std::size_t>(c);
+            ASSERT_EQ(std::memcmp(&one[i], &two[i], sizeof(float)), 0) << "rows " << rows << " inner " << inner << " at " << r << ", " << c;
+          }
+      }
 }

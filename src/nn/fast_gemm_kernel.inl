@@ -159,7 +159,7 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline To bits_as(cons
 /// points, iterated on the denominator; relative error 9.4e-9), rounded to float: evaluated in
 /// float32 with FMA the result is within 1.5 ulps relative below |x| = 0.4 and 2 ulps absolute
 /// above (a float32 emulation over every multiple of 1/1024 in [0, 20]). Nine FMAs and one
-/// division: about three times as fast as the Taylor series and exp it replaced (BENCHMARKS.md).
+/// division: about twice as fast as the Taylor series and exp it replaced (BENCHMARKS.md).
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline vf tanh_v(vf x) {
   const vi sign_mask = vi{} + static_cast<int>(0x80000000u);
   const vi xi = bits_as<vi>(x);

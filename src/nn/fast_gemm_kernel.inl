@@ -157,10 +157,10 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline To bits_as(cons
 /// 1 from a = 9 on (tanh(9) is 3.1e-8 below 1, within one float32 ulp). P (degree 5) and Q
 /// (degree 4) are the minimax rational fit of tanh(x) / x in relative error on [0, 9] (a linear
 /// program over 6,500 points, iterated on the denominator; relative error 9.4e-9), rounded to
-/// float: evaluated in
-/// float32 with FMA the result is within 1.5 ulps relative below |x| = 0.4 and 2 ulps absolute
-/// above (a float32 emulation over every multiple of 1/1024 in [0, 20]). Nine FMAs and one
-/// division: about twice as fast as the Taylor series and exp it replaced (BENCHMARKS.md).
+/// float: evaluated in float32 with FMA the result is within 1.5 ulps relative below |x| = 0.4
+/// and 2 ulps absolute above (a float32 emulation over every multiple of 1/1024 in [0, 20]).
+/// Nine FMAs and one division: about twice as fast as the Taylor series and exp it replaced
+/// (BENCHMARKS.md).
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline vf tanh_v(vf x) {
   const vi sign_mask = vi{} + static_cast<int>(0x80000000u);
   const vi xi = bits_as<vi>(x);

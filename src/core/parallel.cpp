@@ -21,9 +21,15 @@ int resolve_threads(int requested) {
 
 namespace {
 
+thread_local int parallel_depth = 0;  // > 0 inside fn(i) of a parallel_for on several threads
+
 /// Calls fn(i) for i = next++ < n until the indices run out; the first exception stops the rest.
 void drain(std::size_t n, std::atomic<std::size_t>& next, const std::function<void(std::size_t)>& fn,
            std::exception_ptr& error, std::mutex& error_mutex) {
+  struct Depth {
+    Depth() { ++parallel_depth; }
+    ~Depth() { --parallel_depth; }
+  } inside;
   for (std::size_t i = next++; i < n; i = next++) {
     try {
       fn(i);
@@ -145,6 +151,8 @@ class Pool {
 };
 
 }  // namespace
+
+bool in_parallel_for() { return parallel_depth > 0; }
 
 void parallel_for(std::size_t n, int threads, const std::function<void(std::size_t)>& fn) {
   const std::size_t workers = std::min<std::size_t>(static_cast<std::size_t>(resolve_threads(threads)), n);

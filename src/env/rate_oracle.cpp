@@ -1,5 +1,6 @@
 #include "skyloop/env/rate_oracle.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -7,6 +8,7 @@
 #include "skyloop/channel/network.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/rng.hpp"
 
 namespace skyloop {
@@ -19,7 +21,7 @@ std::size_t RateOracle::KeyHash::operator()(const Key& k) const {
 }
 
 RateOracle::RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, Positions users)
-    : model_(cfg), beamformer_(std::move(beamformer)), users_(std::move(users)) {}
+    : model_(cfg), beamformer_(std::move(beamformer)), users_(std::move(users)), threads_(resolve_threads(cfg.run.threads)) {}
 
 void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const {
   const auto n = static_cast<std::size_t>(uavs.rows());
@@ -151,9 +153,12 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
     }
   }
   parts_begin[m] = part_rate.size();
+  int threads = 1;
+  if (!in_parallel_for())
+    for (const RateOracle* o : oracles) threads = std::max(threads, o->threads_);
   for (std::size_t g = 0; g < groups.size(); ++g) {
     if (!clusters[g].empty()) {
-      const auto W = groups[g]->design_batch(clusters[g]);
+      const auto W = groups[g]->design_batch(clusters[g], threads);
       for (const Miss& miss : misses[g]) {
         double rate = 0;
         for (int slot = 0; slot < miss.slots; ++slot) {
@@ -165,7 +170,7 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
       }
     }
     if (!networks[g].empty()) {
-      const auto W = groups[g]->design_networks(networks[g]);
+      const auto W = groups[g]->design_networks(networks[g], threads);
       for (const JointMiss& miss : joint_misses[g]) {
         std::vector<double> per_uav;
         for (int slot = 0; slot < miss.slots; ++slot) {

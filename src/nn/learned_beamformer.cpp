@@ -202,8 +202,9 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
 std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<Cluster>& nonempty,
                                                       const std::vector<std::size_t>& where, std::vector<MatrixXcd> out,
                                                       int threads) const {
-  // One fused pass per slice of the batch; slices of at least kSlice clusters go to the threads.
-  constexpr std::size_t kSlice = 64;
+  // One fused pass per slice of the batch; slices of at least kSlice clusters (a few hundred
+  // microseconds of work, against a few microseconds to hand one over) go to the threads.
+  constexpr std::size_t kSlice = 8;
   const std::size_t slices = std::max<std::size_t>(
       1, std::min<std::size_t>(static_cast<std::size_t>(resolve_threads(threads)), nonempty.size() / kSlice));
   parallel_for(slices, static_cast<int>(slices), [&](std::size_t i) {

@@ -10,7 +10,10 @@
 #include "skyloop/channel/network.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/parallel.hpp"
+#include "skyloop/core/rng.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/env/uav_env.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/nn/learned.hpp"
 #include "test_util.hpp"
@@ -159,6 +162,40 @@ TEST(Learned, BatchedEqualsOneByOne) {
     const auto batched = bf->design_batch(mixed);
     for (std::size_t i = 0; i < mixed.size(); ++i)
       EXPECT_LT((batched[i] - bf->design(mixed[i])).norm(), kF64Tol * std::sqrt(mixed[i].p_max)) << m << " cluster " << i;
+  }
+}
+
+// The rate oracle hands a batch's misses to the beamformer on run.threads threads (the fast path
+// in slices of clusters): every rate must be the same double on one thread, on two, and from
+// inside a parallel_for (where the oracle stays on its thread).
+TEST(Learned, OracleRatesDoNotDependOnTheThreadCount) {
+  for (const char* m : {"gnn", "deepsets"}) {
+    Config cfg = tiny_config(m);
+    const std::shared_ptr<const LearnedBeamformer> bf = LearnedBeamformer::load(tiny_model(m), cfg);
+    ASSERT_TRUE(bf->fast()) << m;
+    const Positions users = make_users(cfg, 20, 5);
+    Rng rng(13);
+    std::vector<Positions> sets;
+    for (int i = 0; i < 40; ++i) {
+      Positions p(3, 2);
+      for (int n = 0; n < 3; ++n)
+        p(n, 0) = 20.0 * static_cast<double>(rng.below(11)), p(n, 1) = 20.0 * static_cast<double>(rng.below(11));
+      sets.push_back(p);
+    }
+    cfg.run.threads = 1;
+    RateOracle one(cfg, bf, users);
+    const auto serial = one.sum_rates(sets);
+    cfg.run.threads = 2;
+    RateOracle two(cfg, bf, users);
+    EXPECT_EQ(two.sum_rates(sets), serial) << m;
+    std::vector<double> nested(sets.size());
+    parallel_for(2, 2, [&](std::size_t half) {
+      RateOracle own(cfg, bf, users);
+      std::vector<Positions> mine(sets.begin() + static_cast<long>(half * 20), sets.begin() + static_cast<long>(half * 20 + 20));
+      const auto r = own.sum_rates(mine);
+      std::copy(r.begin(), r.end(), nested.begin() + static_cast<long>(half * 20));
+    });
+    EXPECT_EQ(nested, serial) << m;
   }
 }
 

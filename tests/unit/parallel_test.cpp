@@ -48,6 +48,18 @@ TEST(ParallelFor, NestedCallsAndConcurrentCallersComplete) {
   EXPECT_EQ(count.load(), 3 * 200 * 4);
 }
 
+// The rate oracle splits its batches over threads only outside a parallel_for (in_parallel_for).
+TEST(ParallelFor, InParallelForHoldsOnlyInsideAJobOnSeveralThreads) {
+  EXPECT_FALSE(in_parallel_for());
+  std::atomic<int> inside{0}, serial_inside{0};
+  parallel_for(8, 2, [&](std::size_t) { inside += in_parallel_for(); });
+  EXPECT_EQ(inside.load(), 8);
+  parallel_for(8, 1, [&](std::size_t) { serial_inside += in_parallel_for(); });  // one thread: no job
+  EXPECT_EQ(serial_inside.load(), 0);
+  EXPECT_THROW(parallel_for(4, 2, [](std::size_t) { throw std::runtime_error("x"); }), std::runtime_error);
+  EXPECT_FALSE(in_parallel_for());  // reset on every way out, exceptions included
+}
+
 TEST(ParallelFor, AChildProcessAfterForkRunsItsOwnWorkers) {
   std::atomic<int> warm{0};
   parallel_for(4, 2, [&](std::size_t) { ++warm; });  // the parent's pool exists now

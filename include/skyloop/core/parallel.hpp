@@ -12,4 +12,8 @@ int resolve_threads(int requested);
 /// thrown by any call is rethrown after all threads stop.
 void parallel_for(std::size_t n, int threads, const std::function<void(std::size_t)>& fn);
 
+/// True while the calling thread runs fn(i) of a parallel_for on two or more threads: work that
+/// could split itself over threads (the rate oracle's batches) stays on this one instead.
+bool in_parallel_for();
+
 }  // namespace skyloop

@@ -26,7 +26,9 @@ struct OracleStats {
 
 class RateOracle {
  public:
-  /// `users` [K x 2] (any K). The beamformer is shared, not copied.
+  /// `users` [K x 2] (any K). The beamformer is shared, not copied. A batch's misses go to the
+  /// beamformer on cfg.run.threads threads (one when called from inside a parallel_for); each
+  /// cluster's design is independent of the others, so the rates do not depend on the count.
   RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, Positions users);
 
   /// Network sum rate R for UAV positions [N x 2].
@@ -70,6 +72,7 @@ class RateOracle {
   std::unordered_map<Key, double, KeyHash> cache_;
   std::unordered_map<std::vector<double>, std::vector<double>, JointHash> joint_cache_;  // per-UAV rates
   OracleStats stats_;
+  int threads_ = 1;  // cfg.run.threads, resolved
 };
 
 /// R for (oracle i, positions i) pairs, e.g. the M environments of a vector environment (each with

@@ -51,13 +51,31 @@ VectorXd waterfill(const VectorXd& floor, double budget) {
   return p;
 }
 
+namespace {
+// ZF of a cluster with more users than this (and than antennas) takes its pseudo-inverse through
+// the adjoint. Below it the direct decomposition is kept (at most a few milliseconds), so every
+// figure of the paper's and the scale study's scenes keeps its bits.
+constexpr Eigen::Index kLargeTallCluster = 256;
+}  // namespace
+
 MatrixXcd zf(const Cluster& c, bool waterfilling) {
   const auto K = c.G.rows();
   if (K == 0) return MatrixXcd(c.G.cols(), 0);
-  Eigen::CompleteOrthogonalDecomposition<MatrixXcd> cod(c.G);
-  cod.setThreshold(1e-10);
-  const bool nulls_interference = cod.rank() == K;
-  MatrixXcd V = cod.pseudoInverse();  // [L x K]
+  bool nulls_interference = false;
+  MatrixXcd V;  // [L x K]: G^+
+  if (K > kLargeTallCluster && K > c.G.cols()) {
+    // More users than antennas (rank <= L < K: no nulling). pinv(G) = pinv(G^H)^H: the L x K
+    // adjoint's decomposition solves against an L x L identity, O(K L^2) time and O(K L) memory,
+    // where G's own builds and solves a K x K one (4096 users: 256 MiB).
+    Eigen::CompleteOrthogonalDecomposition<MatrixXcd> cod(c.G.adjoint());
+    cod.setThreshold(1e-10);
+    V = cod.pseudoInverse().adjoint();
+  } else {
+    Eigen::CompleteOrthogonalDecomposition<MatrixXcd> cod(c.G);
+    cod.setThreshold(1e-10);
+    nulls_interference = cod.rank() == K;
+    V = cod.pseudoInverse();
+  }
   VectorXd norms2 = V.colwise().squaredNorm().transpose();
   VectorXd power(K);
   if (nulls_interference && waterfilling) {

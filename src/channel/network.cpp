@@ -1,5 +1,7 @@
 #include "skyloop/channel/network.hpp"
 
+#include "skyloop/channel/rates.hpp"
+
 #include <cmath>
 #include <stdexcept>
 
@@ -28,25 +30,32 @@ std::vector<std::vector<UserPowers>> user_powers(const Network& net, const std::
                                   std::to_string(c.G.cols()) + "x" + std::to_string(c.G.rows()));
   }
   std::vector<std::vector<UserPowers>> out(nc);
-  // Received power of every served user from every UAV's beams: P_b(r, j) = |h_{b,r}^H w_{b,j}|^2.
-  // Under orthogonal bands only a cluster's own rows are needed.
-  std::vector<Eigen::MatrixXd> P(nc);
-  for (std::size_t b = 0; b < nc; ++b)
-    P[b] = net.interferes() ? (net.cross[b] * W[b]).cwiseAbs2().eval() : (net.clusters[b].G * W[b]).cwiseAbs2().eval();
   for (std::size_t a = 0; a < nc; ++a) {
-    const Cluster& c = net.clusters[a];
-    out[a].resize(static_cast<std::size_t>(c.size()));
-    for (Eigen::Index j = 0; j < c.size(); ++j) {
-      UserPowers& u = out[a][static_cast<std::size_t>(j)];
-      const Eigen::Index r = net.interferes() ? net.offset[a] + j : j;  // row in P[a]
-      u.signal = P[a](r, j);
-      for (Eigen::Index jj = 0; jj < P[a].cols(); ++jj)  // summed explicitly: no cancellation
-        if (jj != j) u.intra += P[a](r, jj);
-      if (net.interferes())
-        for (std::size_t b = 0; b < nc; ++b)
-          if (b != a) u.inter += P[b].row(net.offset[a] + j).sum();
-      u.noise = c.noise;
-    }
+    out[a].resize(static_cast<std::size_t>(net.clusters[a].size()));
+    for (UserPowers& u : out[a]) u.noise = net.clusters[a].noise;
+  }
+  // Received power of every served user from UAV b's beams: P_b(r, j) = |h_{b,r}^H w_{b,j}|^2, row
+  // r = offset[a] + j for user j of cluster a. Under orthogonal bands only cluster b's own rows are
+  // needed. A user's interference from the other UAVs accumulates in the order of b.
+  for (std::size_t b = 0; b < nc; ++b) {
+    const MatrixXcd& rows = net.interferes() ? net.cross[b] : net.clusters[b].G;
+    std::size_t a = net.interferes() ? 0 : b;  // the cluster of the block's first row
+    for_received_power_blocks(rows, W[b], [&](Eigen::Index r0, const Eigen::MatrixXd& P) {
+      for (Eigen::Index i = 0; i < P.rows(); ++i) {
+        const Eigen::Index r = r0 + i;
+        if (net.interferes())
+          while (r >= net.offset[a + 1]) ++a;
+        const Eigen::Index j = net.interferes() ? r - net.offset[a] : r;
+        UserPowers& u = out[a][static_cast<std::size_t>(j)];
+        if (a == b) {
+          u.signal = P(i, j);
+          for (Eigen::Index jj = 0; jj < P.cols(); ++jj)  // summed explicitly: no cancellation
+            if (jj != j) u.intra += P(i, jj);
+        } else {
+          u.inter += P.row(i).sum();
+        }
+      }
+    });
   }
   return out;
 }

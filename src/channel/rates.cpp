@@ -10,16 +10,18 @@ VectorXd sinr(const Cluster& c, const MatrixXcd& W) {
     throw std::invalid_argument("beamformer shape " + std::to_string(W.rows()) + "x" + std::to_string(W.cols()) +
                                 " does not match the cluster: expected " + std::to_string(c.G.cols()) + "x" +
                                 std::to_string(c.G.rows()));
-  const MatrixXcd M = c.G * W;  // M(k, j) = h_k^H w_j
-  const Eigen::MatrixXd P = M.cwiseAbs2();
-  VectorXd out(M.rows());
-  for (Eigen::Index k = 0; k < M.rows(); ++k) {
-    const double signal = P(k, k);
-    double interference = 0.0;  // summed explicitly: no cancellation when interference << signal
-    for (Eigen::Index j = 0; j < M.cols(); ++j)
-      if (j != k) interference += P(k, j);
-    out[k] = signal / (interference + c.noise);
-  }
+  VectorXd out(c.G.rows());
+  // P(i, j) = |h_k^H w_j|^2 for user k = r0 + i.
+  for_received_power_blocks(c.G, W, [&](Eigen::Index r0, const Eigen::MatrixXd& P) {
+    for (Eigen::Index i = 0; i < P.rows(); ++i) {
+      const Eigen::Index k = r0 + i;
+      const double signal = P(i, k);
+      double interference = 0.0;  // summed explicitly: no cancellation when interference << signal
+      for (Eigen::Index j = 0; j < P.cols(); ++j)
+        if (j != k) interference += P(i, j);
+      out[k] = signal / (interference + c.noise);
+    }
+  });
   return out;
 }
 

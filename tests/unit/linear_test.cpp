@@ -1,9 +1,12 @@
 #include <gtest/gtest.h>
 
+#include <Eigen/QR>
+#include <cmath>
 #include <numeric>
 
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/channel/rates.hpp"
+#include "skyloop/core/rng.hpp"
 #include "test_util.hpp"
 
 using namespace skyloop;
@@ -164,4 +167,35 @@ TEST(ZfRanked, RefusesARankingThatIsNotOfTheCluster) {
   EXPECT_THROW(zf_ranked(c, {0, 0, 1}), std::invalid_argument);
   EXPECT_THROW(zf_ranked(c, {2}), std::invalid_argument);
   EXPECT_THROW(zf_ranked(c, {-1}), std::invalid_argument);
+}
+
+// A cluster of thousands of users (one UAV over a city): ZF takes the pseudo-inverse through the
+// L x K adjoint and the SINRs come from the received powers in row blocks, so neither builds a
+// K x K matrix. What they compute is what the direct forms compute: G^+ to rounding (the same
+// Moore-Penrose inverse by another decomposition), the SINRs to the bit (the same L-term products
+// and sums).
+TEST(Zf, ThousandsOfUsersNeedNoKByKMatrix) {
+  Rng rng(5);
+  for (const Eigen::Index K : {257, 1500}) {
+    Cluster c;
+    c.G = MatrixXcd(K, 4);
+    for (Eigen::Index i = 0; i < K; ++i)
+      for (Eigen::Index l = 0; l < 4; ++l) c.G(i, l) = {1e-5 * rng.normal(), 1e-5 * rng.normal()};
+    c.noise = 1e-13;
+    const MatrixXcd W = zf(c);
+    Eigen::CompleteOrthogonalDecomposition<MatrixXcd> cod(c.G);
+    MatrixXcd V = cod.pseudoInverse();  // the direct form: a K x K identity solved
+    for (Eigen::Index k = 0; k < K; ++k) V.col(k) *= std::sqrt(c.p_max / K) / V.col(k).norm();  // equal power
+    EXPECT_LT((W - V).norm(), 1e-9 * V.norm()) << "K = " << K;
+    EXPECT_NEAR(W.squaredNorm(), c.p_max, 1e-9 * c.p_max);
+    // Every SINR from the full K x K product, summed in the same order.
+    const Eigen::MatrixXd P = (c.G * W).cwiseAbs2();
+    const VectorXd got = sinr(c, W);
+    for (Eigen::Index k = 0; k < K; ++k) {
+      double interference = 0;
+      for (Eigen::Index j = 0; j < K; ++j)
+        if (j != k) interference += P(k, j);
+      ASSERT_EQ(got[k], P(k, k) / (interference + c.noise)) << "K = " << K << ", user " << k;
+    }
+  }
 }

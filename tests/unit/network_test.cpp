@@ -98,6 +98,34 @@ TEST(Spectrum, SharedSinrCountsEveryBeamOfEveryOtherUav) {
   }
 }
 
+// A city's worth of users under the shared spectrum: every UAV's received-power matrix (all served
+// users x its beams) is computed in row blocks; each user's powers are the full products' entries,
+// summed in the same order, to the bit.
+TEST(Spectrum, SharedPowersOfThousandsOfUsersEqualTheFullProducts) {
+  const Config cfg = shared_config();
+  const SystemModel model(cfg);
+  const Network net = model.network(model.random_snapshot(3, 3000, 11));
+  ASSERT_GT(net.offset.back() * net.clusters.front().size(), kReceivedPowerBlockEntries) << "the blocks are not used";
+  std::vector<MatrixXcd> W;
+  for (std::size_t i = 0; i < net.clusters.size(); ++i) W.push_back(random_beamformer(4, net.clusters[i].size(), 1.0, 3 + i));
+  const auto p = user_powers(net, W);
+  std::vector<Eigen::MatrixXd> full;
+  for (std::size_t b = 0; b < W.size(); ++b) full.push_back((net.cross[b] * W[b]).cwiseAbs2());
+  for (std::size_t a = 0; a < W.size(); ++a)
+    for (int j = 0; j < net.clusters[a].size(); ++j) {
+      const Eigen::Index r = net.offset[a] + j;
+      double intra = 0, inter = 0;
+      for (Eigen::Index jj = 0; jj < full[a].cols(); ++jj)
+        if (jj != j) intra += full[a](r, jj);
+      for (std::size_t b = 0; b < W.size(); ++b)
+        if (b != a) inter += full[b].row(r).sum();
+      const UserPowers& u = p[a][static_cast<std::size_t>(j)];
+      ASSERT_EQ(u.signal, full[a](r, j));
+      ASSERT_EQ(u.intra, intra);
+      ASSERT_EQ(u.inter, inter);
+    }
+}
+
 TEST(Spectrum, OrthogonalNetworkRateIsTheSumOfClusterRates) {
   for (const std::string spectrum : {"orthogonal", "orthogonal-split"}) {
     Config cfg;

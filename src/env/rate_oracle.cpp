@@ -27,12 +27,14 @@ void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vec
   const auto n = static_cast<std::size_t>(uavs.rows());
   thread_local Association a;  // storage reused across calls
   model_.associate(uavs, users_, a);
-  keys.assign(n, Key{});
+  keys.resize(n);  // each key's mask storage is kept and cleared: no allocation per call
   const std::size_t words = (static_cast<std::size_t>(users_.rows()) + 63) / 64;
   for (std::size_t i = 0; i < n; ++i) {
     Key& key = keys[i];
     key.x = uavs(static_cast<Eigen::Index>(i), 0), key.y = uavs(static_cast<Eigen::Index>(i), 1);
+    key.small.fill(0);
     if (words > key.small.size()) key.big.assign(words, 0);
+    else key.big.clear();
     std::uint64_t* mask = words > key.small.size() ? key.big.data() : key.small.data();
     for (int k : a.users[i]) mask[static_cast<std::size_t>(k) / 64] |= std::uint64_t{1} << (k % 64);
   }

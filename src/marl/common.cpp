@@ -9,6 +9,7 @@
 #include "skyloop/core/csv.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/layouts.hpp"
 #include "skyloop/marl/learners.hpp"
@@ -114,6 +115,7 @@ Encoder encoder_of(const Config& cfg, bool context) {
   Encoder e;
   e.set = cfg.marl.encoder == "set";
   e.context = context && !e.set;
+  if (e.set && !cfg.marl.lookahead && cfg.marl.rate_map == 0) e.threads = resolve_threads(cfg.run.threads);
   return e;
 }
 

@@ -535,7 +535,9 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
   for (int t = 0; t < r.T; ++t) {
     float* obs = r.observations.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.obs_width);
     float* crit = r.critic_inputs.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.critic_width);
-    for (int e = 0; e < M; ++e)
+    // Each environment's rows are its own: written on encoder.threads threads, the same floats.
+    parallel_for(static_cast<std::size_t>(M), encoder.threads, [&](std::size_t env) {
+      const int e = static_cast<int>(env);
       for (int n = 0; n < N; ++n) {
         const auto i = static_cast<std::size_t>(e * N + n);
         encoder.write(vec.env(e), n, obs + i * static_cast<std::size_t>(r.obs_width));
@@ -544,6 +546,7 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
         r.logprobs[r.at(t, e, n)] = 0.0f;  // agents that STAY without sampling (arrived) keep these
         std::fill_n(r.allowed.data() + r.at(t, e, n) * A, A, 1.0f);
       }
+    });
     nets.logits(obs, static_cast<int>(step_rows), logits.data());
     float* values = r.values.data() + r.at(t, 0, 0);
     nets.values(crit, static_cast<int>(step_rows), values);

@@ -321,6 +321,46 @@ TEST(PpoCore, CollectFillsEveryCellOfTheRollout) {
   EXPECT_EQ(again.next_values, r.next_values);
 }
 
+// The set observation's kernel maps are written for several environments at once
+// (Encoder::threads); each environment's rows are its own, so the rollout is the same floats on
+// one thread and on two. The fields that ask the rate oracle (whose memo the environments share)
+// keep the writing on one thread.
+TEST(PpoCore, CollectWritesTheSetObservationOnSeveralThreadsAlike) {
+  Config cfg = small_scene();
+  cfg.marl.encoder = "set";
+  cfg.env.resample_users = true;
+  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, 6, 3));
+  auto rollout_on = [&](int threads) {
+    cfg.run.threads = threads;
+    const Encoder enc = encoder_of(cfg, false);
+    EXPECT_EQ(enc.threads, threads);
+    const CriticReader critic = CriticReader::of(cfg, enc);
+    VecEnv vec(cfg, oracle, 4);
+    const UavEnv probe(cfg, oracle);
+    Rollout r(30, 4, 2, enc.width(probe), critic.width(probe));
+    auto nets = make_ppo_networks("fast", enc.width(probe), critic.width(probe), 16, 3e-4, torch::kCPU, 1);
+    Rng rng(11);
+    EpisodeStats stats;
+    collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats);
+    return r;
+  };
+  const Rollout one = rollout_on(1), two = rollout_on(2);
+  EXPECT_EQ(one.observations, two.observations);
+  EXPECT_EQ(one.critic_inputs, two.critic_inputs);
+  EXPECT_EQ(one.actions, two.actions);
+  EXPECT_EQ(one.logprobs, two.logprobs);
+  EXPECT_EQ(one.rewards, two.rewards);
+  EXPECT_EQ(one.next_values, two.next_values);
+  cfg.marl.lookahead = true;
+  EXPECT_EQ(encoder_of(cfg, false).threads, 1);
+  cfg.marl.lookahead = false;
+  cfg.marl.rate_map = 2;
+  EXPECT_EQ(encoder_of(cfg, false).threads, 1);
+  cfg.marl.rate_map = 0;
+  cfg.marl.encoder = "mlp";
+  EXPECT_EQ(encoder_of(cfg, false).threads, 1);
+}
+
 TEST(PpoCore, AdvantagesAreGaePerEnvironmentAndAgent) {
   Rollout r(9, 3, 2, 1, 1);
   std::mt19937_64 g(4);

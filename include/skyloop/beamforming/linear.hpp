@@ -10,7 +10,8 @@
 //       When G is rank-deficient (K_n > L, or two users with the same angle cos(theta) = H/d,
 //       whose LoS channels are parallel) interference cannot be nulled: skyloop then keeps the
 //       pseudo-inverse directions (least-squares) with equal power, and the SINR counts the
-//       residual interference.
+//       residual interference. A cluster of more than 256 users (and more than L) takes
+//       G^+ = ((G^H)^+)^H, O(K_n L^2) time and O(K_n L) memory instead of a K_n x K_n solve.
 // ZF-SEL: ZF with greedy user selection (Dimic & Sidiropoulos 2005): starting from no user, add
 //       the user that most raises the water-filled ZF sum rate of the selected set, while it
 //       rises (at most L users); unselected users get w_k = 0. In this LoS model the users of a

@@ -4,6 +4,7 @@
 #include <iostream>
 
 #include "common.hpp"
+#include "skyloop/beamforming/registry.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/experiments/beamform_eval.hpp"
@@ -61,6 +62,8 @@ std::vector<BeamformEvalRow> eval_on_ranks(Transport& t, const Config& cfg, cons
 }
 
 int run_eval(const EvalOptions& o) {
+  const auto methods = split_methods(o.methods);
+  continue_with_libtorch_if(std::any_of(methods.begin(), methods.end(), is_learned_beamformer));
   const auto transport = open_transport(o.mpi);
   if (transport && transport->size() == 1) return run_eval_here(o, nullptr);
   return on_every_rank(transport.get(), [&] { return run_eval_here(o, transport.get()); });

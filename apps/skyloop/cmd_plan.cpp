@@ -43,6 +43,7 @@ void add_plan_command(CLI::App& app, Action& action) {
       opt.planners = split_methods(o->planners, "--planner");
       opt.seed = parse_seed("--seed", o->seed);
       opt.out_dir = o->out;
+      continue_with_libtorch_if(is_learned_beamformer(cfg.env.oracle));
       std::vector<double> seconds;
       const auto recs = run_planners(cfg, opt, builtin_beamformers(), &std::cerr, &seconds);
       std::cout << "plan: N = " << cfg.trajectory.starts.size() << " UAVs, K = " << cfg.scenario.users

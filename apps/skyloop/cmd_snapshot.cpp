@@ -1,6 +1,7 @@
 #include <iostream>
 
 #include "common.hpp"
+#include "skyloop/beamforming/registry.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/experiments/snapshot_report.hpp"
 
@@ -26,6 +27,7 @@ void add_snapshot_command(CLI::App& app, Action& action) {
     action = [o] {
       const Config cfg = o->config.resolve();
       const Snapshot snap = load_scenario_file(o->scenario, cfg);
+      continue_with_libtorch_if(is_learned_beamformer(o->method));
       const auto bf = builtin_beamformers().create(o->method, cfg);
       const SnapshotReport r = evaluate_snapshot(cfg, snap, *bf);
       std::cout << (o->json ? snapshot_json(r, cfg) : snapshot_text(r));

@@ -25,6 +25,15 @@ void add_config_options(CLI::App* cmd, ConfigOptions& o);
 /// be waiting for this one).
 int on_every_rank(Transport* transport, const std::function<int()>& body);
 
+/// `skyloop` is a LibTorch-free front end where the build has LibTorch: loading Debian's LibTorch
+/// costs about a second per process, and most commands need none of it. The front end parses,
+/// resolves the configuration and makes the command's own checks; a command that needs a learned
+/// model (a learned beamformer, a MARL policy, the learners, `reproduce`) then calls this, which
+/// replaces the process by the LibTorch build (`skyloop-torch`, beside it) with the same arguments:
+/// same pid, nothing written yet, and the LibTorch build parses and checks again. Call it before
+/// anything is written. In the LibTorch build (and in a build without LibTorch) it does nothing.
+void continue_with_libtorch_if(bool needed);
+
 /// The command chosen on the command line, run after parsing succeeds.
 using Action = std::function<int()>;
 

@@ -3,7 +3,9 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <iostream>
+#include <unistd.h>
 
 #include "common.hpp"
 #include "skyloop/core/error.hpp"
@@ -37,6 +39,28 @@ int on_every_rank(Transport* transport, const std::function<int()>& body) {
     return 1;  // abort() does not return
   }
 }
+
+#ifdef SKYLOOP_FRONT_END
+namespace {
+char** g_argv = nullptr;
+}  // namespace
+
+void continue_with_libtorch_if(bool needed) {
+  if (!needed) return;
+  std::cout.flush();
+  std::cerr.flush();
+  std::fflush(nullptr);
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::path self = fs::read_symlink("/proc/self/exe", ec);  // the real file, through any symlink
+  const fs::path full = (ec ? fs::path(g_argv[0]) : self).parent_path() / SKYLOOP_LIBTORCH_BUILD;
+  ::execv(full.c_str(), g_argv);
+  throw std::runtime_error("cannot start " + full.string() + " (the LibTorch build, installed beside skyloop): " +
+                           std::strerror(errno));
+}
+#else
+void continue_with_libtorch_if(bool) {}
+#endif
 
 /// The first word that names no subcommand where one is required: "unknown command 'x': allowed
 /// a, b, c" (CLI11 alone says only that a subcommand is required). Empty if the words are fine.
@@ -89,6 +113,20 @@ int main(int argc, char** argv) {
   cli::add_reproduce_command(app, action);
 #endif
   cli::refuse_empty_values(&app);
+#ifdef SKYLOOP_FRONT_END
+  // Help (whose texts list what the LibTorch build adds), no command, and a command this front end
+  // does not hold (train, eval, reproduce, beamform train; and unknown words, which the LibTorch
+  // build refuses with the whole list) go to the LibTorch build as they are.
+  cli::g_argv = argv;
+  bool hand_over = argc < 2 || !cli::unknown_command(app, argc, argv).empty();
+  for (int i = 1; i < argc && !hand_over; ++i) hand_over = !std::strcmp(argv[i], "--help") || !std::strcmp(argv[i], "-h");
+  try {
+    cli::continue_with_libtorch_if(hand_over);
+  } catch (const std::exception& e) {
+    std::cerr << "skyloop: failed: " << e.what() << "\n";
+    return 1;
+  }
+#endif
   if (const std::string bad = cli::unknown_command(app, argc, argv); !bad.empty()) {
     std::cerr << "skyloop: error: " << bad << "\n";
     return 2;

@@ -34,6 +34,20 @@ std::vector<std::pair<std::string, std::string>> BeamformerRegistry::list() cons
   return out;
 }
 
+const std::vector<std::string>& learned_beamformer_names() {
+  static const std::vector<std::string> names{"gnn", "deepsets", "mspointnet", "ignn"};
+  return names;
+}
+
+std::string learned_beamformer_description(const std::string& name) {
+  return "learned " + name + " beamformer; '" + name + "=PATH' loads PATH (model.pt or its directory)";
+}
+
+bool is_learned_beamformer(const std::string& spec) {
+  const auto& names = learned_beamformer_names();
+  return std::find(names.begin(), names.end(), spec.substr(0, spec.find('='))) != names.end();
+}
+
 void register_classical_beamformers(BeamformerRegistry& reg) {
   auto no_arg = [](const std::string& name, const std::string& arg) {
     if (!arg.empty()) throw InputError("method '" + name + "=" + arg + "' takes no argument: allowed '" + name + "'");

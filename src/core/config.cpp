@@ -8,6 +8,7 @@
 
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/beamforming/registry.hpp"
 #include "skyloop/channel/path_loss.hpp"
 #include "skyloop/marl/learners.hpp"
 
@@ -267,8 +268,7 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.energy.weight; }));
   // [nn]
   f.push_back(text("nn.model", "learned beamformer to train (ignn: the interference-aware network GNN)",
-                   {"gnn", "deepsets", "mspointnet", "ignn"},
-                   [](Config& c) -> std::string& { return c.nn.model; }));
+                   learned_beamformer_names(), [](Config& c) -> std::string& { return c.nn.model; }));
   f.push_back(integer("nn.hidden", "embedding size d_gnn (baselines use twice this width)", 4, 4096,
                       [](Config& c) -> int& { return c.nn.hidden; }));
   f.push_back(integer("nn.layers", "message-passing layers L_g (GNN)", 1, 16, [](Config& c) -> int& { return c.nn.layers; }));

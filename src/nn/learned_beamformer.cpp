@@ -221,9 +221,8 @@ std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<Cluster>
 bool LearnedBeamformer::fast() const { return impl_->fast != nullptr; }
 
 void register_learned_beamformers(BeamformerRegistry& reg, const std::string& models_dir) {
-  for (const char* name : {"gnn", "deepsets", "mspointnet", "ignn"}) {
-    const std::string n = name;
-    reg.add(n, "learned " + n + " beamformer; '" + n + "=PATH' loads PATH (model.pt or its directory)",
+  for (const std::string& n : learned_beamformer_names()) {
+    reg.add(n, learned_beamformer_description(n),
             [n, models_dir](const Config& cfg, const std::string& arg) {
               namespace fs = std::filesystem;
               const std::string root = models_dir.empty() ? (fs::path(data_dir()) / "models").string() : models_dir;

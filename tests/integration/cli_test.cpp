@@ -2,11 +2,14 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
+#include <fcntl.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -271,3 +274,81 @@ TEST(Cli, PlanInputErrors) {
     EXPECT_EQ(lines(r.err), 1) << args << "\n" << r.err;
   }
 }
+
+#ifdef SKYLOOP_LIBTORCH_BIN
+namespace {
+/// What the dynamic loader would load for `binary` (LD_TRACE_LOADED_OBJECTS: ldd's own switch).
+std::string loaded_libraries(const std::string& binary) {
+  const std::string out = tmpdir("ldtrace") + "/libs";
+  const std::string cmd = "LD_TRACE_LOADED_OBJECTS=1 " + binary + " >" + out + " 2>&1";
+  EXPECT_EQ(std::system(cmd.c_str()), 0);
+  return slurp(out);
+}
+
+Result run_binary(const std::string& binary, const std::string& args) {
+  const std::string base = tmpdir("bin" + std::to_string(std::hash<std::string>{}(binary + args)));
+  const std::string cmd = binary + " " + args + " >" + base + "/out 2>" + base + "/err";
+  const int status = std::system(cmd.c_str());
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(base + "/out"), slurp(base + "/err")};
+}
+}  // namespace
+
+// `skyloop` loads no LibTorch; what it runs itself prints what the LibTorch build prints, bit for
+// bit; what needs a learned model it hands to `skyloop-torch` in the same process (same pid, as
+// mpirun and a user's `kill` expect); and without `skyloop-torch` beside it, it says so in one line.
+TEST(Cli, FrontEndRunsWithoutLibTorchAndHandsOverWhatNeedsIt) {
+  const std::string front = SKYLOOP_BIN, full = SKYLOOP_LIBTORCH_BIN;
+  EXPECT_EQ(loaded_libraries(front).find("libtorch"), std::string::npos);
+  EXPECT_NE(loaded_libraries(full).find("libtorch_cpu"), std::string::npos);
+
+  const std::string dir = tmpdir("front");
+  std::ofstream(dir + "/scene.toml") << "uavs = [[60, 60]]\nusers = [[50, 40], [90, 70], [20, 110]]\n";
+  const std::string plan = " --planner greedy,seqgreedy --oracle zfsel --users 6 --seed 5 --set trajectory.t_max=20 --out ";
+  for (const std::string& args : {std::string("config show --set channel.p_max_dbm=35"), std::string("beamform list"),
+                                  "snapshot --json --method zfsel --scenario " + dir + "/scene.toml",
+                                  std::string("beamform eval --methods mrt,nosuch"), std::string("plan --planner astar --oracle zf"),
+                                  std::string("snapshot --scenario /nonexistent.toml --method gnn")}) {
+    const auto a = run_binary(front, args), b = run_binary(full, args);
+    EXPECT_EQ(a.code, b.code) << args;
+    EXPECT_EQ(a.out, b.out) << args;
+    EXPECT_EQ(a.err, b.err) << args;
+  }
+  ASSERT_EQ(run_binary(front, "plan" + plan + dir + "/a").code, 0);
+  ASSERT_EQ(run_binary(full, "plan" + plan + dir + "/b").code, 0);
+  for (const char* f : {"trajectory.csv", "rates.csv", "users.csv", "energy.csv"})  // summary.csv holds times
+    EXPECT_EQ(slurp(dir + "/a/" + f), slurp(dir + "/b/" + f)) << f;
+
+  // A learned beamformer: the front end's process becomes the LibTorch build.
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const int null = ::open("/dev/null", O_WRONLY);
+    ::dup2(null, 1), ::dup2(null, 2);
+    ::execl(front.c_str(), front.c_str(), "beamform", "eval", "--methods", "gnn", "--samples", "100000000", "--quiet",
+            static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  std::string exe;
+  const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (std::chrono::steady_clock::now() < until) {
+    std::error_code ec;
+    exe = std::filesystem::read_symlink("/proc/" + std::to_string(pid) + "/exe", ec).string();
+    if (!ec && exe == std::filesystem::canonical(full).string()) break;
+    ::usleep(20000);
+  }
+  ::kill(pid, SIGKILL);
+  int status = 0;
+  ::waitpid(pid, &status, 0);
+  EXPECT_EQ(exe, std::filesystem::canonical(full).string());
+
+  // The front end alone: what it runs works, what it would hand over fails in one line.
+  const std::string alone = tmpdir("alone");
+  std::filesystem::copy_file(front, alone + "/skyloop");
+  std::filesystem::permissions(alone + "/skyloop", std::filesystem::perms::owner_all);
+  EXPECT_EQ(run_binary(alone + "/skyloop", "config show").code, 0);
+  const auto r = run_binary(alone + "/skyloop", "beamform eval --methods gnn --samples 1");
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_EQ(lines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("cannot start " + alone + "/skyloop-torch"), std::string::npos) << r.err;
+}
+#endif

@@ -44,6 +44,17 @@ class BeamformerRegistry {
 /// czf (coordinated over the network).
 void register_classical_beamformers(BeamformerRegistry& reg);
 
+/// The learned beamformers' names ("gnn", "deepsets", "mspointnet", "ignn"), registered by
+/// `register_learned_beamformers` (nn/learned.hpp) in a LibTorch build. Listed here, LibTorch-free,
+/// so that the configuration, the command line's front end and the registry read one list.
+const std::vector<std::string>& learned_beamformer_names();
+
+/// The registry's description of the learned beamformer `name`.
+std::string learned_beamformer_description(const std::string& name);
+
+/// Whether the spec ("name" or "name=arg") names a learned beamformer (one that needs LibTorch).
+bool is_learned_beamformer(const std::string& spec);
+
 /// Splits a comma-separated list ("mrt,zf,gnn=a/b.pt"), rejecting empty and repeated items;
 /// `flag` names the option in errors.
 std::vector<std::string> split_methods(const std::string& list, const std::string& flag = "--methods");

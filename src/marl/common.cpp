@@ -1,6 +1,7 @@
 #include "common.hpp"
 
 #include "../nn/archive.hpp"
+#include "../nn/models.hpp"
 
 #include <filesystem>
 #include <fmt/format.h>
@@ -260,13 +261,6 @@ std::string learner_backend(const Config& cfg) {
   return find_learner(cfg.marl.algo).core == LearnerInfo::Core::Ppo ? cfg.marl.backend : "torch";
 }
 
-torch::Device device_of(const Config& cfg) {
-  if (cfg.nn.device == "cuda") {
-    if (!torch::cuda::is_available())
-      throw InputError("nn.device = \"cuda\" is not available (this LibTorch has no CUDA, or no GPU is visible): allowed cpu");
-    return torch::Device(torch::kCUDA);
-  }
-  return torch::Device(torch::kCPU);
-}
+torch::Device device_of(const Config& cfg) { return nn::resolve_device(cfg.nn.device); }
 
 }  // namespace skyloop::marl

@@ -3,6 +3,7 @@
 #include <numeric>
 
 #include "checkpoint.hpp"
+#include "models.hpp"
 #include "data.hpp"
 #include "fast_model.hpp"
 #include "network_batch.hpp"
@@ -13,10 +14,6 @@
 #include "skyloop/core/paths.hpp"
 
 namespace skyloop {
-
-namespace nn {
-torch::Device resolve_device(const std::string& name);
-}
 
 struct LearnedBeamformer::Impl {
   ModelInfo info;

@@ -198,4 +198,8 @@ class IgnnImpl : public BeamNetImpl {
 std::shared_ptr<BeamNetImpl> make_model(const std::string& name, int64_t antennas, int64_t hidden, int64_t layers,
                                         Readout readout = Readout::Direct);
 
+/// The device `nn.device` names ("cpu" or "cuda"); "cuda" without a visible GPU (or in a LibTorch
+/// without CUDA) throws InputError. Read by the beamformers' training and serving and the learners.
+torch::Device resolve_device(const std::string& name);
+
 }  // namespace skyloop::nn

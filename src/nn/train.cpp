@@ -8,6 +8,7 @@
 #include <ostream>
 
 #include "checkpoint.hpp"
+#include "models.hpp"
 #include "data.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/config_io.hpp"

@@ -96,6 +96,31 @@ BeamformerRegistry& zf_registry() {
   }();
   return r;
 }
+
+/// The small scenario's rate oracle: ZF over its 6 users, drawn with `users_seed`.
+std::shared_ptr<RateOracle> zf_oracle(const Config& cfg, std::uint64_t users_seed) {
+  return std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, users_seed));
+}
+
+/// Random's mean objective over seeds 0-4: the baseline a learning test's policy must beat.
+double random_mean(UavEnv& env) {
+  double random = 0;
+  for (std::uint64_t s = 0; s < 5; ++s) {
+    RandomPlanner p(s);
+    random += run_episode(env, p).objective / 5;
+  }
+  return random;
+}
+
+/// The deterministic evaluation of a policy trained for one step: what shows that a learning
+/// test's bounds fail a policy that learned nothing.
+EpisodeRecord untrained_evaluation(Config cfg, const std::string& name) {
+  cfg.marl.total_steps = 1;
+  MarlTrainOptions opt;
+  opt.out_dir = fresh(name);
+  opt.registry = &zf_registry();
+  return train_marl(cfg, opt).evaluation;
+}
 }  // namespace
 
 // Bounded, seeded MAPPO runs on a small scenario (2 UAVs, 7 x 7 grid, ZF oracle), judged against the
@@ -116,22 +141,10 @@ TEST(Marl, MappoLearnsToArriveNearTheOptimum) {
   cfg.marl.action_mask = cfg.marl.shield = false;  // arriving must be learned, as in the paper
   cfg.env.w_col = 2;
   cfg.marl.entropy_coef = 0.03;
-  auto oracle = std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, cfg.marl.users_seed));
-  UavEnv env(cfg, oracle);
+  UavEnv env(cfg, zf_oracle(cfg, cfg.marl.users_seed));
   const double optimum = solve_optimal(env).objective;
-  double random = 0;
-  for (std::uint64_t s = 0; s < 5; ++s) {
-    RandomPlanner p(s);
-    random += run_episode(env, p).objective / 5;
-  }
-  {
-    Config untrained = cfg;
-    untrained.marl.total_steps = 1;
-    MarlTrainOptions opt;
-    opt.out_dir = fresh("mappo_untrained");
-    opt.registry = &zf_registry();
-    EXPECT_FALSE(train_marl(untrained, opt).evaluation.success) << "the untrained policy already arrives: the test proves nothing";
-  }
+  const double random = random_mean(env);
+  EXPECT_FALSE(untrained_evaluation(cfg, "mappo_untrained").success) << "the untrained policy already arrives: the test proves nothing";
   for (std::uint64_t seed : {1, 2, 3}) {
     cfg.run.seed = seed;
     MarlTrainOptions opt;
@@ -334,8 +347,7 @@ TEST(Marl, EveryLearnerTrainsAndFliesTheHeadingsModel) {
     for (const auto& a : r.evaluation.actions)
       for (int x : a) EXPECT_TRUE(x >= 0 && x < 17) << algo;
     auto policy = MarlPolicy::load(opt.out_dir);
-    auto oracle = std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, 3));
-    UavEnv env(cfg, oracle);
+    UavEnv env(cfg, zf_oracle(cfg, 3));
     ASSERT_EQ(env.actions(), 17);
     const auto a = policy->act(env);
     for (int n = 0; n < env.uavs(); ++n)
@@ -356,7 +368,7 @@ TEST(Marl, EveryLearnerTrainsAndFliesTheHeadingsModel) {
     EXPECT_THROW(policy->set_reserve_slack(-2), InputError);
     Config grid = cfg;
     grid.trajectory.mobility = "grid";
-    UavEnv genv(grid, std::make_shared<RateOracle>(grid, zf_registry().create("zf", grid), make_users(grid, 6, 3)));
+    UavEnv genv(grid, zf_oracle(grid, 3));
     try {
       policy->act(genv);
       ADD_FAILURE() << algo << ": a headings policy flew the grid model";
@@ -393,13 +405,13 @@ TEST(Marl, LookAheadPoliciesNeedTheLookAhead) {
   opt.registry = &zf_registry();
   train_marl(cfg, opt);
   auto policy = MarlPolicy::load(opt.out_dir);
-  UavEnv env(cfg, std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, 3)));
+  UavEnv env(cfg, zf_oracle(cfg, 3));
   const auto a = policy->act(env);
   for (int n = 0; n < env.uavs(); ++n)
     EXPECT_TRUE(allowed_moves(env, n, SafetyOptions{}) >> a[static_cast<std::size_t>(n)] & 1u);
   Config plain = cfg;
   plain.marl.lookahead = false;
-  UavEnv penv(plain, std::make_shared<RateOracle>(plain, zf_registry().create("zf", plain), make_users(plain, 6, 3)));
+  UavEnv penv(plain, zf_oracle(plain, 3));
   try {
     policy->act(penv);
     ADD_FAILURE() << "a look-ahead policy flew an environment without it";
@@ -458,19 +470,10 @@ TEST(Marl, ContinuousMappoLearnsEnergyEfficientFlight) {
   cfg.env.objective = "energy-efficiency";
   cfg.env.reward = "objective";
   validate(cfg);
-  auto oracle = std::make_shared<RateOracle>(cfg, zf_registry().create("zf", cfg), make_users(cfg, 6, cfg.marl.users_seed));
+  const auto oracle = zf_oracle(cfg, cfg.marl.users_seed);
   UavEnv env(cfg, oracle);
-  double random = 0;
-  for (std::uint64_t s = 0; s < 5; ++s) {
-    RandomPlanner p(s);
-    random += run_episode(env, p).objective / 5;
-  }
-  Config untrained = cfg;
-  untrained.marl.total_steps = 1;
-  MarlTrainOptions u;
-  u.out_dir = fresh("continuous_untrained");
-  u.registry = &zf_registry();
-  const double before = train_marl(untrained, u).evaluation.objective;
+  const double random = random_mean(env);
+  const double before = untrained_evaluation(cfg, "continuous_untrained").objective;
   for (std::uint64_t seed : {1, 2, 3}) {
     cfg.run.seed = seed;
     MarlTrainOptions opt;

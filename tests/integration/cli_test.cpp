@@ -352,3 +352,43 @@ TEST(Cli, FrontEndRunsWithoutLibTorchAndHandsOverWhatNeedsIt) {
   EXPECT_NE(r.err.find("cannot start " + alone + "/skyloop-torch"), std::string::npos) << r.err;
 }
 #endif
+
+#ifdef SKYLOOP_LIBTORCH_BIN
+// `cmake --install build --component cli --prefix P`: both programs in P/bin, the shipped models,
+// configurations and figure script in P/share/skyloop; the installed programs read that copy (a
+// model removed from it is missed, under its installed path), not the source tree they were built from.
+TEST(Cli, InstalledProgramsReadTheirOwnSharedFiles) {
+  namespace fs = std::filesystem;
+  const std::string prefix = tmpdir("install");
+  const std::string install = std::string("\"") + SKYLOOP_CMAKE + "\" --install \"" + SKYLOOP_BUILD_DIR +
+                              "\" --component cli --prefix \"" + prefix + "\" >" + prefix + ".log 2>&1";
+  ASSERT_EQ(std::system(install.c_str()), 0) << slurp(prefix + ".log");
+  const fs::path share = fs::path(prefix) / "share" / "skyloop";
+  for (const char* file : {"bin/skyloop", "bin/skyloop-torch"}) EXPECT_TRUE(fs::is_regular_file(fs::path(prefix) / file)) << file;
+  for (const char* file : {"models/gnn/model.pt", "models/gnn_structured/config.toml", "configs/paper.toml",
+                           "configs/generalise.toml", "configs/experiments", "scripts/plot_figures.py"})
+    EXPECT_TRUE(fs::exists(share / file)) << file;
+  const std::string bin = prefix + "/bin/skyloop";
+  auto ok = run_binary(bin, "beamform eval --methods gnn,zf --samples 2 --seed 7");
+  EXPECT_EQ(ok.code, 0) << ok.err;
+  const auto same = run_binary(SKYLOOP_BIN, "beamform eval --methods gnn,zf --samples 2 --seed 7");
+  auto without_timing = [](const std::string& table) {  // each row less its last column (milliseconds)
+    std::istringstream in(table);
+    std::string line, kept;
+    while (std::getline(in, line)) kept += line.substr(0, line.find_last_of(' ')) + "\n";
+    return kept;
+  };
+  EXPECT_EQ(without_timing(ok.out), without_timing(same.out)) << "the installed model is the shipped one";
+  ok = run_binary(bin, "config show --config " + (share / "configs" / "generalise.toml").string());
+  EXPECT_EQ(ok.code, 0) << ok.err;
+
+  fs::remove(share / "models" / "gnn" / "model.pt");
+  const auto missed = run_binary(bin, "beamform eval --methods gnn --samples 1");
+  EXPECT_NE(missed.code, 0);
+  EXPECT_EQ(lines(missed.err), 1) << missed.err;
+  EXPECT_NE(missed.err.find((share / "models" / "gnn").string()), std::string::npos) << missed.err;
+  const auto source = run_binary(SKYLOOP_BIN, "beamform eval --methods gnn --samples 1");
+  EXPECT_EQ(source.code, 0) << "the build tree's program reads the source tree: " << source.err;
+  fs::remove_all(prefix);
+}
+#endif

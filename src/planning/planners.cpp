@@ -433,8 +433,8 @@ OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
               for (std::size_t i = 0; i < st; ++i) out[i] = m[i] - hover_cost;
               for (const Move& x : mv) {
                 const double* m2 = m + x.offset;
-                const double cx = cost[static_cast<std::size_t>(x.action)];
-                for (std::size_t i = 0; i < st; ++i) out[i] = std::max(out[i], m2[i] - cx);
+                const double move_cost = cost[static_cast<std::size_t>(x.action)];
+                for (std::size_t i = 0; i < st; ++i) out[i] = std::max(out[i], m2[i] - move_cost);
               }
             }
           M.swap(tmp);

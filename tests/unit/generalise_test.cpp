@@ -240,6 +240,62 @@ TEST(Env, SetObservationIgnoresTheOrderOfUsersAndUavs) {
   EXPECT_EQ(od.back(), -7.0f) << "wrote past set_observation_size()";
 }
 
+// The users' kernel maps are kept per UAV coordinate between calls: what an environment writes
+// stays what a fresh computation writes, over an episode's moves (grid, headings and continuous
+// mobility, where every coordinate is new), in a copy (which starts with none kept), after new
+// users (set_oracle), and past the bound on what is kept (thousands of continuous slots).
+TEST(Env, SetObservationKeptPerCoordinateEqualsAFreshOne) {
+  for (const char* mobility : {"grid", "headings", "continuous"}) {
+    Config cfg;
+    cfg.scenario.users = 40;
+    cfg.marl.encoder = "set";
+    cfg.trajectory.mobility = mobility;
+    finalise(cfg);
+    const bool continuous = std::string(mobility) == "continuous";
+    UavEnv env = make_env(cfg, make_users(cfg, 40, 8));
+    const int D = env.set_observation_size();
+    Rng rng(5);
+    auto expect_same = [&](const UavEnv& a, const UavEnv& b, const std::string& what) {
+      for (int n = 0; n < a.uavs(); ++n) {
+        std::vector<float> oa(static_cast<std::size_t>(D)), ob(oa.size());
+        a.write_set_observation(n, oa.data());
+        b.write_set_observation(n, ob.data());
+        ASSERT_EQ(oa, ob) << mobility << ", " << what << ", UAV " << n << ", t = " << a.t();
+      }
+    };
+    auto random_step = [&](UavEnv& a, UavEnv& b) {
+      if (continuous) {
+        Positions v(a.uavs(), 2);
+        for (int n = 0; n < a.uavs(); ++n) v(n, 0) = 2 * rng.uniform() - 1, v(n, 1) = 2 * rng.uniform() - 1;
+        a.step_velocities(v), b.step_velocities(v);
+      } else {
+        std::vector<int> act(static_cast<std::size_t>(a.uavs()));
+        for (auto& x : act) x = static_cast<int>(rng.below(static_cast<std::uint64_t>(a.actions())));
+        a.step(act), b.step(act);
+      }
+    };
+    // Episodes of the same environment against a copy made afresh every slot.
+    const int episodes = continuous ? 120 : 3;  // continuous: past the bound (2^21 doubles) at K = 40
+    for (int e = 0; e < episodes; ++e) {
+      env.reset();
+      while (!env.done()) {
+        UavEnv fresh = env;
+        if (e == 0 || e + 1 == episodes) expect_same(env, fresh, "episode " + std::to_string(e));
+        else env.write_set_observation(0, std::vector<float>(static_cast<std::size_t>(D)).data());
+        random_step(env, fresh);
+      }
+    }
+    // New users: the kernels are theirs, not the kept ones of the users before.
+    const Positions other = make_users(cfg, 40, 9);
+    env.set_oracle(std::make_shared<RateOracle>(cfg, zf_bf(), other));
+    UavEnv built = make_env(cfg, other);
+    for (int t = 0; t < 5 && !env.done(); ++t) {
+      expect_same(env, built, "new users");
+      random_step(env, built);
+    }
+  }
+}
+
 namespace {
 /// One slot of uniformly random moves among those the reachability mask allows.
 void step_at_random(UavEnv& env, Rng& rng) {

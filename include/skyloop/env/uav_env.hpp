@@ -36,6 +36,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "skyloop/env/energy.hpp"
@@ -309,6 +310,26 @@ class UavEnv {
   };
   mutable std::vector<ClearTable> clear_tables_[2];
   mutable std::vector<char> closed_;  // scratch for the tables
+  // The set observation's user kernels, one axis at a time (write_set_observation): for each UAV
+  // coordinate seen since the users were set, every user's G factors along that axis and whether
+  // the user is within the kernel's reach. A cache of a pure function of (users, coordinate):
+  // cleared in set_oracle, and a copied environment starts with an empty one.
+  struct KernelAxes {
+    std::unordered_map<std::uint64_t, std::size_t> x, y;  // a coordinate's bits -> its offset in f
+    std::vector<double> f;  // per coordinate: K rows of G factors and a reach flag (1 or 0)
+    KernelAxes() = default;
+    KernelAxes(const KernelAxes&) {}
+    KernelAxes& operator=(const KernelAxes&) {
+      clear();
+      return *this;
+    }
+    void clear() {
+      x.clear();
+      y.clear();
+      f.clear();
+    }
+  };
+  mutable KernelAxes kernel_axes_;
   std::vector<int> prev_action_, prev_tmin_;
   std::vector<double> rates_;
   double rate_sum_ = 0;

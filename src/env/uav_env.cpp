@@ -524,6 +524,40 @@ void add_kernel(float* map, int G, const double* fx, const double* fy, double w)
     for (int i = 0; i < G; ++i) map[j * G + i] += static_cast<float>(w * fx[i] * fy[j]);
 }
 
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define SKYLOOP_ENV_CLONES __attribute__((target_clones("avx2", "default"), noinline))
+#else
+#define SKYLOOP_ENV_CLONES
+#endif
+
+/// add_kernel of the points `users` (ascending) on a 7 x 7 map, from factor rows of 8 doubles (the
+/// eighth zero). The map is summed in registers, a row of 8 floats per map row, each entry's terms
+/// in the same order, each term the same two products and the same float addition as
+/// add_kernel's (nothing to contract), so every instruction set writes the same floats as
+/// add_kernel point by point.
+static_assert(kWideGrid == 7, "add_kernels: a map row is one 8-float vector");
+SKYLOOP_ENV_CLONES void add_kernels(float* map, const double* fx, const double* fy, const int* users, std::size_t count,
+                                    double w) {
+  typedef double d4 __attribute__((vector_size(32), aligned(8), may_alias));
+  typedef float f4 __attribute__((vector_size(16)));
+  typedef float f8 __attribute__((vector_size(32)));
+  constexpr int G = 7, P = 8;
+  f8 acc[G];
+  for (int j = 0; j < G; ++j)
+    for (int i = 0; i < P; ++i) acc[j][i] = i < G ? map[j * G + i] : 0.0f;
+  for (std::size_t u = 0; u < count; ++u) {
+    const auto k = static_cast<std::size_t>(users[u]) * P;
+    const d4 wlo = w * *reinterpret_cast<const d4*>(fx + k), whi = w * *reinterpret_cast<const d4*>(fx + k + 4);
+    for (int j = 0; j < G; ++j) {
+      const double y = fy[k + static_cast<std::size_t>(j)];
+      const f4 lo = __builtin_convertvector(wlo * y, f4), hi = __builtin_convertvector(whi * y, f4);
+      acc[j] += __builtin_shufflevector(lo, hi, 0, 1, 2, 3, 4, 5, 6, 7);
+    }
+  }
+  for (int j = 0; j < G; ++j)
+    for (int i = 0; i < G; ++i) map[j * G + i] = acc[j][i];
+}
+
 /// The kernel of a point at offset (dx, dy), computed afresh.
 void add_kernel(float* map, int G, double step, double width, double dx, double dy, double w) {
   double fx[16], fy[16];
@@ -549,28 +583,35 @@ void UavEnv::write_set_observation(int n, float* o) const {
   const double per_user = 4.0 / static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
   // The users' factors along each axis depend on the UAV's coordinate alone (the users are fixed
   // until set_oracle): computed once per coordinate, a few dozen per episode, where each UAV's
-  // each slot would otherwise take five exponentials per user. The same doubles either way.
+  // each slot would otherwise take five exponentials per user. A user out of reach along one axis
+  // has zero factors there: its kernel would add +0 to every (non-negative) entry, so only the
+  // users within reach along the axis with fewer of them are visited, in order. The same floats
+  // as every kernel computed and added afresh.
   const auto K = users.rows();
-  const std::size_t row = kWideGrid + 1;
-  auto factors = [&](std::unordered_map<std::uint64_t, std::size_t>& index, double at, int axis) {
+  constexpr std::size_t P = kWideGrid + 1;  // factor rows padded with a zero
+  auto axis = [&](std::unordered_map<std::uint64_t, KernelAxes::Axis>& index, double at, int dim) {
     std::uint64_t bits;
     std::memcpy(&bits, &at, sizeof bits);
-    const auto [it, fresh] = index.try_emplace(bits, kernel_axes_.f.size());
+    const auto [it, fresh] = index.try_emplace(bits);
     if (fresh) {
-      kernel_axes_.f.resize(kernel_axes_.f.size() + static_cast<std::size_t>(K) * row);
-      double* f = kernel_axes_.f.data() + it->second;
-      for (Eigen::Index k = 0; k < K; ++k, f += row)
-        f[kWideGrid] = kernel_axis(kWideGrid, 2 * d_fly_, 2 * d_fly_, users(k, axis) - at, f) ? 1.0 : 0.0;
+      auto& t = kernel_axes_;
+      KernelAxes::Axis& a = it->second;
+      a.factors = t.f.size();
+      a.reach = t.reach.size();
+      t.f.resize(t.f.size() + static_cast<std::size_t>(K) * P, 0.0);
+      for (Eigen::Index k = 0; k < K; ++k)
+        if (kernel_axis(kWideGrid, 2 * d_fly_, 2 * d_fly_, users(k, dim) - at, t.f.data() + a.factors + static_cast<std::size_t>(k) * P))
+          t.reach.push_back(static_cast<int>(k));
+      a.count = t.reach.size() - a.reach;
     }
     return it->second;
   };
   // Bounded: continuous moves visit new coordinates every slot (a lattice, a few hundred at most).
-  if (kernel_axes_.f.size() + 2 * static_cast<std::size_t>(K) * row > (std::size_t{1} << 21)) kernel_axes_.clear();
-  const std::size_t at_x = factors(kernel_axes_.x, x, 0), at_y = factors(kernel_axes_.y, y, 1);
-  const double* fx = kernel_axes_.f.data() + at_x;
-  const double* fy = kernel_axes_.f.data() + at_y;
-  for (Eigen::Index k = 0; k < K; ++k, fx += row, fy += row)
-    if (fx[kWideGrid] != 0.0 && fy[kWideGrid] != 0.0) add_kernel(o, kWideGrid, fx, fy, per_user);
+  if (kernel_axes_.f.size() + 2 * static_cast<std::size_t>(K) * P > (std::size_t{1} << 21)) kernel_axes_.clear();
+  const KernelAxes::Axis ax = axis(kernel_axes_.x, x, 0), ay = axis(kernel_axes_.y, y, 1);
+  const KernelAxes::Axis& fewer = ax.count <= ay.count ? ax : ay;
+  add_kernels(o, kernel_axes_.f.data() + ax.factors, kernel_axes_.f.data() + ay.factors,
+              kernel_axes_.reach.data() + fewer.reach, fewer.count, per_user);
   for (int m = 0; m < n_; ++m) {
     if (m == n) continue;
     add_kernel(o + W, kWideGrid, 2 * d_fly_, 2 * d_fly_, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);

@@ -311,12 +311,16 @@ class UavEnv {
   mutable std::vector<ClearTable> clear_tables_[2];
   mutable std::vector<char> closed_;  // scratch for the tables
   // The set observation's user kernels, one axis at a time (write_set_observation): for each UAV
-  // coordinate seen since the users were set, every user's G factors along that axis and whether
-  // the user is within the kernel's reach. A cache of a pure function of (users, coordinate):
-  // cleared in set_oracle, and a copied environment starts with an empty one.
+  // coordinate seen since the users were set, every user's G factors along that axis (zeros where
+  // the user is out of the kernel's reach) and the users within reach. A cache of a pure function
+  // of (users, coordinate): cleared in set_oracle, and a copied environment starts with an empty one.
   struct KernelAxes {
-    std::unordered_map<std::uint64_t, std::size_t> x, y;  // a coordinate's bits -> its offset in f
-    std::vector<double> f;  // per coordinate: K rows of G factors and a reach flag (1 or 0)
+    struct Axis {
+      std::size_t factors = 0, reach = 0, count = 0;  // offsets into f and reach; the users within reach
+    };
+    std::unordered_map<std::uint64_t, Axis> x, y;  // a coordinate's bits -> its tables
+    std::vector<double> f;  // per coordinate: K rows of G factors
+    std::vector<int> reach;  // per coordinate: the users within reach along that axis, ascending
     KernelAxes() = default;
     KernelAxes(const KernelAxes&) {}
     KernelAxes& operator=(const KernelAxes&) {
@@ -327,6 +331,7 @@ class UavEnv {
       x.clear();
       y.clear();
       f.clear();
+      reach.clear();
     }
   };
   mutable KernelAxes kernel_axes_;

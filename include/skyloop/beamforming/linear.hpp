@@ -31,8 +31,9 @@ MatrixXcd rzf(const Cluster& c);
 MatrixXcd zf_select(const Cluster& c, std::vector<int>* selected = nullptr);
 /// ZF with user selection in a given order (`ranking`: users, best first, each at most once): one
 /// pass that adds each user in turn while it raises the water-filled ZF sum rate of the selected
-/// set (at most L users). O(K L^3) per cluster where ZF-SEL's greedy search costs O(K L^4); with
-/// a good ranking it selects what ZF-SEL selects. `selected` (if given) receives the kept users,
+/// set (at most L users). O(K L^2) per cluster where ZF-SEL's greedy search costs O(K L^3) (each
+/// candidate set's Cholesky factor grows by one row); with a good ranking it selects what ZF-SEL
+/// selects. `selected` (if given) receives the kept users,
 /// ascending.
 MatrixXcd zf_ranked(const Cluster& c, const std::vector<int>& ranking, std::vector<int>* selected = nullptr);
 

@@ -12,6 +12,7 @@
 #include <fcntl.h>
 #include <sys/wait.h>
 #include <unistd.h>
+#include "../scratch.hpp"
 
 namespace {
 
@@ -27,17 +28,11 @@ std::string slurp(const std::string& path) {
   return ss.str();
 }
 
-std::string tmpdir(const std::string& name) {
-  const auto d = std::filesystem::path(::testing::TempDir()) /
-                 ("skyloop_cli_" + std::to_string(::getpid()) + "_" + name);
-  std::filesystem::remove_all(d);
-  std::filesystem::create_directories(d);
-  return d.string();
-}
+std::string tmpdir(const std::string& name) { return skyloop::test::scratch_dir(name).string(); }
 
 Result run(const std::string& args) {
   static int counter = 0;
-  const std::string base = tmpdir("run" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+  const std::string base = tmpdir("run" + std::to_string(counter++));
   const std::string cmd = std::string(SKYLOOP_BIN) + " " + args + " >" + base + "/out 2>" + base + "/err";
   const int status = std::system(cmd.c_str());
   Result r;

@@ -18,6 +18,7 @@
 #include "skyloop/experiments/reproduce.hpp"
 // The stage kind table (internal to the library).
 #include "../../src/experiments/reproduce/context.hpp"
+#include "../scratch.hpp"
 
 namespace fs = std::filesystem;
 using namespace skyloop;
@@ -62,11 +63,7 @@ Result run(const std::string& args, const fs::path& logs) {
   return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(logs / "out"), slurp(logs / "err")};
 }
 
-fs::path tmp(const std::string& name) {
-  const auto d = fs::path(::testing::TempDir()) / ("skyloop_repro_" + std::to_string(::getpid()) + "_" + name);
-  fs::remove_all(d);
-  return d;
-}
+fs::path tmp(const std::string& name) { return skyloop::test::scratch_path(name); }
 
 }  // namespace
 

@@ -17,6 +17,7 @@
 #include <sys/wait.h>
 #include <thread>
 #include <unistd.h>
+#include "../scratch.hpp"
 
 namespace fs = std::filesystem;
 
@@ -39,12 +40,7 @@ void spit(const fs::path& p, const std::string& text) {
   std::ofstream(p, std::ios::binary) << text;
 }
 
-fs::path tmpdir(const std::string& name) {
-  const auto d = fs::path(::testing::TempDir()) / ("skyloop_probe_" + std::to_string(::getpid()) + "_" + name);
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path tmpdir(const std::string& name) { return skyloop::test::scratch_dir(name); }
 
 const std::string kBin = SKYLOOP_BIN;
 const std::string kSrc = SKYLOOP_SOURCE_DIR;

@@ -5,6 +5,7 @@
 #include "skyloop/core/io.hpp"
 
 #include "test_util.hpp"
+#include "../scratch.hpp"
 
 using namespace skyloop;
 using skyloop::test::error_of;
@@ -127,7 +128,7 @@ TEST(Config, EveryFieldHasHelpAndRoundTripsItsDefault) {
 }
 
 TEST(Io, AtomicWriteReplacesWholeFile) {
-  const std::string path = ::testing::TempDir() + "/skyloop_atomic/out.txt";
+  const std::string path = (test::scratch_path("atomic") / "out.txt").string();
   write_file_atomic(path, "first\n");
   write_file_atomic(path, "second\n");
   EXPECT_EQ(read_file(path), "second\n");

@@ -13,17 +13,13 @@
 
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "../scratch.hpp"
 
 using namespace skyloop;
 namespace fs = std::filesystem;
 
 namespace {
-fs::path fresh(const std::string& name) {
-  const auto d = fs::path(::testing::TempDir()) / ("skyloop_io_" + std::to_string(::getpid()) + "_" + name);
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+fs::path fresh(const std::string& name) { return skyloop::test::scratch_dir(name); }
 std::string slurp(const fs::path& p) {
   std::ifstream in(p);
   std::stringstream ss;

@@ -16,6 +16,7 @@
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/planning/safety.hpp"
+#include "../scratch.hpp"
 
 using namespace skyloop;
 
@@ -82,11 +83,7 @@ Config small_scenario(const std::string& algo, std::int64_t steps) {
   return cfg;
 }
 
-std::string fresh(const std::string& name) {
-  const auto d = std::filesystem::path(::testing::TempDir()) / ("skyloop_marl_" + std::to_string(::getpid()) + "_" + name);
-  std::filesystem::remove_all(d);
-  return d.string();
-}
+std::string fresh(const std::string& name) { return skyloop::test::scratch_path(name).string(); }
 
 BeamformerRegistry& zf_registry() {
   static BeamformerRegistry r = [] {

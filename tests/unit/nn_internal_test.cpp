@@ -15,6 +15,7 @@
 #include "skyloop/nn/learned.hpp"
 #include "skyloop/beamforming/linear.hpp"
 #include "test_util.hpp"
+#include "../scratch.hpp"
 
 using namespace skyloop;
 using namespace skyloop::nn;
@@ -50,7 +51,7 @@ TEST(NnInternal, CheckpointRoundTripsBitForBit) {
     info.parameters = count_parameters(*model);
     info.config_toml = "[run]\nseed = 3\n";
     TrainingState state{7, 99, 5, 42.25};
-    const std::string path = ::testing::TempDir() + "/skyloop_rt_" + name + ".pt";
+    const std::string path = (test::scratch_dir(std::string("rt_") + name) / "model.pt").string();
     save_checkpoint(path, info, state, *model, &adam);
     const auto back = load_checkpoint(path, torch::kCPU);
     const auto a = model->named_parameters(), b = back.model->named_parameters();
@@ -252,8 +253,7 @@ TEST(NnInternal, Float32ServingIsWithinRoundingOfFloat64) {
                               "deepsets+log"}) {
     const Config cfg = test::tiny_nn_config(m);
     TrainOptions opt;
-    opt.out_dir = ::testing::TempDir() + "/skyloop_f32_" + std::to_string(::getpid()) + "_" + m;
-    std::filesystem::remove_all(opt.out_dir);
+    opt.out_dir = test::scratch_path("f32_" + m).string();
     train_beamformer(cfg, opt);
     expect_float32_paths_within_rounding(m, cfg, opt.out_dir + "/model.pt", opt.out_dir,
                                          {1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12});
@@ -265,8 +265,7 @@ TEST(NnInternal, Float32ServingIsWithinRoundingOfFloat64) {
 TEST(NnInternal, ShippedModelsFastPathIsWithinRoundingOfFloat64) {
   for (const std::string m : {"gnn", "gnn_structured", "deepsets", "mspointnet"}) {
     const std::string path = std::string(SKYLOOP_SOURCE_DIR) + "/models/" + m + "/model.pt";
-    const std::string scratch = ::testing::TempDir() + "/skyloop_shipped_" + std::to_string(::getpid()) + "_" + m;
-    std::filesystem::create_directories(scratch);
+    const std::string scratch = test::scratch_dir("shipped_" + m).string();
     expect_float32_paths_within_rounding(m, Config{}, path, scratch, {1, 3, 6, 12});
     std::filesystem::remove_all(scratch);
   }

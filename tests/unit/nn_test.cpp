@@ -17,6 +17,7 @@
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/nn/learned.hpp"
 #include "test_util.hpp"
+#include "../scratch.hpp"
 
 using namespace skyloop;
 namespace fs = std::filesystem;
@@ -25,11 +26,7 @@ namespace {
 
 Config tiny_config(const std::string& model) { return test::tiny_nn_config(model); }
 
-std::string fresh_dir(const std::string& name) {
-  const auto d = fs::path(::testing::TempDir()) / ("skyloop_nn_" + std::to_string(::getpid()) + "_" + name);
-  fs::remove_all(d);
-  return d.string();
-}
+std::string fresh_dir(const std::string& name) { return skyloop::test::scratch_path(name).string(); }
 
 /// A briefly trained tiny model of each kind (cached per process).
 std::string tiny_model(const std::string& model) {

@@ -8,6 +8,10 @@
 #include <cstdlib>
 #include <filesystem>
 #include <random>
+#include <string>
+#include <system_error>
+
+#include <unistd.h>
 
 #include "../src/marl/ppo.hpp"
 #include "../src/nn/fast_gemm.hpp"
@@ -26,7 +30,8 @@ static void train(benchmark::State& state, const std::string& model, const std::
   cfg.nn.val_samples = 8;
   cfg.nn.test_samples = 8;
   cfg.nn.epochs = 1;
-  const auto dir = std::filesystem::temp_directory_path() / ("skyloop_bench_train_" + model + readout);
+  const auto dir = std::filesystem::temp_directory_path() /
+                   ("skyloop_bench_train_" + model + readout + "_" + std::to_string(::getpid()));
   double rate = 0;
   for (auto _ : state) {
     TrainOptions opt;
@@ -35,6 +40,8 @@ static void train(benchmark::State& state, const std::string& model, const std::
     rate = train_beamformer(cfg, opt).clusters_per_second;
   }
   state.counters["clusters_per_s"] = rate;
+  std::error_code ignored;
+  std::filesystem::remove_all(dir, ignored);  // the trained model is not the benchmark's output
 }
 
 static void BM_TrainGnn(benchmark::State& s) { train(s, "gnn", "direct"); }

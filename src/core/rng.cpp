@@ -1,6 +1,7 @@
 #include "skyloop/core/rng.hpp"
 
 #include <cmath>
+#include <utility>
 
 namespace skyloop {
 
@@ -41,6 +42,29 @@ std::uint64_t Rng::below(std::uint64_t n) {
   std::uint64_t x = engine_();
   while (x >= limit) x = engine_();
   return x % n;
+}
+
+void shuffle(std::vector<std::size_t>& v, Rng& rng) {
+  __extension__ typedef unsigned __int128 u128;
+  std::uint64_t state = rng.next();
+  auto next = [&state] {
+    const std::uint64_t x = mix64(state);  // SplitMix64: the finaliser of state + golden ratio
+    state += 0x9e3779b97f4a7c15ULL;
+    return x;
+  };
+  for (std::size_t i = v.size(); i > 1; --i) {
+    const std::uint64_t n = i;
+    u128 m = static_cast<u128>(next()) * n;
+    auto low = static_cast<std::uint64_t>(m);
+    if (low < n) {
+      const std::uint64_t reject = (0 - n) % n;  // 2^64 mod n
+      while (low < reject) {
+        m = static_cast<u128>(next()) * n;
+        low = static_cast<std::uint64_t>(m);
+      }
+    }
+    std::swap(v[i - 1], v[static_cast<std::size_t>(m >> 64)]);
+  }
 }
 
 }  // namespace skyloop

@@ -778,11 +778,19 @@ void VecEnv::reset() {
   for (std::size_t i = 0; i < envs_.size(); ++i) reset_env(i);
 }
 
+Positions VecEnv::begin(int i, const std::vector<int>& actions, StepInfo& info) {
+  return envs_[static_cast<std::size_t>(i)]->begin_step(actions, info);
+}
+
+Positions VecEnv::begin_velocities(int i, const Positions& velocities, StepInfo& info) {
+  return envs_[static_cast<std::size_t>(i)]->begin_step_velocities(velocities, info);
+}
+
 std::vector<StepInfo> VecEnv::step(const std::vector<std::vector<int>>& actions,
                                    const std::function<void(std::size_t)>& before_reset) {
   std::vector<StepInfo> info(envs_.size());
   std::vector<Positions> next(envs_.size());
-  for (std::size_t i = 0; i < envs_.size(); ++i) next[i] = envs_[i]->begin_step(actions[i], info[i]);
+  for (int i = 0; i < size(); ++i) next[static_cast<std::size_t>(i)] = begin(i, actions[static_cast<std::size_t>(i)], info[static_cast<std::size_t>(i)]);
   return finish(next, info, before_reset);
 }
 
@@ -790,7 +798,8 @@ std::vector<StepInfo> VecEnv::step_velocities(const std::vector<Positions>& velo
                                               const std::function<void(std::size_t)>& before_reset) {
   std::vector<StepInfo> info(envs_.size());
   std::vector<Positions> next(envs_.size());
-  for (std::size_t i = 0; i < envs_.size(); ++i) next[i] = envs_[i]->begin_step_velocities(velocities[i], info[i]);
+  for (int i = 0; i < size(); ++i)
+    next[static_cast<std::size_t>(i)] = begin_velocities(i, velocities[static_cast<std::size_t>(i)], info[static_cast<std::size_t>(i)]);
   return finish(next, info, before_reset);
 }
 

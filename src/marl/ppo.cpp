@@ -272,8 +272,8 @@ class TorchPpo final : public PpoNetworks {
     for (auto& group : adam_->param_groups()) static_cast<torch::optim::AdamOptions&>(group.options()).lr(learning_rate);
   }
 
-  void logits(const float* obs, int rows, float* out) override { forward(nets_.actor, obs, rows, actions(), out); }
-  void values(const float* in, int rows, float* out) override { forward(nets_.critic, in, rows, 1, out); }
+  void logits(const float* obs, int rows, float* out, int) override { forward(nets_.actor, obs, rows, actions(), out); }
+  void values(const float* in, int rows, float* out, int) override { forward(nets_.critic, in, rows, 1, out); }
 
   UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
     const int64_t R = b.rows;
@@ -365,10 +365,11 @@ class FastPpo final : public PpoNetworks {
 
   void set_learning_rate(double learning_rate) override { actor_adam_.learning_rate = critic_adam_.learning_rate = learning_rate; }
 
-  void logits(const float* obs, int rows, float* out) override {
-    forward(actor_, obs, rows, static_cast<int>(torch_.actor->l3->options.out_features()), out);
+  void logits(const float* obs, int rows, float* out, int lane) override {
+    forward(actor_, obs, rows, static_cast<int>(torch_.actor->l3->options.out_features()), out, lane);
   }
-  void values(const float* in, int rows, float* out) override { forward(critic_, in, rows, 1, out); }
+  void values(const float* in, int rows, float* out, int lane) override { forward(critic_, in, rows, 1, out, lane); }
+  int lanes() const override { return kLanes; }
 
   UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
     const int R = b.rows, as = actor_.out_stride(), vs = critic_.out_stride();
@@ -490,23 +491,28 @@ class FastPpo final : public PpoNetworks {
       fast->get_torch_layout(p);
     }
   }
-  void forward(const fast::Mlp& net, const float* in, int rows, int width, float* out) {
-    scratch_.resize(static_cast<std::size_t>(rows) * net.out_stride());
-    net.forward(in, rows, scratch_.data(), &infer_cache_);
+  /// Each row's outputs are the same bits whatever the other rows (the kernels sum every element
+  /// over its inputs in order), so lanes split a batch without changing a number.
+  void forward(const fast::Mlp& net, const float* in, int rows, int width, float* out, int lane) {
+    if (lane < 0 || lane >= kLanes) throw std::logic_error("FastPpo: lane " + std::to_string(lane) + " outside 0.." + std::to_string(kLanes - 1));
+    auto& scratch = scratch_[lane];
+    scratch.resize(static_cast<std::size_t>(rows) * net.out_stride());
+    net.forward(in, rows, scratch.data(), &infer_cache_[lane]);
     for (int i = 0; i < rows; ++i)
-      std::copy(scratch_.data() + static_cast<std::size_t>(i) * net.out_stride(),
-                scratch_.data() + static_cast<std::size_t>(i) * net.out_stride() + width, out + static_cast<std::size_t>(i) * width);
+      std::copy(scratch.data() + static_cast<std::size_t>(i) * net.out_stride(),
+                scratch.data() + static_cast<std::size_t>(i) * net.out_stride() + width, out + static_cast<std::size_t>(i) * width);
   }
 
   static constexpr std::size_t kChunks = 2;
+  static constexpr int kLanes = kCollectLanes;
   static constexpr int kPieceRows = 192;
   Nets torch_;  // the archive's form of the weights (written on save, read on load)
   fast::Mlp actor_, critic_;
   fast::Adam actor_adam_, critic_adam_;
   int threads_ = 1;
-  fast::Mlp::Cache actor_cache_[kChunks], critic_cache_[kChunks], infer_cache_;
+  fast::Mlp::Cache actor_cache_[kChunks], critic_cache_[kChunks], infer_cache_[kLanes];
   std::vector<float> chunk_grad_[kChunks];
-  std::vector<float> grad_, logits_, values_, dlogits_, dvalues_, scratch_;
+  std::vector<float> grad_, logits_, values_, dlogits_, dvalues_, scratch_[kLanes];
 };
 
 }  // namespace
@@ -525,19 +531,32 @@ std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int o
 // ---- the three phases ----------------------------------------------------------------------------
 
 void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety, PpoNetworks& nets,
-             const RunningStats& value_norm, Rng& rng, Rollout& r, EpisodeStats& stats) {
+             const RunningStats& value_norm, Rng& rng, Rollout& r, EpisodeStats& stats, int threads) {
   const int M = r.M, N = r.N, A = r.A, C = r.C;
   const int width = C > 0 ? 2 * C : A;  // the actor's output: logits, or mean and log std
   const std::size_t step_rows = static_cast<std::size_t>(M) * N;
   std::vector<float> logits(step_rows * static_cast<std::size_t>(width));
-  std::vector<std::vector<int>> actions(static_cast<std::size_t>(M));
-  std::vector<Positions> velocities(static_cast<std::size_t>(M));
+  std::vector<Rng> streams;  // environment e samples from streams[e] alone: the same draws on any thread count
+  streams.reserve(static_cast<std::size_t>(M));
+  for (int e = 0; e < M; ++e) streams.emplace_back(rng.next());
+  std::vector<std::vector<int>> actions(static_cast<std::size_t>(M), std::vector<int>(static_cast<std::size_t>(N)));
+  std::vector<Positions> next(static_cast<std::size_t>(M));
+  std::vector<StepInfo> infos(static_cast<std::size_t>(M));
+  // The lanes: kCollectLanes fixed, contiguous groups of environments. Observations that ask the
+  // rate oracle (whose memo environments may share) are written on the calling thread first
+  // (encoder.threads == 1); everything else a lane does touches its own environments and rows.
+  const bool encode_in_lanes = encoder.threads > 1;
+  const int lane_threads = std::min({resolve_threads(threads), nets.lanes(), kCollectLanes});
+  auto env_range = [&](std::size_t lane) {
+    return std::pair<int, int>{static_cast<int>(static_cast<std::size_t>(M) * lane / kCollectLanes),
+                               static_cast<int>(static_cast<std::size_t>(M) * (lane + 1) / kCollectLanes)};
+  };
+
   for (int t = 0; t < r.T; ++t) {
     float* obs = r.observations.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.obs_width);
     float* crit = r.critic_inputs.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.critic_width);
-    // Each environment's rows are its own: written on encoder.threads threads, the same floats.
-    parallel_for(static_cast<std::size_t>(M), encoder.threads, [&](std::size_t env) {
-      const int e = static_cast<int>(env);
+    float* values = r.values.data() + r.at(t, 0, 0);
+    auto encode = [&](int e) {
       for (int n = 0; n < N; ++n) {
         const auto i = static_cast<std::size_t>(e * N + n);
         encoder.write(vec.env(e), n, obs + i * static_cast<std::size_t>(r.obs_width));
@@ -546,70 +565,86 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
         r.logprobs[r.at(t, e, n)] = 0.0f;  // agents that STAY without sampling (arrived) keep these
         std::fill_n(r.allowed.data() + r.at(t, e, n) * A, A, 1.0f);
       }
-    });
-    nets.logits(obs, static_cast<int>(step_rows), logits.data());
-    float* values = r.values.data() + r.at(t, 0, 0);
-    nets.values(crit, static_cast<int>(step_rows), values);
-    for (std::size_t i = 0; i < step_rows; ++i) values[i] = static_cast<float>(value_norm.denormalise(values[i]));
-    for (int e = 0; e < M && C > 0; ++e) {
-      // Each active UAV draws z ~ N(mu, sigma^2) per dimension and commands u = tanh(z) (ppo.hpp);
-      // the safety layer may fly another velocity. Arrived UAVs hover (inactive rows).
-      const UavEnv& env = vec.env(e);
-      Positions wanted = Positions::Zero(N, 2);
-      for (int n = 0; n < N; ++n) {
-        const std::size_t i = r.at(t, e, n);
-        float* raw = r.raw_actions.data() + i * static_cast<std::size_t>(C);
-        std::fill_n(raw, C, 0.0f);
-        if (env.arrived(n)) continue;
-        const float* o = logits.data() + static_cast<std::size_t>(e * N + n) * width;
-        double logp = 0, u[2] = {0, 0};
-        for (int k = 0; k < C; ++k) {
-          const double ls = std::min(std::max(static_cast<double>(o[C + k]), kLogStdMin), kLogStdMax);
-          const float z = static_cast<float>(o[k] + std::exp(ls) * rng.normal());
-          raw[k] = z;
-          logp += squashed_gaussian_logprob(z, o[k], o[C + k]);
-          u[k] = std::tanh(static_cast<double>(z));
-        }
-        r.logprobs[i] = static_cast<float>(logp);
-        env.command_velocity(n, u[0], u[1], wanted(n, 0), wanted(n, 1));
-      }
-      velocities[static_cast<std::size_t>(e)] = safe_velocities(env, safety, wanted);
-    }
-    for (int e = 0; e < M && C == 0; ++e) {
-      // Each UAV samples from its policy restricted to its allowed moves (the reachability
-      // mask and the shield against the UAVs already placed); arrived agents STAY.
-      actions[static_cast<std::size_t>(e)] = sequential_safe_actions(vec.env(e), safety, [&](int n, ActionSet allowed) {
-        const std::size_t i = r.at(t, e, n);
-        const float* z = logits.data() + static_cast<std::size_t>(e * N + n) * A;
-        double mx = -1e30;
-        for (int k = 0; k < A; ++k)
-          if (allowed >> k & 1u) mx = std::max(mx, static_cast<double>(z[k]));
-        double sum = 0;
-        for (int k = 0; k < A; ++k)
-          if (allowed >> k & 1u) sum += std::exp(static_cast<double>(z[k]) - mx);
-        const double u = rng.uniform() * sum;
-        double acc = 0;
-        int a = -1;
-        for (int k = 0; k < A; ++k) {
-          r.allowed[i * A + static_cast<std::size_t>(k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
-          if (!(allowed >> k & 1u)) continue;
-          acc += std::exp(static_cast<double>(z[k]) - mx);
-          if (a < 0 && u < acc) a = k;
-        }
-        if (a < 0)
-          for (int k = A; k-- > 0;)
-            if (allowed >> k & 1u) {
-              a = k;
-              break;
+    };
+    if (!encode_in_lanes)
+      for (int e = 0; e < M; ++e) encode(e);
+    parallel_for(kCollectLanes, lane_threads, [&](std::size_t lane) {
+      const auto [first, last] = env_range(lane);
+      if (first == last) return;
+      if (encode_in_lanes)
+        for (int e = first; e < last; ++e) encode(e);
+      const std::size_t row = static_cast<std::size_t>(first) * N;
+      const int rows = (last - first) * N;
+      nets.logits(obs + row * static_cast<std::size_t>(r.obs_width), rows, logits.data() + row * static_cast<std::size_t>(width),
+                  static_cast<int>(lane));
+      nets.values(crit + row * static_cast<std::size_t>(r.critic_width), rows, values + row, static_cast<int>(lane));
+      for (std::size_t i = row; i < row + static_cast<std::size_t>(rows); ++i)
+        values[i] = static_cast<float>(value_norm.denormalise(values[i]));
+      for (int e = first; e < last; ++e) {
+        const auto ee = static_cast<std::size_t>(e);
+        Rng& draw = streams[ee];
+        UavEnv& env = vec.env(e);
+        infos[ee] = StepInfo{};
+        if (C > 0) {
+          // Each active UAV draws z ~ N(mu, sigma^2) per dimension and commands u = tanh(z) (ppo.hpp);
+          // the safety layer may fly another velocity. Arrived UAVs hover (inactive rows).
+          Positions wanted = Positions::Zero(N, 2);
+          for (int n = 0; n < N; ++n) {
+            const std::size_t i = r.at(t, e, n);
+            float* raw = r.raw_actions.data() + i * static_cast<std::size_t>(C);
+            std::fill_n(raw, C, 0.0f);
+            if (env.arrived(n)) continue;
+            const float* o = logits.data() + static_cast<std::size_t>(e * N + n) * width;
+            double logp = 0, u[2] = {0, 0};
+            for (int k = 0; k < C; ++k) {
+              const double ls = std::min(std::max(static_cast<double>(o[C + k]), kLogStdMin), kLogStdMax);
+              const float z = static_cast<float>(o[k] + std::exp(ls) * draw.normal());
+              raw[k] = z;
+              logp += squashed_gaussian_logprob(z, o[k], o[C + k]);
+              u[k] = std::tanh(static_cast<double>(z));
             }
-        r.logprobs[i] = static_cast<float>(static_cast<double>(z[a]) - mx - std::log(sum));
-        return a;
-      });
-      for (int n = 0; n < N; ++n) r.actions[r.at(t, e, n)] = actions[static_cast<std::size_t>(e)][static_cast<std::size_t>(n)];
-    }
-    const auto infos = C > 0 ? vec.step_velocities(velocities) : vec.step(actions);
+            r.logprobs[i] = static_cast<float>(logp);
+            env.command_velocity(n, u[0], u[1], wanted(n, 0), wanted(n, 1));
+          }
+          next[ee] = vec.begin_velocities(e, safe_velocities(env, safety, wanted), infos[ee]);
+          continue;
+        }
+        // Each UAV samples from its policy restricted to its allowed moves (the reachability
+        // mask and the shield against the UAVs already placed); arrived agents STAY.
+        actions[ee] = sequential_safe_actions(env, safety, [&](int n, ActionSet allowed) {
+          const std::size_t i = r.at(t, e, n);
+          const float* z = logits.data() + static_cast<std::size_t>(e * N + n) * A;
+          double mx = -1e30;
+          for (int k = 0; k < A; ++k)
+            if (allowed >> k & 1u) mx = std::max(mx, static_cast<double>(z[k]));
+          double sum = 0;
+          for (int k = 0; k < A; ++k)
+            if (allowed >> k & 1u) sum += std::exp(static_cast<double>(z[k]) - mx);
+          const double u = draw.uniform() * sum;
+          double acc = 0;
+          int a = -1;
+          for (int k = 0; k < A; ++k) {
+            r.allowed[i * A + static_cast<std::size_t>(k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
+            if (!(allowed >> k & 1u)) continue;
+            acc += std::exp(static_cast<double>(z[k]) - mx);
+            if (a < 0 && u < acc) a = k;
+          }
+          if (a < 0)
+            for (int k = A; k-- > 0;)
+              if (allowed >> k & 1u) {
+                a = k;
+                break;
+              }
+          r.logprobs[i] = static_cast<float>(static_cast<double>(z[a]) - mx - std::log(sum));
+          return a;
+        });
+        for (int n = 0; n < N; ++n) r.actions[r.at(t, e, n)] = actions[ee][static_cast<std::size_t>(n)];
+        next[ee] = vec.begin(e, actions[ee], infos[ee]);
+      }
+    });
+    const auto done = vec.finish(next, infos);
     for (int e = 0; e < M; ++e) {
-      const auto& info = infos[static_cast<std::size_t>(e)];
+      const auto& info = done[static_cast<std::size_t>(e)];
       r.rewards[static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)] = static_cast<float>(info.reward);
       r.dones[static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)] = info.done ? 1.0f : 0.0f;
       if (info.done) stats.add(info, N);
@@ -695,7 +730,7 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
   std::vector<UpdateStats> all;
   for (int epoch = 0; epoch < m.epochs; ++epoch) {
     std::iota(order.begin(), order.end(), std::size_t{0});
-    for (std::size_t i = S; i > 1; --i) std::swap(order[i - 1], order[rng.below(i)]);
+    shuffle(order, rng);
     for (std::size_t first = 0; first + static_cast<std::size_t>(rows) <= S; first += static_cast<std::size_t>(rows)) {
       parallel_for(2, threads, [&](std::size_t half) {
         for (int k = half == 0 ? 0 : rows / 2, end = half == 0 ? rows / 2 : rows; k < end; ++k) {
@@ -780,7 +815,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     Rng rng(derive_seed(cfg.run.seed, 0x50504fULL, static_cast<std::uint64_t>(updates)));
     if (lr_schedule.linear) nets->set_learning_rate(m.learning_rate * lr_schedule.factor(steps, m.total_steps));
     const double entropy_factor = entropy_schedule.factor(steps, m.total_steps);
-    collect(vec, encoder, critic, safety, *nets, value_norm, rng, rollout, stats);
+    collect(vec, encoder, critic, safety, *nets, value_norm, rng, rollout, stats, cfg.run.threads);
     steps += per_update;
     compute_advantages(rollout, m.gamma, m.gae_lambda);
     const double explained = explained_variance(rollout);

@@ -110,10 +110,13 @@ UpdateStats ppo_loss(const Minibatch& batch, const PpoSettings& settings, const 
 /// Actor, critic and their optimiser (Adam, one learning rate), on one backend.
 class PpoNetworks : public Learned {
  public:
-  /// logits [rows x actions] of the actor on observations [rows x obs_width].
-  virtual void logits(const float* observations, int rows, float* out) = 0;
-  /// The critic's values [rows] in its normalised units.
-  virtual void values(const float* critic_inputs, int rows, float* out) = 0;
+  /// logits [rows x actions] of the actor on observations [rows x obs_width]. `lane` in
+  /// [0, lanes()): calls on different lanes may run at once (each lane has its own scratch).
+  virtual void logits(const float* observations, int rows, float* out, int lane = 0) = 0;
+  /// The critic's values [rows] in its normalised units (lanes as logits).
+  virtual void values(const float* critic_inputs, int rows, float* out, int lane = 0) = 0;
+  /// How many logits / values calls may run at once, on lanes 0 .. lanes() - 1.
+  virtual int lanes() const { return 1; }
   /// One step on the loss of eq:total_loss over the minibatch: the clipped surrogate (masked
   /// mean over active agents), value_coef x the clipped value loss (eq:critic_loss, mean over
   /// rows), minus entropy_coef x the masked mean entropy of the policy among the allowed moves;
@@ -138,8 +141,14 @@ std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int o
 /// Continuous (rollout.C > 0): each active UAV samples a command from its squashed Gaussian; the
 /// safety layer (safe_velocities) may replace the velocity flown, the sample stays as drawn.
 /// Finished episodes go to `stats`. Leaves next_values for the bootstrap.
+/// Each environment samples from a stream of its own (seeded from `rng`), and the environments
+/// are prepared in kCollectLanes fixed groups (observations, the networks' passes, sampling, the
+/// move), one per thread up to `threads` (and nets.lanes()); the rate oracles' batch, the step's
+/// end and the resets follow on the calling thread. The rollout is the same floats on any thread count.
+constexpr int kCollectLanes = 2;
 void collect(VecEnv& envs, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety,
-             PpoNetworks& nets, const RunningStats& value_norm, Rng& rng, Rollout& rollout, EpisodeStats& stats);
+             PpoNetworks& nets, const RunningStats& value_norm, Rng& rng, Rollout& rollout, EpisodeStats& stats,
+             int threads = 1);
 
 /// GAE (gae() in marl.hpp) per (environment, agent) over the rollout: advantages and returns.
 void compute_advantages(Rollout& rollout, double gamma, double lambda);

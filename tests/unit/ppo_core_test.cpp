@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 #include <random>
 
 #include "../../src/marl/fast_mlp.hpp"
@@ -321,36 +322,72 @@ TEST(PpoCore, CollectFillsEveryCellOfTheRollout) {
   EXPECT_EQ(again.next_values, r.next_values);
 }
 
-// The set observation's kernel maps are written for several environments at once
-// (Encoder::threads); each environment's rows are its own, so the rollout is the same floats on
-// one thread and on two. The fields that ask the rate oracle (whose memo the environments share)
-// keep the writing on one thread.
-TEST(PpoCore, CollectWritesTheSetObservationOnSeveralThreadsAlike) {
-  Config cfg = small_scene();
-  cfg.marl.encoder = "set";
-  cfg.env.resample_users = true;
-  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, 6, 3));
-  auto rollout_on = [&](int threads) {
-    cfg.run.threads = threads;
-    const Encoder enc = encoder_of(cfg, false);
-    EXPECT_EQ(enc.threads, threads);
-    const CriticReader critic = CriticReader::of(cfg, enc);
-    VecEnv vec(cfg, oracle, 4);
-    const UavEnv probe(cfg, oracle);
-    Rollout r(30, 4, 2, enc.width(probe), critic.width(probe));
-    auto nets = make_ppo_networks("fast", enc.width(probe), critic.width(probe), 16, 3e-4, torch::kCPU, 1);
-    Rng rng(11);
-    EpisodeStats stats;
-    collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats);
-    return r;
+// collect() prepares the environments in kCollectLanes fixed groups, one per thread, each
+// environment sampling from a stream of its own; the set observation's kernel maps are written
+// inside the lanes too. Each environment's rows are its own, so the rollout is the same floats on
+// one thread and on two: for the set encoder on layouts resampled every episode, for the MLP
+// encoder on one scenario (the environments share the oracle's memo, so observations that ask it
+// are written on the calling thread), with the look-ahead (it asks the oracle), and for continuous
+// commands. Five environments: lanes of two and three.
+TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
+  struct Case {
+    const char* name;
+    std::function<void(Config&)> set;
   };
-  const Rollout one = rollout_on(1), two = rollout_on(2);
-  EXPECT_EQ(one.observations, two.observations);
-  EXPECT_EQ(one.critic_inputs, two.critic_inputs);
-  EXPECT_EQ(one.actions, two.actions);
-  EXPECT_EQ(one.logprobs, two.logprobs);
-  EXPECT_EQ(one.rewards, two.rewards);
-  EXPECT_EQ(one.next_values, two.next_values);
+  const std::vector<Case> cases{
+      {"set encoder, resampled layouts",
+       [](Config& c) {
+         c.marl.encoder = "set";
+         c.env.resample_users = true;
+       }},
+      {"mlp encoder, one scenario", [](Config&) {}},
+      {"set encoder with the look-ahead",
+       [](Config& c) {
+         c.marl.encoder = "set";
+         c.marl.lookahead = true;
+       }},
+      {"continuous commands", [](Config& c) { c.trajectory.mobility = "continuous"; }},
+  };
+  for (const Case& k : cases) {
+    SCOPED_TRACE(k.name);
+    Config cfg = small_scene();
+    k.set(cfg);
+    auto beamformer = std::make_shared<ZfBeamformer>();
+    auto rollout_on = [&](int threads) {
+      cfg.run.threads = threads;
+      const Encoder enc = encoder_of(cfg, false);
+      const CriticReader critic = CriticReader::of(cfg, enc);
+      // A fresh oracle per run: its memo's hits and misses must not differ between the runs.
+      VecEnv vec = cfg.env.resample_users ? VecEnv(cfg, beamformer, 5, 7)
+                                          : VecEnv(cfg, std::make_shared<RateOracle>(cfg, beamformer, make_users(cfg, 6, 3)), 5);
+      const int dims = vec.env(0).mobility().actions().dims;
+      Rollout r(30, 5, 2, enc.width(vec.env(0)), critic.width(vec.env(0)), dims > 0 ? 0 : vec.env(0).actions(), dims);
+      auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1,
+                                    dims > 0 ? 2 * dims : r.A);
+      EXPECT_EQ(nets->lanes(), kCollectLanes);
+      Rng rng(11);
+      EpisodeStats stats;
+      collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats, threads);
+      EXPECT_GE(stats.episodes, 5) << "30 steps of T_max = 12: every environment ends an episode";
+      return r;
+    };
+    const Rollout one = rollout_on(1), two = rollout_on(2);
+    EXPECT_EQ(one.observations, two.observations);
+    EXPECT_EQ(one.critic_inputs, two.critic_inputs);
+    EXPECT_EQ(one.actions, two.actions);
+    EXPECT_EQ(one.raw_actions, two.raw_actions);
+    EXPECT_EQ(one.allowed, two.allowed);
+    EXPECT_EQ(one.logprobs, two.logprobs);
+    EXPECT_EQ(one.values, two.values);
+    EXPECT_EQ(one.rewards, two.rewards);
+    EXPECT_EQ(one.dones, two.dones);
+    EXPECT_EQ(one.next_values, two.next_values);
+  }
+  // Observations that ask the rate oracle are written on the calling thread.
+  Config cfg = small_scene();
+  cfg.run.threads = 2;
+  cfg.marl.encoder = "set";
+  EXPECT_EQ(encoder_of(cfg, false).threads, 2);
   cfg.marl.lookahead = true;
   EXPECT_EQ(encoder_of(cfg, false).threads, 1);
   cfg.marl.lookahead = false;
@@ -359,6 +396,36 @@ TEST(PpoCore, CollectWritesTheSetObservationOnSeveralThreadsAlike) {
   cfg.marl.rate_map = 0;
   cfg.marl.encoder = "mlp";
   EXPECT_EQ(encoder_of(cfg, false).threads, 1);
+}
+
+// Each environment samples from its own stream: environment e's moves do not depend on how many
+// environments share the rollout (the first two of five act as the two of two).
+TEST(PpoCore, EachEnvironmentSamplesFromAStreamOfItsOwn) {
+  Config cfg = small_scene();
+  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, 6, 3));
+  const Encoder enc = encoder_of(cfg, false);
+  const CriticReader critic = CriticReader::of(cfg, enc);
+  auto draws = [&](int envs) {
+    VecEnv vec(cfg, oracle, envs);
+    Rollout r(12, envs, 2, enc.width(vec.env(0)), critic.width(vec.env(0)));
+    auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1);
+    Rng rng(5);
+    EpisodeStats stats;
+    collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats, 2);
+    return r;
+  };
+  const Rollout five = draws(5), two = draws(2);
+  for (int t = 0; t < 12; ++t)
+    for (int e = 0; e < 2; ++e)
+      for (int n = 0; n < 2; ++n) {
+        EXPECT_EQ(five.actions[five.at(t, e, n)], two.actions[two.at(t, e, n)]) << "t " << t << " e " << e << " n " << n;
+        EXPECT_EQ(five.logprobs[five.at(t, e, n)], two.logprobs[two.at(t, e, n)]);
+      }
+  // and the streams differ between environments: the same scene, other moves.
+  int differ = 0;
+  for (int t = 0; t < 12; ++t)
+    for (int n = 0; n < 2; ++n) differ += five.actions[five.at(t, 0, n)] != five.actions[five.at(t, 1, n)];
+  EXPECT_GT(differ, 0);
 }
 
 TEST(PpoCore, AdvantagesAreGaePerEnvironmentAndAgent) {

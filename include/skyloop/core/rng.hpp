@@ -4,6 +4,7 @@
 // gives the same numbers with every standard library.
 #include <cstdint>
 #include <random>
+#include <vector>
 
 namespace skyloop {
 
@@ -20,6 +21,15 @@ std::uint64_t derive_seed(std::uint64_t seed, std::uint64_t a, std::uint64_t b);
 /// Hash of a byte range (FNV-1a folded through mix64). Used to make stochastic beamformers pure
 /// functions of (their seed, the cluster they are given).
 std::uint64_t hash_bytes(const void* data, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ULL);
+
+class Rng;
+
+/// A uniform random permutation of `v` in place (Fisher-Yates), from one draw of `rng`: the
+/// indices come from a SplitMix64 stream seeded by that draw, each bounded by Lemire's
+/// multiply-shift with its rejection step (unbiased; a division only in the rare rejection zone).
+/// About four times as fast as below() per index; the PPO update shuffles its rollout with it
+/// every epoch (some 60 million indices over a 2e6-step run of the paper scenario).
+void shuffle(std::vector<std::size_t>& v, Rng& rng);
 
 class Rng {
  public:

@@ -365,10 +365,18 @@ class VecEnv {
                                         const std::function<void(std::size_t)>& before_reset = {});
   void reset();
 
+  /// step() in its two phases, for a caller that prepares each environment's move on threads of
+  /// its own (the PPO learner's collect): begin(i, ...) moves environment i alone and touches no
+  /// other (calls for different i may run at once); finish() then asks the rate oracles for every
+  /// environment in one batch, ends each step and resets the finished environments, on the
+  /// calling thread. step(actions) is begin for every i, then finish.
+  Positions begin(int i, const std::vector<int>& actions, StepInfo& info);
+  Positions begin_velocities(int i, const Positions& velocities, StepInfo& info);
+  std::vector<StepInfo> finish(std::vector<Positions>& next, std::vector<StepInfo>& info,
+                               const std::function<void(std::size_t)>& before_reset = {});
+
  private:
   void reset_env(std::size_t i);
-  std::vector<StepInfo> finish(std::vector<Positions>& next, std::vector<StepInfo>& info,
-                               const std::function<void(std::size_t)>& before_reset);
   bool sampling() const;                 // a new training layout every episode
   Positions users_of(std::size_t i) const;  // environment i's users in its current episode
   Config cfg_;

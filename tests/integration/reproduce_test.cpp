@@ -349,9 +349,9 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
       std::vector<std::size_t> keep;
       for (std::size_t c = 0; c < all.at(0).size(); ++c)
         if (all[0][c] != "seconds") keep.push_back(c);
-      for (const auto& r : all) {
+      for (const auto& line : all) {
         rows.emplace_back();
-        for (auto c : keep) rows.back().push_back(r.at(c));
+        for (auto c : keep) rows.back().push_back(line.at(c));
       }
       return rows;
     };

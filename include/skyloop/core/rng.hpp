@@ -27,7 +27,7 @@ class Rng;
 /// A uniform random permutation of `v` in place (Fisher-Yates), from one draw of `rng`: the
 /// indices come from a SplitMix64 stream seeded by that draw, each bounded by Lemire's
 /// multiply-shift with its rejection step (unbiased; a division only in the rare rejection zone).
-/// About four times as fast as below() per index; the PPO update shuffles its rollout with it
+/// Three to seven times as fast as below() per index (BENCHMARKS.md); the PPO update shuffles its rollout with it
 /// every epoch (some 60 million indices over a 2e6-step run of the paper scenario).
 void shuffle(std::vector<std::size_t>& v, Rng& rng);
 

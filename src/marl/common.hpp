@@ -30,10 +30,9 @@ struct Nets {
 struct Encoder {
   bool set = false;
   bool context = false;
-  /// Threads that may write different environments' inputs at once (collect): cfg.run.threads for
-  /// the set observation without the fields that ask the rate oracle (marl.lookahead,
-  /// marl.rate_map; its memo may be shared by the environments), else 1. The kernel maps of a
-  /// fleet's hundreds of users are worth the hand-over; the paper observation's few floats are not.
+  /// Threads that may write different environments' inputs at once (collect's lanes):
+  /// cfg.run.threads unless the observation asks the rate oracle (the set observation's
+  /// marl.lookahead and marl.rate_map: its memo may be shared by the environments), then 1.
   int threads = 1;
   int width(const UavEnv& env) const;
   void write(const UavEnv& env, int n, float* out) const;

@@ -232,6 +232,7 @@ UpdateStats ppo_loss_rows(const Minibatch& b, const PpoSettings& s, int first, i
 }
 
 double inverse_active(const Minibatch& b) {
+  if (b.fill) return 1.0 / std::max(b.active_sum, 1.0);  // the rows may not be there yet
   double active = 0;
   for (int i = 0; i < b.rows; ++i) active += b.active[static_cast<std::size_t>(i)];
   return 1.0 / std::max(active, 1.0);
@@ -275,7 +276,8 @@ class TorchPpo final : public PpoNetworks {
   void logits(const float* obs, int rows, float* out, int) override { forward(nets_.actor, obs, rows, actions(), out); }
   void values(const float* in, int rows, float* out, int) override { forward(nets_.critic, in, rows, 1, out); }
 
-  UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
+  UpdateStats step(Minibatch& b, const PpoSettings& s) override {
+    b.ready(0, b.rows);
     const int64_t R = b.rows;
     auto blob = [&](const std::vector<float>& v, std::vector<int64_t> shape) {
       return torch::from_blob(const_cast<float*>(v.data()), shape).to(device_);
@@ -371,7 +373,7 @@ class FastPpo final : public PpoNetworks {
   void values(const float* in, int rows, float* out, int lane) override { forward(critic_, in, rows, 1, out, lane); }
   int lanes() const override { return kLanes; }
 
-  UpdateStats step(const Minibatch& b, const PpoSettings& s) override {
+  UpdateStats step(Minibatch& b, const PpoSettings& s) override {
     const int R = b.rows, as = actor_.out_stride(), vs = critic_.out_stride();
     const std::size_t na = actor_.size(), np = na + critic_.size();
     logits_.resize(static_cast<std::size_t>(R) * as);
@@ -397,6 +399,7 @@ class FastPpo final : public PpoNetworks {
         float* vl = values_.data() + static_cast<std::size_t>(lo) * vs;
         float* dl = dlogits_.data() + static_cast<std::size_t>(lo) * as;
         float* dv = dvalues_.data() + static_cast<std::size_t>(lo) * vs;
+        b.ready(lo, hi);
         actor_.forward(b.observations.data() + static_cast<std::size_t>(lo) * b.obs_width, hi - lo, lg, &actor_cache_[c]);
         critic_.forward(b.critic_inputs.data() + static_cast<std::size_t>(lo) * b.critic_width, hi - lo, vl, &critic_cache_[c]);
         parts[c].add(ppo_loss_rows(b, s, lo, hi, per_active, lg, as, vl, vs, dl, dv), 1.0);
@@ -701,7 +704,7 @@ inline void prefetch_span(const float* p, int n) {
 }
 
 UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng, Minibatch& b,
-                   int threads, double entropy_factor) {
+                   double entropy_factor) {
   const std::size_t S = r.samples();
   // Advantages normalised over the active agents; value targets in normalised units.
   double w = 0, mean = 0, var = 0;
@@ -728,31 +731,40 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
   constexpr int kAhead = 8;  // rows the gather prefetches ahead
   std::vector<std::size_t> order(S);
   std::vector<UpdateStats> all;
+  std::size_t first = 0;  // the minibatch's first index into `order`
+  // The networks' step gathers each range of rows as it reaches it (Minibatch::fill).
+  b.fill = [&](int lo, int hi) {
+    for (int k = lo; k < hi; ++k) {
+      const std::size_t i = order[first + static_cast<std::size_t>(k)], kk = static_cast<std::size_t>(k);
+      if (k + kAhead < hi) {  // the rows are scattered over the rollout: ask for a later one's now
+        const std::size_t ahead = order[first + static_cast<std::size_t>(k + kAhead)];
+        prefetch_span(r.observations.data() + ahead * r.obs_width, r.obs_width);
+        prefetch_span(r.critic_inputs.data() + ahead * r.critic_width, r.critic_width);
+        prefetch_span(r.allowed.data() + ahead * r.A, r.A);
+      }
+      std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
+      std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
+      std::copy_n(r.allowed.data() + i * r.A, r.A, b.allowed.data() + kk * r.A);
+      std::copy_n(r.raw_actions.data() + i * r.C, r.C, b.raw_actions.data() + kk * r.C);
+      b.actions[kk] = r.actions[i];
+      b.logprobs[kk] = r.logprobs[i];
+      b.active[kk] = r.active[i];
+      b.advantages[kk] = static_cast<float>((r.advantages[i] - mean) * scale);
+      b.returns[kk] = norm(r.returns[i]);
+      b.values[kk] = norm(r.values[i]);
+    }
+  };
+  struct Unset {  // the gather refers to this call's locals: never leave it in the scratch
+    Minibatch& b;
+    ~Unset() { b.fill = nullptr; }
+  } unset{b};
   for (int epoch = 0; epoch < m.epochs; ++epoch) {
     std::iota(order.begin(), order.end(), std::size_t{0});
     shuffle(order, rng);
-    for (std::size_t first = 0; first + static_cast<std::size_t>(rows) <= S; first += static_cast<std::size_t>(rows)) {
-      parallel_for(2, threads, [&](std::size_t half) {
-        for (int k = half == 0 ? 0 : rows / 2, end = half == 0 ? rows / 2 : rows; k < end; ++k) {
-          const std::size_t i = order[first + static_cast<std::size_t>(k)], kk = static_cast<std::size_t>(k);
-          if (k + kAhead < end) {  // the rows are scattered over the rollout: ask for a later one's now
-            const std::size_t ahead = order[first + static_cast<std::size_t>(k + kAhead)];
-            prefetch_span(r.observations.data() + ahead * r.obs_width, r.obs_width);
-            prefetch_span(r.critic_inputs.data() + ahead * r.critic_width, r.critic_width);
-            prefetch_span(r.allowed.data() + ahead * r.A, r.A);
-          }
-          std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
-          std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
-          std::copy_n(r.allowed.data() + i * r.A, r.A, b.allowed.data() + kk * r.A);
-          std::copy_n(r.raw_actions.data() + i * r.C, r.C, b.raw_actions.data() + kk * r.C);
-          b.actions[kk] = r.actions[i];
-          b.logprobs[kk] = r.logprobs[i];
-          b.active[kk] = r.active[i];
-          b.advantages[kk] = static_cast<float>((r.advantages[i] - mean) * scale);
-          b.returns[kk] = norm(r.returns[i]);
-          b.values[kk] = norm(r.values[i]);
-        }
-      });
+    for (first = 0; first + static_cast<std::size_t>(rows) <= S; first += static_cast<std::size_t>(rows)) {
+      double active = 0;  // in row order, as a gathered batch's sum
+      for (int k = 0; k < rows; ++k) active += r.active[order[first + static_cast<std::size_t>(k)]];
+      b.active_sum = active;
       all.push_back(nets.step(b, settings));
       ++steps;
     }
@@ -819,7 +831,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     steps += per_update;
     compute_advantages(rollout, m.gamma, m.gae_lambda);
     const double explained = explained_variance(rollout);
-    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch, cfg.run.threads, entropy_factor);
+    const UpdateStats u = update(rollout, *nets, value_norm, m, rng, scratch, entropy_factor);
     ++updates;
     const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - run.start).count();
     if (stats.episodes > 0 || steps >= m.total_steps) {

@@ -10,6 +10,7 @@
 // float32 forward and backward passes of fast_mlp.hpp (the default), and "torch", LibTorch's
 // autograd (the reference, and the path for nn.device = cuda). marl.backend chooses.
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -67,6 +68,17 @@ struct Minibatch {
   int dims = 0;  // continuous: the command's size; the actor's output is then [mean (dims), log std (dims)]
   std::vector<float> observations, critic_inputs, logprobs, advantages, returns, values, active, allowed, raw_actions;
   std::vector<std::int64_t> actions;
+  /// Rows written on demand (update() sets it): fill(first, last) writes rows [first, last) of
+  /// every array above, and active_sum holds the sum of `active` over the rows in row order. A
+  /// backend's step fills each range of rows just before it reads them, on the thread that reads
+  /// them, so a row goes from the rollout to the forward pass through that core's cache. Rows are
+  /// independent: any split writes the same arrays. Unset (empty): every row is already there.
+  std::function<void(int first, int last)> fill;
+  double active_sum = 0;
+  /// Rows [first, last) are there once this returns.
+  void ready(int first, int last) {
+    if (fill) fill(first, last);
+  }
 };
 
 struct PpoSettings {
@@ -121,7 +133,8 @@ class PpoNetworks : public Learned {
   /// mean over active agents), value_coef x the clipped value loss (eq:critic_loss, mean over
   /// rows), minus entropy_coef x the masked mean entropy of the policy among the allowed moves;
   /// the global gradient norm clipped to grad_clip (0: off).
-  virtual UpdateStats step(const Minibatch& batch, const PpoSettings& settings) = 0;
+  /// Rows the batch fills on demand (Minibatch::fill) are filled by the step.
+  virtual UpdateStats step(Minibatch& batch, const PpoSettings& settings) = 0;
   /// The optimiser's learning rate from the next step on (marl.lr_schedule).
   virtual void set_learning_rate(double learning_rate) = 0;
 };
@@ -159,10 +172,11 @@ double explained_variance(const Rollout& rollout);
 
 /// marl.epochs passes over the rollout in marl.minibatches shuffled minibatches (order from
 /// `rng`); normalises the advantages over active agents and (marl.value_norm) updates
-/// `value_norm` with the returns first. Returns the mean statistics over all steps. `threads`
-/// (run.threads) gathers each minibatch in two halves in parallel (the same numbers either way).
+/// `value_norm` with the returns first. Returns the mean statistics over all steps. Each
+/// minibatch's rows are gathered by the networks' step as it reaches them (Minibatch::fill), on
+/// its threads (the same numbers on any thread count).
 /// The entropy bonus is entropy_factor x marl.entropy_coef (marl.entropy_schedule).
 UpdateStats update(const Rollout& rollout, PpoNetworks& nets, RunningStats& value_norm, const MarlConfig& m, Rng& rng,
-                   Minibatch& scratch, int threads = 1, double entropy_factor = 1.0);
+                   Minibatch& scratch, double entropy_factor = 1.0);
 
 }  // namespace skyloop::marl

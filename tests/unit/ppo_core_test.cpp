@@ -191,7 +191,7 @@ TEST(PpoCore, LossGradientMatchesAutograd) {
 // same losses, approximate KL, clip fraction and gradient norm, and after 10 steps the same losses.
 TEST(PpoCore, BackendsTakeTheSameSteps) {
   const PpoSettings s{0.2, 0.5, 0.03, 0.1};  // a small clip norm, so the clipping is exercised
-  const auto b = random_minibatch(512, 11, 37, 5);
+  auto b = random_minibatch(512, 11, 37, 5);
   auto fast = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 9);
   auto ref = make_ppo_networks("torch", 11, 37, 64, 3e-4, torch::kCPU, 9);
   std::vector<float> lf(static_cast<std::size_t>(b.rows) * kGridActions), lr(lf.size());
@@ -217,7 +217,7 @@ TEST(PpoCore, BackendsTakeTheSameSteps) {
 // half the rate the logits move half as far (to first order in the step: within 2%).
 TEST(PpoCore, TheLearningRateIsSetBetweenSteps) {
   const PpoSettings s{0.2, 0.5, 0.03, 10};
-  const auto b = random_minibatch(256, 11, 37, 8);
+  auto b = random_minibatch(256, 11, 37, 8);
   const std::size_t L = static_cast<std::size_t>(b.rows) * kGridActions;
   for (const char* backend : {"fast", "torch"}) {
     std::vector<float> before(L), full(L), half(L), frozen(L);
@@ -246,7 +246,7 @@ TEST(PpoCore, TheLearningRateIsSetBetweenSteps) {
 // the same numbers, bit for bit, on one thread or two.
 TEST(PpoCore, FastBackendIsTheSameOnAnyThreadCount) {
   const PpoSettings s{0.2, 0.5, 0.03, 0.1};
-  const auto b = random_minibatch(333, 11, 37, 6);  // an odd row count: unequal halves
+  auto b = random_minibatch(333, 11, 37, 6);  // an odd row count: unequal halves
   auto one = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 4, 1);
   auto two = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 4, 2);
   for (int step = 0; step < 5; ++step) {
@@ -383,7 +383,7 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
     EXPECT_EQ(one.dones, two.dones);
     EXPECT_EQ(one.next_values, two.next_values);
   }
-  // Observations that ask the rate oracle are written on the calling thread.
+  // Observations that ask the rate oracle are written on the calling thread, the others in the lanes.
   Config cfg = small_scene();
   cfg.run.threads = 2;
   cfg.marl.encoder = "set";
@@ -394,8 +394,8 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
   cfg.marl.rate_map = 2;
   EXPECT_EQ(encoder_of(cfg, false).threads, 1);
   cfg.marl.rate_map = 0;
-  cfg.marl.encoder = "mlp";
-  EXPECT_EQ(encoder_of(cfg, false).threads, 1);
+  cfg.marl.encoder = "mlp";  // the paper's observation reads the environment alone: in the lanes
+  EXPECT_EQ(encoder_of(cfg, false).threads, 2);
 }
 
 // Each environment samples from its own stream: environment e's moves do not depend on how many
@@ -630,7 +630,7 @@ TEST(PpoCore, GaussianLossGradientMatchesAutograd) {
 
 TEST(PpoCore, BackendsTakeTheSameGaussianSteps) {
   const PpoSettings s{0.2, 0.5, 0.01, 0.1};
-  const auto b = gaussian_minibatch(512, 8, 37, 5);
+  auto b = gaussian_minibatch(512, 8, 37, 5);
   auto fast = make_ppo_networks("fast", 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
   auto ref = make_ppo_networks("torch", 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
   for (int step = 0; step < 10; ++step) {

@@ -41,15 +41,20 @@ Mlp::Mlp(int in, int hidden, int out)
 }
 
 void Mlp::refresh() {
-  // W [out x in] from the packed W^T [in x out_pad], rows padded to hidden_pad_.
-  w2_rows_.assign(static_cast<std::size_t>(hidden_) * hidden_pad_, 0.0f);
-  w3_rows_.assign(static_cast<std::size_t>(out_) * hidden_pad_, 0.0f);
-  for (int i = 0; i < hidden_; ++i)
-    for (int o = 0; o < hidden_; ++o)
-      w2_rows_[static_cast<std::size_t>(o) * hidden_pad_ + i] = params_[w2_ + static_cast<std::size_t>(i) * hidden_pad_ + o];
-  for (int i = 0; i < hidden_; ++i)
-    for (int o = 0; o < out_; ++o)
-      w3_rows_[static_cast<std::size_t>(o) * hidden_pad_ + i] = params_[w3_ + static_cast<std::size_t>(i) * out_pad_ + o];
+  // W [out x in] from the packed W^T [in x out_pad], rows padded to hidden_pad_ (the padding
+  // stays zero), each row of W written in order.
+  w2_rows_.resize(static_cast<std::size_t>(hidden_) * hidden_pad_, 0.0f);
+  w3_rows_.resize(static_cast<std::size_t>(out_) * hidden_pad_, 0.0f);
+  const float* w2 = params_.data() + w2_;
+  const float* w3 = params_.data() + w3_;
+  for (int o = 0; o < hidden_; ++o) {
+    float* row = w2_rows_.data() + static_cast<std::size_t>(o) * hidden_pad_;
+    for (int i = 0; i < hidden_; ++i) row[i] = w2[static_cast<std::size_t>(i) * hidden_pad_ + o];
+  }
+  for (int o = 0; o < out_; ++o) {
+    float* row = w3_rows_.data() + static_cast<std::size_t>(o) * hidden_pad_;
+    for (int i = 0; i < hidden_; ++i) row[i] = w3[static_cast<std::size_t>(i) * out_pad_ + o];
+  }
 }
 
 void Mlp::set_torch_layout(const std::array<const float*, 6>& p) {

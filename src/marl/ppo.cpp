@@ -408,22 +408,28 @@ class FastPpo final : public PpoNetworks {
       }
     });
     UpdateStats u;
-    grad_.assign(np, 0.0f);
-    for (std::size_t c = 0; c < kChunks; ++c) {
-      u.add(parts[c], 1.0);
-      for (std::size_t i = 0; i < np; ++i) grad_[i] += chunk_grad_[c][i];
-    }
-    // Global norm, clipping (LibTorch's clip_grad_norm_ rule), Adam.
+    for (std::size_t c = 0; c < kChunks; ++c) u.add(parts[c], 1.0);
+    // The chunks' gradients summed, each parameter's in chunk order (the parameters in halves, on
+    // the threads); then the global norm, clipping (LibTorch's clip_grad_norm_ rule), and Adam
+    // and the packed copies for each network on a thread of its own.
+    grad_.resize(np);
+    parallel_for(2, threads_, [&](std::size_t half) {
+      for (std::size_t i = np * half / 2, end = np * (half + 1) / 2; i < end; ++i) {
+        float g = 0.0f;
+        for (std::size_t c = 0; c < kChunks; ++c) g += chunk_grad_[c][i];
+        grad_[i] = g;
+      }
+    });
     u.grad_norm = fast::norm(grad_);
-    if (s.grad_clip > 0) {
-      const double coef = s.grad_clip / (u.grad_norm + 1e-6);
+    const double coef = s.grad_clip > 0 ? s.grad_clip / (u.grad_norm + 1e-6) : 1.0;
+    parallel_for(2, threads_, [&](std::size_t net) {
+      fast::Mlp& mlp = net == 0 ? actor_ : critic_;
+      float* g = grad_.data() + (net == 0 ? 0 : na);
       if (coef < 1)
-        for (auto& g : grad_) g = static_cast<float>(g * coef);
-    }
-    actor_adam_.step(actor_.params().data(), grad_.data(), na);
-    critic_adam_.step(critic_.params().data(), grad_.data() + na, critic_.size());
-    actor_.refresh();
-    critic_.refresh();
+        for (std::size_t i = 0; i < mlp.size(); ++i) g[i] = static_cast<float>(g[i] * coef);
+      (net == 0 ? actor_adam_ : critic_adam_).step(mlp.params().data(), g, mlp.size());
+      mlp.refresh();
+    });
     return u;
   }
 

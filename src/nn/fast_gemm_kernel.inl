@@ -195,12 +195,20 @@ SKYLOOP_GEMM_TARGET static void tanh_inplace(float* x, long n) {
   }
 }
 
-/// sums[c] += sum_r D[r, c] for c < cols_pad (a multiple of V), rows summed in order.
+/// sums[c] += sum_r D[r, c] for c < cols_pad (a multiple of V), rows summed in order. Up to
+/// kSumVectors column vectors at a time, each its own chain of additions down the rows: one chain
+/// alone waits on the adder's latency at every row.
 SKYLOOP_GEMM_TARGET static void column_sums(const float* D, int rows, int cols_pad, int ld, float* sums) {
-  for (int c = 0; c < cols_pad; c += V) {
-    vf s = load(sums + c);
-    for (int r = 0; r < rows; ++r) s += load(D + static_cast<long>(r) * ld + c);
-    *reinterpret_cast<vf*>(sums + c) = s;
+  constexpr int kSumVectors = 8;
+  for (int c = 0; c < cols_pad; c += kSumVectors * V) {
+    const int nv = (cols_pad - c) / V < kSumVectors ? (cols_pad - c) / V : kSumVectors;
+    vf s[kSumVectors];
+    for (int v = 0; v < nv; ++v) s[v] = load(sums + c + v * V);
+    for (int r = 0; r < rows; ++r) {
+      const float* d = D + static_cast<long>(r) * ld + c;
+      for (int v = 0; v < nv; ++v) s[v] += load(d + v * V);
+    }
+    for (int v = 0; v < nv; ++v) store(sums + c + v * V, s[v]);
   }
 }
 
@@ -241,17 +249,24 @@ SKYLOOP_GEMM_TARGET static void adam_step(float* p, const float* g, float* m, fl
   }
 }
 
-/// sum x[i]^2 in double, V partial sums (then added in order).
+/// sum x[i]^2 in double, V partial sums (partial k over x[k], x[k + V], ...; then added in order).
+/// The partial sums live in V / 4 vectors of 4 doubles, a width every variant keeps in registers
+/// (one vector of V doubles went through the stack at every step under AVX2).
 SKYLOOP_GEMM_TARGET static double sum_squares(const float* x, long n) {
-  typedef double vd __attribute__((vector_size(SKYLOOP_GEMM_V * sizeof(double)), aligned(sizeof(double))));
-  vd s{};
+  typedef double vd4 __attribute__((vector_size(4 * sizeof(double)), aligned(sizeof(double))));
+  typedef float vf4 __attribute__((vector_size(4 * sizeof(float)), aligned(sizeof(float))));
+  constexpr int kParts = V / 4;
+  vd4 s[kParts];
+  for (int p = 0; p < kParts; ++p) s[p] = vd4{};
   long i = 0;
-  for (; i + V <= n; i += V) {
-    const vd d = __builtin_convertvector(load(x + i), vd);
-    s += d * d;
-  }
+  for (; i + V <= n; i += V)
+    for (int p = 0; p < kParts; ++p) {
+      const vd4 d = __builtin_convertvector(*reinterpret_cast<const vf4*>(x + i + 4 * p), vd4);
+      s[p] += d * d;
+    }
   double total = 0;
-  for (int k = 0; k < V; ++k) total += s[k];
+  for (int p = 0; p < kParts; ++p)
+    for (int k = 0; k < 4; ++k) total += s[p][k];
   for (; i < n; ++i) total += static_cast<double>(x[i]) * x[i];
   return total;
 }

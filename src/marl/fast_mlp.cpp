@@ -106,7 +106,10 @@ void Mlp::backward(Cache& c, const float* dout, float* grad) const {
   const std::size_t hn = static_cast<std::size_t>(rows) * hidden_pad_;
   grow(c.dh, hn);
   // Layer 3: dW3^T += h2^T dout, db3 += sum dout, dz2 = (dout W3) * (1 - h2^2).
-  gemm::matmul_at(c.h2.data(), hidden_pad_, hidden_, dout, rows, out_pad_, grad + w3_, out_pad_, out_);
+  if (out_ == 1)  // the critic's value: its one column, not the kernel's vector of columns
+    gemm::matmul_at_column(c.h2.data(), hidden_pad_, hidden_, dout, out_pad_, rows, grad + w3_, out_pad_);
+  else
+    gemm::matmul_at(c.h2.data(), hidden_pad_, hidden_, dout, rows, out_pad_, grad + w3_, out_pad_, out_);
   gemm::column_sums(dout, rows, out_pad_, out_pad_, grad + b3_);
   gemm::matmul_tanh_backward(dout, out_pad_, rows, w3_rows_.data(), out_, hidden_pad_, c.h2.data(), c.dh.data(), hidden_pad_);
   // Layer 2 (dh holds dz2).

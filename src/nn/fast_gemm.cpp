@@ -41,6 +41,7 @@ using Sums = void (*)(const float*, int, int, int, float*);
 using TanhGrad = void (*)(const float*, float*, long);
 using AdamStep = void (*)(float*, const float*, float*, float*, long, float, float, float, float, float);
 using SumSquares = double (*)(const float*, long);
+using ColumnAtKernel = void (*)(const float*, int, int, const float*, int, int, float*, int);
 
 struct Choice {
   Kernel fn, fn_at;
@@ -50,11 +51,13 @@ struct Choice {
   TanhGrad tanh_grad;
   AdamStep adam;
   SumSquares sum_squares;
+  ColumnAtKernel column_at;
   const char* isa;
 };
 
 #define SKYLOOP_GEMM_CHOICE(ns, name) \
-  Choice { ns::gemm, ns::gemm_at, ns::gemm_gated, ns::tanh_inplace, ns::column_sums, ns::tanh_backward, ns::adam_step, ns::sum_squares, name }
+  Choice { ns::gemm, ns::gemm_at, ns::gemm_gated, ns::tanh_inplace, ns::column_sums, ns::tanh_backward, ns::adam_step, ns::sum_squares, \
+         ns::gemm_at_column, name }
 
 Choice choose() {
   const char* env = std::getenv("ATEN_CPU_CAPABILITY");
@@ -104,6 +107,10 @@ void matmul(const float* A, int lda, int rows, const float* B, int inner, int co
   if (cols < 0) cols = cols_pad;
   if (cols_pad % kColBlock != 0 || ldc < cols_pad || cols > cols_pad) throw std::logic_error("fast::matmul: unpadded buffers");
   chosen().fn(A, lda, rows, B, inner, cols_pad, cols, bias, C, ldc, accumulate);
+}
+
+void matmul_at_column(const float* A, int lda, int cols, const float* B, int ldb, int inner, float* C, int ldc) {
+  chosen().column_at(A, lda, cols, B, ldb, inner, C, ldc);
 }
 
 void matmul_tanh_backward(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* h, float* C,

@@ -37,6 +37,11 @@ void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, 
 void matmul(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* bias, float* C, int ldc,
             bool accumulate, int cols = -1);
 
+/// The weight gradient of a layer of one output: C[j * ldc] += sum_k A[k, j] B[k * ldb] for j < cols,
+/// A [inner x cols] of row stride lda, B's column of row stride ldb. The floats of matmul_at's
+/// column 0, without the kernel vector of columns matmul_at computes for it.
+void matmul_at_column(const float* A, int lda, int cols, const float* B, int ldb, int inner, float* C, int ldc);
+
 /// C[i, :cols_pad] = (A[i, :inner] B) * (1 - h[i, :cols_pad]^2) element-wise, h of C's row stride
 /// ldc: the gradient into a tanh layer from the gradient at the next layer's input, in one pass
 /// (the same floats as matmul, then tanh_backward).

@@ -117,6 +117,44 @@ SKYLOOP_GEMM_TARGET static void gemm(const float* A, int lda, int rows, const fl
   gemm_any<false>(A, lda, rows, wt, in, out_pad, cols, bias, C, ldc, accumulate);
 }
 
+/// C[j * ldc] += sum_k A[k, j] B[k * ldb] for j < cols: gemm_at's arithmetic for one output
+/// column (the weight gradient X^T dY of a layer of one output, the critic's value; each sum over
+/// the batch k in order, one multiply-add at a time in vector lanes, as the block kernel's),
+/// without the vector of columns the block kernel computes for it: the columns j of A in vectors.
+SKYLOOP_GEMM_TARGET static void gemm_at_column(const float* A, int lda, int cols, const float* B, int ldb, int inner, float* C,
+                                               int ldc) {
+  constexpr int kVectors = 8;
+  int j = 0;
+  for (; j + V <= cols; j += kVectors * V) {
+    const int nv = (cols - j) / V < kVectors ? (cols - j) / V : kVectors;
+    vf s[kVectors];
+    for (int v = 0; v < nv; ++v)
+      for (int l = 0; l < V; ++l) s[v][l] = C[static_cast<long>(j + v * V + l) * ldc];
+    for (int k = 0; k < inner; ++k) {
+      const vf b = vf{} + B[static_cast<long>(k) * ldb];
+      const float* a = A + static_cast<long>(k) * lda + j;
+      for (int v = 0; v < nv; ++v) s[v] += load(a + v * V) * b;
+    }
+    for (int v = 0; v < nv; ++v)
+      for (int l = 0; l < V; ++l) C[static_cast<long>(j + v * V + l) * ldc] = s[v][l];
+    if (nv < kVectors) {
+      j += nv * V;
+      break;
+    }
+  }
+  if (j < cols) {  // the last columns, in the lanes of one vector
+    const int n = cols - j;
+    vf s = vf{};
+    for (int l = 0; l < n; ++l) s[l] = C[static_cast<long>(j + l) * ldc];
+    for (int k = 0; k < inner; ++k) {
+      vf a = vf{};
+      for (int l = 0; l < n; ++l) a[l] = A[static_cast<long>(k) * lda + j + l];
+      s += a * (vf{} + B[static_cast<long>(k) * ldb]);
+    }
+    for (int l = 0; l < n; ++l) C[static_cast<long>(j + l) * ldc] = s[l];
+  }
+}
+
 /// C = (A B) * (1 - H^2) element-wise, H of C's shape and row stride: the gradient into a tanh
 /// layer's input from the gradient at its output (tanh_backward fused into the GEMM's store).
 SKYLOOP_GEMM_TARGET static void gemm_gated(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,

@@ -300,6 +300,34 @@ TEST(NnInternal, FastTanhIsWithinFloat32RoundingOfTanh) {
   for (float v : nan) EXPECT_TRUE(std::isnan(v));
 }
 
+// The weight gradient of a layer of one output (the critic's value) by its own kernel
+// (matmul_at_column) is matmul_at's column 0 bit for bit, on every kernel variant: batches off the
+// kernel's blocks and past its 128-row chunks, column counts off the vector width (the tail
+// lanes), strides wider than the columns; the other columns of C are left alone.
+TEST(NnInternal, OneColumnWeightGradientEqualsTheBlockKernels) {
+  std::mt19937 g(13);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (const int batch : {1, 7, 192, 300})
+    for (const int cols : {3, 37, 64})
+      for (const int lda : {64, 80}) {
+        const int ldb = 16, ldc = 16;
+        std::vector<float> A(static_cast<std::size_t>(batch) * lda), B(static_cast<std::size_t>(batch) * ldb, 0.0f);
+        for (auto& x : A) x = u(g);
+        for (int k = 0; k < batch; ++k) B[static_cast<std::size_t>(k) * ldb] = u(g);  // column 0; the padding zero
+        std::vector<float> start(static_cast<std::size_t>(cols) * ldc);
+        for (auto& x : start) x = u(g);
+        std::vector<float> block = start, column = start;
+        skyloop::nn::fast::matmul_at(A.data(), lda, cols, B.data(), batch, ldb, block.data(), ldc, 1);
+        skyloop::nn::fast::matmul_at_column(A.data(), lda, cols, B.data(), ldb, batch, column.data(), ldc);
+        for (int j = 0; j < cols; ++j) {
+          const std::size_t i = static_cast<std::size_t>(j) * ldc;
+          ASSERT_NE(column[i], start[i]) << "column 0 was not written at " << j;
+          ASSERT_EQ(std::memcmp(&block[i], &column[i], sizeof(float)), 0) << "batch " << batch << " cols " << cols << " at " << j;
+          for (int c = 1; c < ldc; ++c) ASSERT_EQ(column[i + static_cast<std::size_t>(c)], start[i + static_cast<std::size_t>(c)]);
+        }
+      }
+}
+
 // The learners' backward pass through a tanh layer in one pass (matmul_tanh_backward) gives the
 // floats of the two passes it replaces (matmul, then tanh_backward) bit for bit, on every kernel
 // variant: row counts off the 6-row block, an inner width of 5 (the actor's logits) and 64, and a

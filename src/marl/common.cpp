@@ -116,7 +116,8 @@ Encoder encoder_of(const Config& cfg, bool context) {
   Encoder e;
   e.set = cfg.marl.encoder == "set";
   e.context = context && !e.set;
-  if (!e.set || (!cfg.marl.lookahead && cfg.marl.rate_map == 0)) e.threads = resolve_threads(cfg.run.threads);
+  e.threads = resolve_threads(cfg.run.threads);
+  e.asks_oracle = e.set && (cfg.marl.lookahead || cfg.marl.rate_map > 0);
   return e;
 }
 

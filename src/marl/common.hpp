@@ -30,10 +30,12 @@ struct Nets {
 struct Encoder {
   bool set = false;
   bool context = false;
-  /// Threads that may write different environments' inputs at once (collect's lanes):
-  /// cfg.run.threads unless the observation asks the rate oracle (the set observation's
-  /// marl.lookahead and marl.rate_map: its memo may be shared by the environments), then 1.
+  /// Threads that may write different environments' inputs at once (collect's lanes): cfg.run.threads.
   int threads = 1;
+  /// The observation asks the rate oracle (the set observation's marl.lookahead and
+  /// marl.rate_map): environments that share one oracle (its memo) are then written on one
+  /// thread, environments with oracles of their own in the lanes.
+  bool asks_oracle = false;
   int width(const UavEnv& env) const;
   void write(const UavEnv& env, int n, float* out) const;
 };

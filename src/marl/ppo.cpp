@@ -551,10 +551,10 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
   std::vector<std::vector<int>> actions(static_cast<std::size_t>(M), std::vector<int>(static_cast<std::size_t>(N)));
   std::vector<Positions> next(static_cast<std::size_t>(M));
   std::vector<StepInfo> infos(static_cast<std::size_t>(M));
-  // The lanes: kCollectLanes fixed, contiguous groups of environments. Observations that ask the
-  // rate oracle (whose memo environments may share) are written on the calling thread first
-  // (encoder.threads == 1); everything else a lane does touches its own environments and rows.
-  const bool encode_in_lanes = encoder.threads > 1;
+  // The lanes: kCollectLanes fixed, contiguous groups of environments. Observations that ask a
+  // rate oracle the environments share (its memo) are written on the calling thread first;
+  // everything else a lane does touches its own environments (and their own oracles) and rows.
+  const bool encode_in_lanes = encoder.threads > 1 && !(encoder.asks_oracle && vec.shares_oracle());
   const int lane_threads = std::min({resolve_threads(threads), nets.lanes(), kCollectLanes});
   auto env_range = [&](std::size_t lane) {
     return std::pair<int, int>{static_cast<int>(static_cast<std::size_t>(M) * lane / kCollectLanes),

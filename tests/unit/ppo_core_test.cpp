@@ -326,9 +326,10 @@ TEST(PpoCore, CollectFillsEveryCellOfTheRollout) {
 // environment sampling from a stream of its own; the set observation's kernel maps are written
 // inside the lanes too. Each environment's rows are its own, so the rollout is the same floats on
 // one thread and on two: for the set encoder on layouts resampled every episode, for the MLP
-// encoder on one scenario (the environments share the oracle's memo, so observations that ask it
-// are written on the calling thread), with the look-ahead (it asks the oracle), and for continuous
-// commands. Five environments: lanes of two and three.
+// encoder on one scenario, with the look-ahead on one scenario (it asks the oracle, whose memo the
+// environments share: written on the calling thread), with the look-ahead and the radio map on
+// resampled layouts (each environment asks an oracle of its own: written in the lanes), and for
+// continuous commands. Five environments: lanes of two and three.
 TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
   struct Case {
     const char* name;
@@ -341,10 +342,17 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
          c.env.resample_users = true;
        }},
       {"mlp encoder, one scenario", [](Config&) {}},
-      {"set encoder with the look-ahead",
+      {"set encoder with the look-ahead, one scenario (one shared oracle)",
        [](Config& c) {
          c.marl.encoder = "set";
          c.marl.lookahead = true;
+       }},
+      {"set encoder with the look-ahead and the radio map, resampled layouts (an oracle per environment)",
+       [](Config& c) {
+         c.marl.encoder = "set";
+         c.marl.lookahead = true;
+         c.marl.rate_map = 2;
+         c.env.resample_users = true;
        }},
       {"continuous commands", [](Config& c) { c.trajectory.mobility = "continuous"; }},
   };
@@ -383,19 +391,26 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
     EXPECT_EQ(one.dones, two.dones);
     EXPECT_EQ(one.next_values, two.next_values);
   }
-  // Observations that ask the rate oracle are written on the calling thread, the others in the lanes.
+  // Every encoder may write in the lanes; the observations that ask the rate oracle say so (collect
+  // writes them on the calling thread where the environments share one oracle).
   Config cfg = small_scene();
   cfg.run.threads = 2;
   cfg.marl.encoder = "set";
   EXPECT_EQ(encoder_of(cfg, false).threads, 2);
+  EXPECT_FALSE(encoder_of(cfg, false).asks_oracle);
   cfg.marl.lookahead = true;
-  EXPECT_EQ(encoder_of(cfg, false).threads, 1);
+  EXPECT_EQ(encoder_of(cfg, false).threads, 2);
+  EXPECT_TRUE(encoder_of(cfg, false).asks_oracle);
   cfg.marl.lookahead = false;
   cfg.marl.rate_map = 2;
-  EXPECT_EQ(encoder_of(cfg, false).threads, 1);
+  EXPECT_TRUE(encoder_of(cfg, false).asks_oracle);
   cfg.marl.rate_map = 0;
-  cfg.marl.encoder = "mlp";  // the paper's observation reads the environment alone: in the lanes
+  cfg.marl.encoder = "mlp";  // the paper's observation reads the environment alone
   EXPECT_EQ(encoder_of(cfg, false).threads, 2);
+  EXPECT_FALSE(encoder_of(cfg, false).asks_oracle);
+  auto beamformer = std::make_shared<ZfBeamformer>();
+  EXPECT_FALSE(VecEnv(cfg, beamformer, 2, 7).shares_oracle());
+  EXPECT_TRUE(VecEnv(cfg, std::make_shared<RateOracle>(cfg, beamformer, make_users(cfg, 6, 3)), 2).shares_oracle());
 }
 
 // Each environment samples from its own stream: environment e's moves do not depend on how many

@@ -355,6 +355,9 @@ class VecEnv {
   VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count);
   int size() const { return static_cast<int>(envs_.size()); }
   UavEnv& env(int i) { return *envs_[static_cast<std::size_t>(i)]; }
+  /// Whether the environments share one rate oracle (the second constructor); otherwise each
+  /// environment's oracle is its own and no other environment touches it.
+  bool shares_oracle() const { return shared_; }
   /// actions[i] = joint action of environment i. Finished environments are reset automatically
   /// after their final step (the returned info is the final step's); `before_reset(i)`, when
   /// given, sees environment i in its final state first (e.g. to record its last observation).

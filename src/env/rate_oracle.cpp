@@ -208,35 +208,34 @@ std::vector<double> RateOracle::sum_rates(const std::vector<Positions>& all) {
   return batch_sum_rates(self, ptrs);
 }
 
-double RateOracle::sum_rate(const Positions& uavs) {
-  // Fast path without allocation of the batch machinery when everything is cached.
+std::optional<double> RateOracle::cached_sum_rate(const Positions& uavs) {
+  // No allocation of the batch machinery: the common case once the memo is warm.
   if (joint()) {
     thread_local std::vector<double> key;
     key.resize(static_cast<std::size_t>(2 * uavs.rows()));
     for (Eigen::Index n = 0; n < uavs.rows(); ++n)
       key[static_cast<std::size_t>(2 * n)] = uavs(n, 0), key[static_cast<std::size_t>(2 * n + 1)] = uavs(n, 1);
     const auto it = joint_cache_.find(key);
-    if (it != joint_cache_.end()) {
-      ++stats_.hits;
-      return total_of(it->second);
-    }
-    return sum_rates({uavs}).front();
+    if (it == joint_cache_.end()) return std::nullopt;
+    ++stats_.hits;
+    return total_of(it->second);
   }
   thread_local std::vector<Key> keys;
   thread_local std::vector<std::vector<int>> members;
   keys_of(uavs, keys, members);
-  double total = 0.0;
-  bool all_cached = true;
-  for (std::size_t i = 0; i < keys.size() && all_cached; ++i) {
+  double total = 0.0;  // in UAV order, as batch_sum_rates sums a position set's clusters
+  for (std::size_t i = 0; i < keys.size(); ++i) {
     if (members[i].empty()) continue;
     const auto it = cache_.find(keys[i]);
-    if (it == cache_.end()) all_cached = false;
-    else total += it->second;
+    if (it == cache_.end()) return std::nullopt;
+    total += it->second;
   }
-  if (all_cached) {
-    for (std::size_t i = 0; i < keys.size(); ++i) stats_.hits += !members[i].empty();
-    return total;
-  }
+  for (std::size_t i = 0; i < keys.size(); ++i) stats_.hits += !members[i].empty();
+  return total;
+}
+
+double RateOracle::sum_rate(const Positions& uavs) {
+  if (const auto known = cached_sum_rate(uavs)) return *known;
   return sum_rates({uavs}).front();
 }
 

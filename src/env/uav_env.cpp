@@ -749,7 +749,8 @@ void UavEnv::write_obs(int n, float* out) const {
 // ---- VecEnv ---------------------------------------------------------------------------------
 
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed)
-    : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(seed), episodes_(static_cast<std::size_t>(count), 0) {
+    : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(seed), episodes_(static_cast<std::size_t>(count), 0),
+      settled_(static_cast<std::size_t>(count), 0) {
   for (int i = 0; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(cfg_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i)))));
 }
 
@@ -761,7 +762,7 @@ Positions VecEnv::users_of(std::size_t i) const {
 }
 
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count)
-    : cfg_(cfg), seed_(0), episodes_(static_cast<std::size_t>(count), 0), shared_(true) {
+    : cfg_(cfg), seed_(0), episodes_(static_cast<std::size_t>(count), 0), settled_(static_cast<std::size_t>(count), 0), shared_(true) {
   for (int i = 0; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(cfg_, oracle));
 }
 
@@ -779,11 +780,24 @@ void VecEnv::reset() {
 }
 
 Positions VecEnv::begin(int i, const std::vector<int>& actions, StepInfo& info) {
+  settled_[static_cast<std::size_t>(i)] = 0;
   return envs_[static_cast<std::size_t>(i)]->begin_step(actions, info);
 }
 
 Positions VecEnv::begin_velocities(int i, const Positions& velocities, StepInfo& info) {
+  settled_[static_cast<std::size_t>(i)] = 0;
   return envs_[static_cast<std::size_t>(i)]->begin_step_velocities(velocities, info);
+}
+
+bool VecEnv::settle(int i, const Positions& next, StepInfo& info) {
+  if (shared_) return false;
+  const auto ii = static_cast<std::size_t>(i);
+  const auto rate = envs_[ii]->oracle().cached_sum_rate(next);
+  if (!rate) return false;
+  envs_[ii]->end_step(next, *rate, info);
+  if (info.done) reset_env(ii);
+  settled_[ii] = 1;
+  return true;
 }
 
 std::vector<StepInfo> VecEnv::step(const std::vector<std::vector<int>>& actions,
@@ -806,20 +820,25 @@ std::vector<StepInfo> VecEnv::step_velocities(const std::vector<Positions>& velo
 std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<StepInfo>& info,
                                      const std::function<void(std::size_t)>& before_reset) {
   const std::size_t m = envs_.size();
-  std::vector<RateOracle*> oracles(m);
-  std::vector<const Positions*> ptrs(m);
+  std::vector<std::size_t> open;  // the environments whose step is still to end
+  std::vector<RateOracle*> oracles;
+  std::vector<const Positions*> ptrs;
   for (std::size_t i = 0; i < m; ++i) {
-    oracles[i] = &envs_[i]->oracle();
-    ptrs[i] = &next[i];
+    if (settled_[i]) continue;
+    open.push_back(i);
+    oracles.push_back(&envs_[i]->oracle());
+    ptrs.push_back(&next[i]);
   }
-  const auto rates = batch_sum_rates(oracles, ptrs);
-  for (std::size_t i = 0; i < m; ++i) {
-    envs_[i]->end_step(next[i], rates[i], info[i]);
+  const auto rates = open.empty() ? std::vector<double>{} : batch_sum_rates(oracles, ptrs);
+  for (std::size_t j = 0; j < open.size(); ++j) {
+    const std::size_t i = open[j];
+    envs_[i]->end_step(next[i], rates[j], info[i]);
     if (info[i].done) {
       if (before_reset) before_reset(i);
       reset_env(i);
     }
   }
+  std::fill(settled_.begin(), settled_.end(), 0);
   return info;
 }
 

@@ -616,6 +616,7 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
             env.command_velocity(n, u[0], u[1], wanted(n, 0), wanted(n, 1));
           }
           next[ee] = vec.begin_velocities(e, safe_velocities(env, safety, wanted), infos[ee]);
+          vec.settle(e, next[ee], infos[ee]);
           continue;
         }
         // Each UAV samples from its policy restricted to its allowed moves (the reachability
@@ -649,6 +650,7 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
         });
         for (int n = 0; n < N; ++n) r.actions[r.at(t, e, n)] = actions[ee][static_cast<std::size_t>(n)];
         next[ee] = vec.begin(e, actions[ee], infos[ee]);
+        vec.settle(e, next[ee], infos[ee]);  // its step ends here when its oracle knows every rate
       }
     });
     const auto done = vec.finish(next, infos);

@@ -156,9 +156,11 @@ std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int o
 /// Finished episodes go to `stats`. Leaves next_values for the bootstrap.
 /// Each environment samples from a stream of its own (seeded from `rng`), and the environments
 /// are prepared in kCollectLanes fixed groups (observations, the networks' passes, sampling, the
-/// move), one per thread up to `threads` (and nets.lanes()); observations that ask a rate oracle
-/// the environments share come first, on the calling thread; the rate oracles' batch, the step's
-/// end and the resets follow on the calling thread. The rollout is the same floats on any thread count.
+/// move, and the step's end and reset where the environment's own oracle knows every rate:
+/// VecEnv::settle), one per thread up to `threads` (and nets.lanes()); observations that ask a rate
+/// oracle the environments share come first, on the calling thread; the rate oracles' batch of the
+/// other environments' misses, their steps' ends and resets follow on the calling thread. The
+/// rollout is the same floats on any thread count.
 constexpr int kCollectLanes = 2;
 void collect(VecEnv& envs, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety,
              PpoNetworks& nets, const RunningStats& value_norm, Rng& rng, Rollout& rollout, EpisodeStats& stats,

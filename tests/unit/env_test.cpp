@@ -203,6 +203,68 @@ TEST(Env, VectorEnvMatchesSingleEnvs) {
   }
 }
 
+TEST(Env, SettlingAStepEarlyChangesNothing) {
+  // VecEnv::settle ends a step from the environment's own memo (the PPO learner's lanes); finish()
+  // ends the rest with their misses in one batch. Stepping through settle must give what finish
+  // alone gives: the same rewards, rates and ends, the same resets (new layouts), the same hits.
+  struct Case {
+    const char* name;
+    std::function<void(Config&)> set;
+  };
+  const std::vector<Case> cases{
+      {"fixed users", [](Config&) {}},
+      {"resampled layouts", [](Config& c) { c.env.resample_users = true; }},
+      {"shared spectrum (joint memo)", [](Config& c) { c.channel.spectrum = "shared"; }},
+  };
+  for (const Case& k : cases) {
+    SCOPED_TRACE(k.name);
+    Config cfg;
+    k.set(cfg);
+    VecEnv plain(cfg, zf_bf(), 4, 11), settled(cfg, zf_bf(), 4, 11);
+    Rng rng(2);
+    int early = 0, late = 0, resets = 0;
+    for (int step = 0; step < 80; ++step) {
+      std::vector<std::vector<int>> actions(4, std::vector<int>(3));
+      for (auto& a : actions)
+        for (auto& x : a) x = static_cast<int>(rng.below(5));
+      const auto want = plain.step(actions);
+      std::vector<StepInfo> info(4);
+      std::vector<Positions> next(4);
+      for (int i = 0; i < 4; ++i) {
+        const auto ii = static_cast<std::size_t>(i);
+        next[ii] = settled.begin(i, actions[ii], info[ii]);
+        if (settled.settle(i, next[ii], info[ii])) ++early;
+        else ++late;
+      }
+      const auto got = settled.finish(next, info);
+      for (std::size_t i = 0; i < 4; ++i) {
+        ASSERT_EQ(got[i].sum_rate, want[i].sum_rate) << "step " << step << ", environment " << i;
+        ASSERT_EQ(got[i].reward, want[i].reward);
+        ASSERT_EQ(got[i].done, want[i].done);
+        ASSERT_EQ(got[i].objective, want[i].objective);
+        resets += want[i].done;
+        const auto ie = static_cast<int>(i);
+        ASSERT_EQ(settled.env(ie).oracle().users(), plain.env(ie).oracle().users());
+        ASSERT_EQ(settled.env(ie).positions(), plain.env(ie).positions());
+        ASSERT_EQ(settled.env(ie).oracle().stats().hits, plain.env(ie).oracle().stats().hits);
+        ASSERT_EQ(settled.env(ie).oracle().stats().misses, plain.env(ie).oracle().stats().misses);
+      }
+    }
+    EXPECT_GT(early, 0) << "steps whose rates the memo knew end at once";
+    EXPECT_GT(late, 0) << "steps with a new position wait for finish's batch";
+    EXPECT_GE(resets, 12) << "80 steps of T_max = 24: every environment ends three episodes";
+  }
+  // Environments that share one oracle never settle early (another's batch may be filling its memo).
+  Config cfg;
+  auto oracle = std::make_shared<RateOracle>(cfg, zf_bf(), make_users(cfg, 6, 3));
+  VecEnv shared(cfg, oracle, 2);
+  StepInfo info;
+  const int h = shared.env(0).hover();
+  const Positions stay = shared.begin(0, {h, h, h}, info);
+  oracle->sum_rate(stay);
+  EXPECT_FALSE(shared.settle(0, stay, info));
+}
+
 TEST(Planners, RandomAndGreedyRespectTheMasks) {
   Config cfg;
   auto env = make_env(cfg, 3);

@@ -11,6 +11,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <unordered_map>
 #include <vector>
 
@@ -33,6 +34,9 @@ class RateOracle {
 
   /// Network sum rate R for UAV positions [N x 2].
   double sum_rate(const Positions& uavs);
+  /// R from the memo alone: the doubles sum_rate() returns when every rate it needs is memoised
+  /// (counted as hits); std::nullopt, with nothing counted or computed, when one is missing.
+  std::optional<double> cached_sum_rate(const Positions& uavs);
   /// R for many position sets; all cache misses go to the beamformer in one batched call.
   std::vector<double> sum_rates(const std::vector<Positions>& uavs);
   /// Per-UAV cluster sum rates for one position set (UAVs with no users get 0).

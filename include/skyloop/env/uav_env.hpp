@@ -375,8 +375,17 @@ class VecEnv {
   /// calling thread. step(actions) is begin for every i, then finish.
   Positions begin(int i, const std::vector<int>& actions, StepInfo& info);
   Positions begin_velocities(int i, const Positions& velocities, StepInfo& info);
+  /// Environments settled since their begin are skipped.
   std::vector<StepInfo> finish(std::vector<Positions>& next, std::vector<StepInfo>& info,
                                const std::function<void(std::size_t)>& before_reset = {});
+  /// Ends environment i's step at once, after begin(i, ...), when its own oracle's memo holds every
+  /// rate the step needs, and resets it when its episode ends (no before_reset: a caller that
+  /// needs one leaves it to finish). Touches no other environment, so calls for different i may
+  /// run at once. Returns false, having changed nothing, when the environments share an oracle or
+  /// a rate is missing: finish() then ends the step with the others' misses in its batch. The
+  /// same numbers as finish() (a memoised rate is the same doubles; a reset's rate is designed
+  /// per cluster, the same on any thread).
+  bool settle(int i, const Positions& next, StepInfo& info);
 
  private:
   void reset_env(std::size_t i);
@@ -387,6 +396,7 @@ class VecEnv {
   std::uint64_t seed_;
   std::vector<std::unique_ptr<UavEnv>> envs_;
   std::vector<std::uint64_t> episodes_;
+  std::vector<char> settled_;  // settle()d since begin, per environment
   bool shared_ = false;
 };
 

@@ -363,6 +363,10 @@ std::vector<Field> make_fields() {
                    "the learners' learning rate over training: constant, or linear = from marl.learning_rate down to 0 "
                    "at total_steps (CleanRL's anneal_lr)",
                    {"constant", "linear"}, [](Config& c) -> std::string& { return c.marl.lr_schedule; }));
+  f.push_back(real("marl.average_decay",
+                   "PPO: a Polyak average of the actor's weights, a <- d a + (1 - d) w after every optimiser step, is what "
+                   "validation scores and policy.pt holds (training goes on with w; last.pt holds both); 0 = off, below 1",
+                   0, 1, [](Config& c) -> double& { return c.marl.average_decay; }));
   f.push_back(text("marl.entropy_schedule",
                    "PPO's entropy bonus over training: constant, or linear = from marl.entropy_coef down to 0 at total_steps",
                    {"constant", "linear"}, [](Config& c) -> std::string& { return c.marl.entropy_schedule; }));
@@ -741,6 +745,12 @@ void validate(const Config& c) {
   if (c.marl.lookahead && c.marl.encoder != "set")
     throw InputError("marl.lookahead = true with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
+  if (c.marl.average_decay >= 1)
+    throw InputError("marl.average_decay = " + format_double(c.marl.average_decay) +
+                     ": allowed 0 <= average_decay < 1 (at 1 the average would never move from the first step's weights)");
+  if (c.marl.average_decay > 0 && find_learner(c.marl.algo).core != LearnerInfo::Core::Ppo)
+    throw InputError("marl.average_decay = " + format_double(c.marl.average_decay) + " with marl.algo = \"" + c.marl.algo +
+                     "\": allowed with the PPO learners (the value-decomposition learners publish their Q-networks as trained)");
   if (c.channel.coverage_radius_m < c.scenario.altitude_m)
     throw InputError("channel.coverage_radius_m = " + format_double(c.channel.coverage_radius_m) +
                      " is below scenario.altitude_m = " + format_double(c.scenario.altitude_m) +

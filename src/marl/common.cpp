@@ -224,7 +224,10 @@ void Run::checkpoint(const nlohmann::json& meta, Learned& learned, const std::st
 
 void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Learned& learned, std::int64_t steps) {
   if (cfg.marl.val_layouts <= 0) return;
-  auto policy = MarlPolicy::load(last);
+  // The policy as policy.pt would hold it (under marl.average_decay the actor's average, not last.pt's weights).
+  const std::string candidate = (dir / "candidate.pt").string();
+  learned.save(candidate, meta, false);
+  auto policy = MarlPolicy::load(candidate);
   const auto bf = make_oracle_beamformer(cfg, *opt.registry);
   double complete = 0, objective = 0;
   const int V = cfg.marl.val_layouts;
@@ -238,7 +241,9 @@ void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohman
   const bool best = complete > best_complete + 1e-12 || (std::abs(complete - best_complete) <= 1e-12 && objective > best_objective);
   if (best) {
     best_complete = complete, best_objective = objective;
-    learned.save(final_path, meta, false);
+    std::filesystem::rename(candidate, final_path);  // atomic: policy.pt is the old best or the new, never half
+  } else {
+    std::filesystem::remove(candidate);
   }
   validation_csv += fmt::format("{},{},{},{},{},{}\n", cfg.run.seed, steps, V, format_double(complete), format_double(objective), best ? 1 : 0);
   write_file_atomic((dir / "validation.csv").string(), validation_csv);

@@ -135,4 +135,9 @@ void Adam::step(float* params, const float* grad, std::size_t n) {
 
 double norm(const std::vector<float>& g) { return std::sqrt(gemm::sum_squares(g.data(), static_cast<long>(g.size()))); }
 
+void polyak(float* average, const float* w, std::size_t n, float decay) {
+  const float keep = decay, take = 1.0f - decay;
+  for (std::size_t i = 0; i < n; ++i) average[i] = keep * average[i] + take * w[i];
+}
+
 }  // namespace skyloop::marl::fast

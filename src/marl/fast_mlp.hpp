@@ -71,4 +71,7 @@ struct Adam {
 /// sqrt(sum g^2) over the vector (accumulated in double).
 double norm(const std::vector<float>& g);
 
+/// The Polyak average's step (marl.average_decay): average[i] = decay average[i] + (1 - decay) w[i].
+void polyak(float* average, const float* w, std::size_t n, float decay);
+
 }  // namespace skyloop::marl::fast

@@ -258,6 +258,29 @@ Nets initial_nets(int obs_width, int critic_width, int hidden, int actions, std:
   return nets;
 }
 
+/// The archive entry of the actor's Polyak average in last.pt (PpoNetworks::set_average_decay).
+constexpr const char* kActorAverage = "actor_average";
+
+void write_module(torch::serialize::OutputArchive& archive, const char* key, torch::nn::Module& module) {
+  torch::serialize::OutputArchive sub;
+  module.save(sub);
+  archive.write(key, sub);
+}
+
+bool read_module(torch::serialize::InputArchive& archive, const char* key, torch::nn::Module& module) {
+  torch::serialize::InputArchive sub;
+  if (!archive.try_read(key, sub)) return false;
+  module.load(sub);
+  return true;
+}
+
+/// An actor of `like`'s shape (on its device), for the average's archive form.
+MlpNet actor_like(MlpNet& like) {
+  MlpNet net(like->l1->options.in_features(), like->l1->options.out_features(), like->l3->options.out_features());
+  net->to(like->l1->weight.device());
+  return net;
+}
+
 /// The reference: LibTorch's autograd and Adam.
 class TorchPpo final : public PpoNetworks {
  public:
@@ -272,6 +295,7 @@ class TorchPpo final : public PpoNetworks {
   void set_learning_rate(double learning_rate) override {
     for (auto& group : adam_->param_groups()) static_cast<torch::optim::AdamOptions&>(group.options()).lr(learning_rate);
   }
+  void set_average_decay(double decay) override { average_decay_ = decay; }
 
   void logits(const float* obs, int rows, float* out, int) override { forward(nets_.actor, obs, rows, actions(), out); }
   void values(const float* in, int rows, float* out, int) override { forward(nets_.critic, in, rows, 1, out); }
@@ -320,6 +344,15 @@ class TorchPpo final : public PpoNetworks {
     if (s.grad_clip > 0) torch::nn::utils::clip_grad_norm_(params_, s.grad_clip);
     adam_->step();
     torch::NoGradGuard ng;
+    if (average_decay_ > 0) {
+      const bool first = !average_;
+      if (first) average_ = actor_like(nets_.actor);
+      const auto w = nets_.actor->parameters(), a = average_->parameters();
+      const float d = static_cast<float>(average_decay_);
+      for (std::size_t i = 0; i < w.size(); ++i)
+        if (first) a[i].copy_(w[i]);
+        else a[i].mul_(d).add_(w[i], 1.0f - d);
+    }
     const auto log_ratio = logp - logp_old;
     const auto ratio = log_ratio.exp();
     u.policy_loss = policy_loss.item<double>();
@@ -332,9 +365,27 @@ class TorchPpo final : public PpoNetworks {
   }
 
   void save(const std::string& path, const nlohmann::json& meta, bool optimiser) override {
-    marl::save(path, meta, nets_, optimiser ? adam_.get() : nullptr);
+    if (optimiser) {
+      std::function<void(torch::serialize::OutputArchive&)> extra;
+      if (average_) extra = [this](torch::serialize::OutputArchive& a) { write_module(a, kActorAverage, *average_); };
+      marl::save(path, meta, nets_, adam_.get(), extra);
+      return;
+    }
+    Nets published = nets_;  // the same modules; the average as the actor
+    if (average_) published.actor = average_;
+    marl::save(path, meta, published, nullptr);
   }
-  void load(const std::string& path, bool optimiser) override { marl::load(path, nets_, optimiser ? adam_.get() : nullptr); }
+  void load(const std::string& path, bool optimiser) override {
+    if (!optimiser) {  // a published policy: its actor is the weights, no average
+      marl::load(path, nets_, nullptr);
+      average_ = MlpNet{nullptr};
+      return;
+    }
+    MlpNet average = actor_like(nets_.actor);
+    bool found = false;
+    marl::load(path, nets_, adam_.get(), [&](torch::serialize::InputArchive& a) { found = read_module(a, kActorAverage, *average); });
+    average_ = found ? average : MlpNet{nullptr};
+  }
 
  private:
   int actions() const { return static_cast<int>(nets_.actor->l3->options.out_features()); }
@@ -350,6 +401,8 @@ class TorchPpo final : public PpoNetworks {
   torch::Device device_;
   std::vector<torch::Tensor> params_;
   std::unique_ptr<torch::optim::Adam> adam_;
+  double average_decay_ = 0;
+  MlpNet average_{nullptr};  // the actor's Polyak average, after the first step with average_decay_ > 0
 };
 
 /// The default: fused float32 passes (fast_mlp.hpp), the loss's gradient written out.
@@ -366,6 +419,7 @@ class FastPpo final : public PpoNetworks {
   }
 
   void set_learning_rate(double learning_rate) override { actor_adam_.learning_rate = critic_adam_.learning_rate = learning_rate; }
+  void set_average_decay(double decay) override { average_decay_ = decay; }
 
   void logits(const float* obs, int rows, float* out, int lane) override {
     forward(actor_, obs, rows, static_cast<int>(torch_.actor->l3->options.out_features()), out, lane);
@@ -430,14 +484,25 @@ class FastPpo final : public PpoNetworks {
       (net == 0 ? actor_adam_ : critic_adam_).step(mlp.params().data(), g, mlp.size());
       mlp.refresh();
     });
+    if (average_decay_ > 0) {
+      const auto& w = actor_.params();
+      if (average_.empty()) average_ = w;
+      else fast::polyak(average_.data(), w.data(), w.size(), static_cast<float>(average_decay_));
+    }
     return u;
   }
 
   void save(const std::string& path, const nlohmann::json& meta, bool optimiser) override {
     to_torch();
+    if (!optimiser && !average_.empty()) write_average(torch_.actor);  // the published actor: the average
     std::function<void(torch::serialize::OutputArchive&)> extra;
     if (optimiser)
       extra = [this](torch::serialize::OutputArchive& a) {
+        if (!average_.empty()) {
+          MlpNet average = actor_like(torch_.actor);
+          write_average(average);
+          write_module(a, kActorAverage, *average);
+        }
         torch::serialize::OutputArchive sub;
         auto put = [&](const char* key, const std::vector<float>& v) {
           sub.write(key, torch::from_blob(const_cast<float*>(v.data()), {static_cast<int64_t>(v.size())}).clone());
@@ -453,6 +518,7 @@ class FastPpo final : public PpoNetworks {
   }
 
   void load(const std::string& path, bool optimiser) override {
+    if (!optimiser) average_.clear();  // a published policy: its actor is the weights, no average
     std::function<void(torch::serialize::InputArchive&)> extra;
     if (optimiser)
       extra = [&](torch::serialize::InputArchive& a) {
@@ -468,6 +534,13 @@ class FastPpo final : public PpoNetworks {
         get("actor_v", actor_adam_.v);
         get("critic_m", critic_adam_.m);
         get("critic_v", critic_adam_.v);
+        average_.clear();
+        MlpNet average = actor_like(torch_.actor);
+        if (read_module(a, kActorAverage, *average)) {
+          fast::Mlp packed(actor_.in(), actor_.hidden(), actor_.out());
+          packed.set_torch_layout(layout(average));
+          average_ = packed.params();
+        }
         torch::Tensor steps;
         sub.read("steps", steps);
         actor_adam_.steps = critic_adam_.steps = steps.item<std::int64_t>();
@@ -482,14 +555,25 @@ class FastPpo final : public PpoNetworks {
   static std::array<torch::Tensor, 6> tensors(MlpNet& net) {
     return {net->l1->weight, net->l1->bias, net->l2->weight, net->l2->bias, net->l3->weight, net->l3->bias};
   }
+  /// A CPU network's weights in Mlp::set_torch_layout's order (pointers into the tensors).
+  static std::array<const float*, 6> layout(MlpNet& net) {
+    const auto t = tensors(net);
+    std::array<const float*, 6> p{};
+    for (std::size_t i = 0; i < 6; ++i) p[i] = t[i].data_ptr<float>();
+    return p;
+  }
   void from_torch() {
-    for (auto [net, fast] : {std::pair<MlpNet*, fast::Mlp*>{&torch_.actor, &actor_}, {&torch_.critic, &critic_}}) {
-      const auto t = tensors(*net);
-      std::array<torch::Tensor, 6> c;
-      std::array<const float*, 6> p{};
-      for (std::size_t i = 0; i < 6; ++i) c[i] = t[i].detach().to(torch::kCPU).contiguous(), p[i] = c[i].data_ptr<float>();
-      fast->set_torch_layout(p);
-    }
+    for (auto [net, fast] : {std::pair<MlpNet*, fast::Mlp*>{&torch_.actor, &actor_}, {&torch_.critic, &critic_}}) fast->set_torch_layout(layout(*net));
+  }
+  /// The average (in the actor's packed layout) into `net`'s tensors.
+  void write_average(MlpNet& net) {
+    fast::Mlp packed(actor_.in(), actor_.hidden(), actor_.out());
+    packed.params() = average_;
+    torch::NoGradGuard ng;
+    const auto t = tensors(net);
+    std::array<float*, 6> p{};
+    for (std::size_t i = 0; i < 6; ++i) p[i] = t[i].data_ptr<float>();
+    packed.get_torch_layout(p);
   }
   void to_torch() {
     torch::NoGradGuard ng;
@@ -518,6 +602,8 @@ class FastPpo final : public PpoNetworks {
   Nets torch_;  // the archive's form of the weights (written on save, read on load)
   fast::Mlp actor_, critic_;
   fast::Adam actor_adam_, critic_adam_;
+  double average_decay_ = 0;
+  std::vector<float> average_;  // the actor's Polyak average in its packed layout (empty before the first step)
   int threads_ = 1;
   fast::Mlp::Cache actor_cache_[kChunks], critic_cache_[kChunks], infer_cache_[kLanes];
   std::vector<float> chunk_grad_[kChunks];
@@ -796,6 +882,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   const int C = spec.dims, A = C > 0 ? 0 : vec.env(0).actions();
   auto nets = make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed,
                                 cfg.run.threads, C > 0 ? 2 * C : A);
+  nets->set_average_decay(m.average_decay);
   RunningStats value_norm;
 
   std::int64_t steps = 0, updates = 0;

@@ -137,6 +137,12 @@ class PpoNetworks : public Learned {
   virtual UpdateStats step(Minibatch& batch, const PpoSettings& settings) = 0;
   /// The optimiser's learning rate from the next step on (marl.lr_schedule).
   virtual void set_learning_rate(double learning_rate) = 0;
+  /// marl.average_decay = d > 0: after every step the actor's Polyak average a <- d a + (1 - d) w
+  /// (a = w after the first step) is kept beside the trained weights w. save() without the
+  /// optimiser (policy.pt, the policy validation scores) then writes a as the actor; with it
+  /// (last.pt), w and the optimiser as always, and a beside them, which load() reads back, so a
+  /// resumed run continues the same average. logits() and training use w. 0: off.
+  virtual void set_average_decay(double decay) = 0;
 };
 
 /// Actor obs_width -> hidden -> hidden -> actions (the mobility model's) and critic critic_width -> ... -> 1, both

@@ -8,6 +8,7 @@
 
 #include "../../src/marl/fast_mlp.hpp"
 #include "../../src/marl/ppo.hpp"
+#include "../scratch.hpp"
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/core/error.hpp"
 
@@ -239,6 +240,80 @@ TEST(PpoCore, TheLearningRateIsSetBetweenSteps) {
     }
     EXPECT_GT(moved, 0) << backend;
     EXPECT_LT(off, 0.02 * 0.5 * moved) << backend << ": half the rate, not half the step";
+  }
+}
+
+// marl.average_decay: on both backends the published actor (save without the optimiser: policy.pt
+// and what validation scores) is the Polyak average a <- d a + (1 - d) w of the weights after each
+// step, a = w after the first; last.pt (with the optimiser) keeps w and the average, so a run
+// resumed from it continues the same average bit for bit; training and logits() go on with w.
+TEST(PpoCore, ThePublishedActorIsThePolyakAverage) {
+  const PpoSettings s{0.2, 0.5, 0.03, 10};
+  auto b = random_minibatch(256, 11, 37, 8);
+  const double d = 0.75;
+  const nlohmann::json meta = nlohmann::json::object();
+  const auto dir = skyloop::test::scratch_path("polyak");
+  std::filesystem::create_directories(dir);
+  auto file = [&](const std::string& name) { return (dir / name).string(); };
+  auto actor_in = [](const std::string& path) {  // the actor an archive holds
+    Nets nets;
+    nets.actor = MlpNet(11, 64, kGridActions);
+    nets.critic = MlpNet(37, 64, 1);
+    marl::load(path, nets, nullptr);
+    std::vector<torch::Tensor> out;
+    for (auto& p : nets.actor->parameters()) out.push_back(p.detach().to(torch::kDouble).clone());
+    return out;
+  };
+  for (const char* backend : {"fast", "torch"}) {
+    SCOPED_TRACE(backend);
+    auto nets = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 9);
+    nets->set_average_decay(d);
+    std::vector<torch::Tensor> average;  // in float64, from each step's trained weights
+    for (int step = 0; step < 4; ++step) {
+      nets->step(b, s);
+      nets->save(file("last.pt"), meta, true);
+      const auto w = actor_in(file("last.pt"));
+      if (average.empty()) average = w;
+      else
+        for (std::size_t i = 0; i < w.size(); ++i) average[i] = d * average[i] + (1 - d) * w[i];
+    }
+    nets->save(file("policy.pt"), meta, false);
+    const auto published = actor_in(file("policy.pt")), trained = actor_in(file("last.pt"));
+    double moved = 0;
+    for (std::size_t i = 0; i < average.size(); ++i) {
+      const double scale = average[i].abs().max().item<double>();
+      EXPECT_LE(max_error(published[i], average[i]), 1e-6 * scale) << "parameter " << i;
+      moved = std::max(moved, max_error(trained[i], average[i]) / scale);
+    }
+    EXPECT_GT(moved, 1e-5) << "the trained weights are not the average";
+    // logits() acts with the trained weights, not the average.
+    std::vector<float> with_w(static_cast<std::size_t>(b.rows) * kGridActions), reloaded(with_w.size());
+    nets->logits(b.observations.data(), b.rows, with_w.data());
+    auto from_last = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 1);
+    from_last->load(file("last.pt"), true);
+    from_last->logits(b.observations.data(), b.rows, reloaded.data());
+    EXPECT_EQ(with_w, reloaded);
+    // Resumed from last.pt after two steps, two more steps publish what four uninterrupted steps do.
+    auto straight = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 9);
+    auto first = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 9);
+    auto resumed = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 5);
+    for (auto* n : {straight.get(), first.get(), resumed.get()}) n->set_average_decay(d);
+    for (int step = 0; step < 4; ++step) straight->step(b, s);
+    for (int step = 0; step < 2; ++step) first->step(b, s);
+    first->save(file("half.pt"), meta, true);
+    resumed->load(file("half.pt"), true);
+    for (int step = 0; step < 2; ++step) resumed->step(b, s);
+    straight->save(file("straight.pt"), meta, false);
+    resumed->save(file("resumed.pt"), meta, false);
+    const auto a = actor_in(file("straight.pt")), r = actor_in(file("resumed.pt"));
+    for (std::size_t i = 0; i < a.size(); ++i) EXPECT_TRUE(torch::equal(a[i], r[i])) << "parameter " << i;
+    // Off (the default): the published actor is the trained one.
+    auto plain = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 9);
+    for (int step = 0; step < 2; ++step) plain->step(b, s);
+    plain->save(file("plain_policy.pt"), meta, false);
+    plain->save(file("plain_last.pt"), meta, true);
+    const auto pp = actor_in(file("plain_policy.pt")), pl = actor_in(file("plain_last.pt"));
+    for (std::size_t i = 0; i < pp.size(); ++i) EXPECT_TRUE(torch::equal(pp[i], pl[i])) << "parameter " << i;
   }
 }
 

@@ -194,6 +194,7 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   std::string lr_schedule = "constant";       // constant | linear: the learning rate falls linearly to 0 over total_steps
   std::string entropy_schedule = "constant";  // constant | linear: PPO's entropy_coef falls linearly to 0 over total_steps
   std::string backend = "fast";     // PPO networks: fast (fused float32, CPU) | torch (LibTorch autograd)
+  double average_decay = 0;         // PPO: Polyak average of the actor's weights, a <- d a + (1 - d) w per step; policy.pt and validation use it (0 = off)
   int val_layouts = 0;              // validation layouts scored at each checkpoint; policy.pt = the best (0 = last)
 };
 

@@ -27,14 +27,17 @@ const nn::ArchiveKind& policy_kind() {
   return k;
 }
 
+void write_module(torch::serialize::OutputArchive& archive, const char* key, torch::nn::Module& module) {
+  torch::serialize::OutputArchive sub;
+  module.save(sub);
+  archive.write(key, sub);
+}
+
 void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt,
           const std::function<void(torch::serialize::OutputArchive&)>& extra) {
   torch::serialize::OutputArchive archive;
   auto put = [&](const char* key, torch::nn::Module* m) {
-    if (!m) return;
-    torch::serialize::OutputArchive sub;
-    m->save(sub);
-    archive.write(key, sub);
+    if (m) write_module(archive, key, *m);
   };
   put("actor", nets.actor ? nets.actor.get() : nullptr);
   put("critic", nets.critic ? nets.critic.get() : nullptr);

@@ -75,6 +75,9 @@ class TorchLearned final : public Learned {
   torch::optim::Optimizer& optimiser_;
 };
 
+/// Writes `module`'s parameters and buffers as the archive entry `key`.
+void write_module(torch::serialize::OutputArchive& archive, const char* key, torch::nn::Module& module);
+
 /// Writes the archive atomically: meta JSON, the present networks, optionally the optimiser.
 /// `extra` (if set) writes more entries (a backend's own optimiser state).
 void save(const std::string& path, const nlohmann::json& meta, Nets& nets, torch::optim::Optimizer* opt,

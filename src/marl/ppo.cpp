@@ -261,12 +261,6 @@ Nets initial_nets(int obs_width, int critic_width, int hidden, int actions, std:
 /// The archive entry of the actor's Polyak average in last.pt (PpoNetworks::set_average_decay).
 constexpr const char* kActorAverage = "actor_average";
 
-void write_module(torch::serialize::OutputArchive& archive, const char* key, torch::nn::Module& module) {
-  torch::serialize::OutputArchive sub;
-  module.save(sub);
-  archive.write(key, sub);
-}
-
 bool read_module(torch::serialize::InputArchive& archive, const char* key, torch::nn::Module& module) {
   torch::serialize::InputArchive sub;
   if (!archive.try_read(key, sub)) return false;

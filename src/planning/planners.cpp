@@ -208,8 +208,6 @@ void require_lattice(const UavEnv& env, const std::string& who) {
 
 std::string optimum_key(const Config& cfg) {
   Config key = cfg;
-  key.marl = MarlConfig{};
-  key.run = RunConfig{};
   const EnvConfig plain;
   key.env.w_rate = plain.w_rate, key.env.w_arr = plain.w_arr, key.env.w_bud = plain.w_bud, key.env.w_col = plain.w_col,
   key.env.w_fea = plain.w_fea;
@@ -217,7 +215,15 @@ std::string optimum_key(const Config& cfg) {
   key.env.state = plain.state;
   key.env.resample_users = false;
   key.env.users_min = key.env.users_max = 0;
-  return to_toml(key);
+  // One "key = value" line per field the optimum can depend on: the learners' and the run's
+  // sections and the fields' help texts stay out, so that a new learner setting or a reworded help
+  // leaves every cached optimum valid.
+  std::string text;
+  for (const auto& f : config_fields()) {
+    if (f.key.rfind("marl.", 0) == 0 || f.key.rfind("run.", 0) == 0) continue;
+    text += f.key + " = " + format_value(f.get(key)) + "\n";
+  }
+  return text;
 }
 
 bool fits_optimal(const UavEnv& env) {

@@ -169,6 +169,13 @@ TEST(Planners, OptimumKeyNamesWhatTheOptimumDependsOn) {
                                                        "env.oracle=mrt", "env.objective=energy-efficiency", "trajectory.t_max=15",
                                                        "trajectory.layout_seed=2"})
     EXPECT_NE(optimum_key(with({differs})), optimum_key(base)) << differs;
+  // The key holds values only, and none of the learners' or the run's: a learner setting added
+  // later, or a help text reworded, keeps every cached optimum (`eval --cache`, reproduce's).
+  const std::string key = optimum_key(base);
+  EXPECT_EQ(key.find("marl."), std::string::npos) << key;
+  EXPECT_EQ(key.find("run."), std::string::npos) << key;
+  EXPECT_EQ(key.find('#'), std::string::npos) << key;
+  EXPECT_NE(key.find("scenario.uavs = 2\n"), std::string::npos) << key;
 }
 
 // Beyond the DP (10 UAVs, 300 m, 150 users): every UAV home without a collision, at least the

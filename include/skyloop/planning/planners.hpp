@@ -181,8 +181,9 @@ class OptimalPlanner final : public Planner {
   OptimalPlan plan_;
 };
 
-/// The settings the exact optimum of a scenario depends on, as TOML: the resolved config less the
-/// learners' [marl] and the [run] settings, and less the [env] settings that shape only the
+/// The settings the exact optimum of a scenario depends on, one "key = value" line per field (no
+/// help texts): the resolved config less the learners' [marl] and the [run] settings, and less the
+/// [env] settings that shape only the
 /// learners' reward and inputs or the drawing of layouts (the w_* weights, env.reward, env.state,
 /// env.resample_users, env.users_min / users_max). With the users, it keys every store of optima:
 /// OptimalPlanner's memo (run_planners) and the layout evaluation's --cache.

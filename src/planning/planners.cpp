@@ -11,7 +11,6 @@
 #include <ostream>
 #include <stdexcept>
 
-#include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 

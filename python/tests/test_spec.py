@@ -135,32 +135,6 @@ def test_the_rate_map_is_the_last_field_of_the_set_observation():
             sl.VecEnv(dict(base, **bad), num_envs=1, seed=0)
 
 
-def test_the_home_values_are_the_last_field_and_minus_one_where_the_mask_forbids():
-    """marl.home_values adds one value per action after the radio map: each move's best mean sum
-    rate on a way home flown alone, tanh-scaled; -1 exactly where the reachability mask forbids
-    the move (outside the area, or no way home in time)."""
-    base = dict(scenario(3, "compact", "set"), **{"marl.lookahead": True, "marl.rate_map": 2})
-    env = sl.VecEnv(dict(base, **{"marl.home_values": True}), num_envs=2, seed=5)
-    plain = sl.VecEnv(base, num_envs=2, seed=5)
-    assert env.spec["obs"]["fields"][-1]["name"] == "home_values"
-    assert env.spec["obs"]["size"] == plain.spec["obs"]["size"] + env.num_actions
-    o, p = env.reset(), plain.reset()
-    rng = np.random.default_rng(5)
-    for t in range(4):
-        check_against_reference(env, o)
-        check_fields(env, o)
-        assert np.array_equal(o.obs[..., :plain.spec["obs"]["size"]], p.obs)
-        values = env.field(o.obs, "obs", "home_values")
-        assert np.array_equal(values == -1, o.action_mask == 0)
-        assert np.all(values[o.action_mask == 1] > -1) and np.all(values <= 1)
-        a = (rng.random(o.action_mask.shape) * o.action_mask).argmax(-1)
-        o, p = env.step(a), plain.step(a)
-    for bad in ({"marl.encoder": "mlp", "marl.lookahead": False, "marl.rate_map": 0},
-                {"trajectory.mobility": "continuous"}):
-        with pytest.raises(sl.InputError, match="marl.home_values"):
-            sl.VecEnv(dict(base, **bad, **{"marl.home_values": True}), num_envs=1, seed=0)
-
-
 def test_spec_names_the_actions_once():
     env = sl.VecEnv({"env.oracle": "zf"}, 1, 0)
     assert env.spec["actions"] == sl.ACTIONS and env.num_actions == len(sl.ACTIONS)

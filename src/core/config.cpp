@@ -375,12 +375,6 @@ std::vector<Field> make_fields() {
                       "point within this many D_fly steps, the others held in place (2 r (r + 1) cells, asked of the rate oracle "
                       "per agent and slot, memoised; 0 = none); needs marl.encoder = set",
                       0, kMaxRateMap, [](Config& c) -> int& { return c.marl.rate_map; }));
-  f.push_back(boolean("marl.home_values",
-                      "the set observation also holds, for each move, the best mean sum rate R over the slots left on a way "
-                      "home from where the move lands, the UAV flying alone and the others held in place (a single-UAV dynamic "
-                      "programme over the lattice; asks the rate oracle for every lattice point on a way home, memoised); needs "
-                      "marl.encoder = set and a lattice mobility model",
-                      [](Config& c) -> bool& { return c.marl.home_values; }));
   f.push_back(integer("marl.slack_margin",
                       "slots of slack the reachability mask keeps in reserve; the collision shield may spend them to let a UAV "
                       "wait or step aside (0 = none)",
@@ -748,12 +742,6 @@ void validate(const Config& c) {
   if (c.marl.rate_map > 0 && c.marl.encoder != "set")
     throw InputError("marl.rate_map = " + std::to_string(c.marl.rate_map) + " with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
-  if (c.marl.home_values && c.marl.encoder != "set")
-    throw InputError("marl.home_values = true with marl.encoder = \"" + c.marl.encoder +
-                     "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
-  if (c.marl.home_values && c.trajectory.mobility == "continuous")
-    throw InputError("marl.home_values = true with trajectory.mobility = \"continuous\": allowed with a lattice model "
-                     "(grid, headings), whose ways home the dynamic programme enumerates");
   if (c.marl.lookahead && c.marl.encoder != "set")
     throw InputError("marl.lookahead = true with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");

@@ -99,7 +99,6 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.action = MobilityModel(cfg).actions();
   p.lookahead = cfg.marl.lookahead;
   p.rate_map = cfg.marl.rate_map;
-  p.home_values = cfg.marl.home_values;
   return p;
 }
 
@@ -120,7 +119,6 @@ ArraySpec set_observation_spec(const SpecParams& p) {
   if (p.lookahead) s.add("move_gains", p.action.count(), -1, 1);  // one per action (continuous: per primitive)
   if (p.rate_map > 0)  // tanh(kGainScale (R_c - R) / R) at each cell c of rate_map_offsets; -1 outside the area
     s.add("rate_map", static_cast<int>(rate_map_offsets(p.rate_map).size()), -1, 1);
-  if (p.home_values) s.add("home_values", p.action.count(), -1, 1);  // one per action; -1: no way home from there
   return s;
 }
 

@@ -4,7 +4,6 @@
 
 #include <cmath>
 #include <cstring>
-#include <limits>
 #include <stdexcept>
 
 #include "skyloop/core/config_io.hpp"
@@ -623,73 +622,7 @@ void UavEnv::write_set_observation(int n, float* o) const {
     write_move_gains(n, o);
     o += actions();
   }
-  if (spec_params_.rate_map > 0) {
-    write_rate_map(n, o);
-    o += static_cast<int>(rate_map_offsets(spec_params_.rate_map).size());
-  }
-  if (spec_params_.home_values) write_home_values(n, o);
-}
-
-void UavEnv::write_home_values(int n, float* o) const {
-  const int A = actions();
-  std::fill(o, o + A, 0.0f);
-  if (arrived(n)) return;
-  const int left = t_max_ - t_;  // slots still to fly, t + 1 .. T_max
-  const LatticeFrame L(pos_(n, 0), pos_(n, 1), area_x_, area_y_, d_fly_);
-  const int here = L.cell(pos_(n, 0), pos_(n, 1)), home = L.cell(dest_(n, 0), dest_(n, 1));
-  const bool home_on_lattice = home >= 0 && home < L.cells() && same(L.x(home), dest_(n, 0)) && same(L.y(home), dest_(n, 1));
-  const std::vector<int> from_here = mobility_->slots_to(L.nx, L.ny, here);
-  const std::vector<int> to_home = home_on_lattice ? mobility_->slots_to(L.nx, L.ny, home) : std::vector<int>(from_here.size(), -1);
-  // The lattice points on some way home in time, and their rates (sets[0]: where the UAVs are now).
-  const int G = L.cells();
-  std::vector<int> at(static_cast<std::size_t>(G), -1);
-  std::vector<Positions> sets(1, pos_);
-  for (int c = 0; c < G; ++c) {
-    const int a = from_here[static_cast<std::size_t>(c)], b = to_home[static_cast<std::size_t>(c)];
-    if (a < 0 || b < 0 || a + b > left) continue;
-    at[static_cast<std::size_t>(c)] = static_cast<int>(sets.size());
-    sets.push_back(pos_);
-    sets.back()(n, 0) = L.x(c);
-    sets.back()(n, 1) = L.y(c);
-  }
-  const auto r = oracle_->sum_rates(sets);
-  const double now = r[0];
-  // W[c] at slot s: the best sum of R over slots s .. T_max from c at slot s, ending at home.
-  constexpr double kNone = -std::numeric_limits<double>::infinity();
-  std::vector<double> W(static_cast<std::size_t>(G), kNone), next(static_cast<std::size_t>(G), kNone);
-  auto rate = [&](int c) { return r[static_cast<std::size_t>(at[static_cast<std::size_t>(c)])]; };
-  auto neighbour = [&](int c, int a) {
-    const LatticeStep st = mobility_->step(a);
-    const int ix = c % L.nx + st.dx, iy = c / L.nx + st.dy;
-    return ix >= 0 && ix < L.nx && iy >= 0 && iy < L.ny ? iy * L.nx + ix : -1;
-  };
-  if (left >= 1 && at[static_cast<std::size_t>(home)] >= 0) W[static_cast<std::size_t>(home)] = rate(home);  // slot T_max
-  for (int s = t_max_ - 1; s >= t_ + 1; --s) {
-    std::fill(next.begin(), next.end(), kNone);
-    for (int c = 0; c < G; ++c) {
-      if (at[static_cast<std::size_t>(c)] < 0) continue;
-      double best = W[static_cast<std::size_t>(c == home ? home : 0)];  // home is absorbing: an arrived UAV stays
-      if (c != home) {
-        best = kNone;
-        for (int a = 0; a < A; ++a)
-          if (const int c2 = neighbour(c, a); c2 >= 0) best = std::max(best, W[static_cast<std::size_t>(c2)]);
-      }
-      if (best > kNone) next[static_cast<std::size_t>(c)] = rate(c) + best;
-    }
-    W.swap(next);
-  }
-  if (!(now > 0)) {
-    for (int a = 0; a < A; ++a) {
-      const Landing l = landing(n, a);
-      if (!l.inside || !(W[static_cast<std::size_t>(L.cell(l.x, l.y))] > kNone)) o[a] = -1.0f;
-    }
-    return;
-  }
-  for (int a = 0; a < A; ++a) {
-    const Landing l = landing(n, a);
-    const double v = l.inside ? W[static_cast<std::size_t>(L.cell(l.x, l.y))] : kNone;
-    o[a] = v > kNone ? static_cast<float>(std::tanh(kGainScale * (v / left - now) / now)) : -1.0f;
-  }
+  if (spec_params_.rate_map > 0) write_rate_map(n, o);
 }
 
 void UavEnv::write_rate_map(int n, float* o) const {

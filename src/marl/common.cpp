@@ -120,7 +120,7 @@ Encoder encoder_of(const Config& cfg, bool context) {
   e.set = cfg.marl.encoder == "set";
   e.context = context && !e.set;
   e.threads = resolve_threads(cfg.run.threads);
-  e.asks_oracle = e.set && (cfg.marl.lookahead || cfg.marl.rate_map > 0 || cfg.marl.home_values);
+  e.asks_oracle = e.set && (cfg.marl.lookahead || cfg.marl.rate_map > 0);
   return e;
 }
 

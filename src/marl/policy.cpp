@@ -122,7 +122,7 @@ torch::Tensor network_outputs(MarlPolicy::Impl& impl, UavEnv& env) {
   const int N = env.uavs(), D = enc.width(env);
   if (D != impl.input)
     throw InputError("policy " + impl.algo + " reads " + std::to_string(impl.input) + " reals per agent but the environment writes " +
-                     std::to_string(D) + " (marl.encoder, marl.lookahead, marl.rate_map, marl.home_values, env.state): allowed the observation settings it was trained with");
+                     std::to_string(D) + " (marl.encoder, marl.lookahead, env.state): allowed the observation settings it was trained with");
   std::vector<float> in(static_cast<std::size_t>(N * D));
   for (int n = 0; n < N; ++n) enc.write(env, n, in.data() + static_cast<std::size_t>(n * D));
   return net(torch::from_blob(in.data(), {N, D})).contiguous();

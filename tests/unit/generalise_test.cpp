@@ -2,7 +2,6 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <limits>
 #include <set>
 #include <stdexcept>
 
@@ -469,93 +468,6 @@ TEST(Env, RateMapIsTheRadioMapAroundTheUav) {
       error = e.what();
     }
     EXPECT_NE(error.find("marl.rate_map"), std::string::npos) << encoder << ", " << radius << ": " << error;
-    EXPECT_EQ(error.find('\n'), std::string::npos) << error;
-  }
-}
-
-namespace {
-/// The best sum of R over the slots from `slot` to T_max for UAV n at (x, y) at `slot` (R counted
-/// there), flying alone to its destination with the others where they are and staying once there;
-/// -infinity without a way home. Brute force over every sequence of moves (env.move), pruned only
-/// where the destination is out of reach (env.min_moves); rates from a separate oracle.
-double best_way_home(const UavEnv& env, RateOracle& oracle, int n, double x, double y, int slot) {
-  Positions p = env.positions();
-  p(n, 0) = x, p(n, 1) = y;
-  const double r = oracle.sum_rate(p);
-  const bool home = std::abs(x - env.destinations()(n, 0)) < 1e-6 && std::abs(y - env.destinations()(n, 1)) < 1e-6;
-  if (home) return r * (env.t_max() - slot + 1);
-  if (slot == env.t_max() || env.min_moves(n, x, y) > env.t_max() - slot) return -std::numeric_limits<double>::infinity();
-  double best = -std::numeric_limits<double>::infinity();
-  for (int a = 0; a < env.actions(); ++a) {
-    double x2, y2;
-    if (env.move(x, y, a, x2, y2)) best = std::max(best, best_way_home(env, oracle, n, x2, y2, slot + 1));
-  }
-  return r + best;
-}
-}  // namespace
-
-// marl.home_values: for each move, tanh(kGainScale (V_a / L - R) / R), V_a the best sum of R over
-// the L slots left on a way home from the move's landing (the UAV alone, the others in place, an
-// arrived UAV staying), checked against brute force over every sequence of moves in the last slots;
-// -1 exactly where the reachability mask forbids the move; zeros once arrived; the field is the
-// observation's last; the paper's observation and the continuous model are refused in one line.
-TEST(Env, HomeValuesAreTheBestWayHomeFlownAlone) {
-  for (const char* mobility : {"grid", "headings"}) {
-    Config cfg = look_ahead_scene(mobility, 1);
-    cfg.marl.home_values = true;
-    finalise(cfg);
-    const Positions users = make_users(cfg, 9, 5);
-    UavEnv env = make_env(cfg, users);
-    RateOracle reference(cfg, zf_bf(), users);
-    const ArraySpec& obs = env.spec().set_obs;
-    const SpecField& f = obs.field("home_values");
-    ASSERT_EQ(f.size, env.actions()) << mobility;
-    ASSERT_EQ(f.offset + f.size, obs.size) << mobility << ": home_values is the last field";
-    const int brute_from = std::string(mobility) == "grid" ? 7 : 4;  // slots left at which brute force starts
-    Rng rng(8);
-    int checked = 0, refused = 0;
-    while (!env.done()) {
-      const int left = env.t_max() - env.t();
-      for (int n = 0; n < env.uavs(); ++n) {
-        std::vector<float> o(static_cast<std::size_t>(obs.size));
-        env.write_set_observation(n, o.data());
-        const double now = reference.sum_rate(env.positions());
-        for (int a = 0; a < env.actions(); ++a) {
-          const float got = o[static_cast<std::size_t>(f.offset + a)];
-          if (env.arrived(n)) {
-            EXPECT_EQ(got, 0.0f) << mobility;
-            continue;
-          }
-          EXPECT_EQ(got == -1.0f, !env.feasible(n, a)) << mobility << ", t = " << env.t() << ", UAV " << n << ", action " << a;
-          refused += !env.feasible(n, a);
-          if (left > brute_from || !env.feasible(n, a)) continue;
-          const auto l = env.landing(n, a);
-          const double v = best_way_home(env, reference, n, l.x, l.y, env.t() + 1);
-          ASSERT_TRUE(std::isfinite(v)) << mobility << ": a feasible move without a way home";
-          ASSERT_NEAR(got, std::tanh(kGainScale * (v / left - now) / now), 1e-6)
-              << mobility << ", t = " << env.t() << ", UAV " << n << ", action " << a;
-          ++checked;
-        }
-      }
-      step_at_random(env, rng);
-    }
-    EXPECT_GT(checked, 20) << mobility;
-    EXPECT_GT(refused, 0) << mobility;
-    for (int n = 0; n < env.uavs(); ++n) ASSERT_TRUE(env.arrived(n)) << mobility;
-  }
-  for (const auto& [encoder, mobility] : {std::pair{"mlp", "grid"}, std::pair{"set", "continuous"}}) {
-    Config bad;
-    bad.marl.encoder = encoder;
-    bad.marl.home_values = true;
-    bad.trajectory.mobility = mobility;
-    std::string error;
-    try {
-      finalise(bad);
-      validate(bad);
-    } catch (const InputError& e) {
-      error = e.what();
-    }
-    EXPECT_NE(error.find("marl.home_values"), std::string::npos) << encoder << ", " << mobility << ": " << error;
     EXPECT_EQ(error.find('\n'), std::string::npos) << error;
   }
 }

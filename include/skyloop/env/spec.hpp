@@ -110,11 +110,10 @@ struct SpecParams {
   ActionSpec action = grid_actions();  // the mobility model's
   bool lookahead = false;              // marl.lookahead: the set observation's move_gains field
   int rate_map = 0;                    // marl.rate_map: the set observation's rate_map field (its radius)
-  bool home_values = false;            // marl.home_values: the set observation's home_values field
   bool operator==(const SpecParams& o) const {
     return agents == o.agents && users == o.users && area_x == o.area_x && area_y == o.area_y && d_fly == o.d_fly &&
            t_max == o.t_max && state == o.state && observation == o.observation && action == o.action &&
-           lookahead == o.lookahead && rate_map == o.rate_map && home_values == o.home_values;
+           lookahead == o.lookahead && rate_map == o.rate_map;
   }
 };
 SpecParams spec_params(const Config& cfg, int agents, int users);

@@ -204,8 +204,7 @@ class UavEnv {
   ///  - UAVs, wide (kWideGrid^2): the same sum over the other UAVs (not divided by anything);
   ///  - UAVs, near (kNearGrid^2): spacing D_fly, width D_fly / 2: who is one move away;
   ///  - with marl.lookahead, move gains (one per action): write_move_gains;
-  ///  - with marl.rate_map = r, the radio map within r lattice steps: write_rate_map;
-  ///  - with marl.home_values, each move's best way home flown alone: write_home_values.
+  ///  - with marl.rate_map = r, the radio map within r lattice steps: write_rate_map.
   /// Reordering the users or the other UAVs leaves it unchanged (tests/unit/env_test.cpp).
   void write_set_observation(int n, float* out) const;
   /// For each action a of UAV n (continuous model: each primitive), tanh(kGainScale (R_a - R) / R):
@@ -222,16 +221,6 @@ class UavEnv {
   /// patch, WMMSE's peaks), which the optimum plans towards and a one-slot look-ahead cannot see.
   /// Zeros for an arrived UAV and where R = 0; the cells in one batched, memoised oracle call.
   void write_rate_map(int n, float* out) const;
-  /// For each action a of UAV n (a lattice model), tanh(kGainScale (V_a - R) / R): V_a the best
-  /// mean sum rate over the slots left (t + 1 .. T_max) on any way from landing(n, a) to the
-  /// destination in time, UAV n flying alone and every other UAV held where it is, the UAV staying
-  /// at its destination once there; R the sum rate now. A single-UAV dynamic programme over the
-  /// lattice through the UAV's position (the rates of every lattice point on a way home, in one
-  /// batched, memoised oracle call): what the best response of the best-known planner optimises
-  /// with the others frozen, so a learner sees where the rate lies on the way home, beyond the
-  /// radio map's few moves, and when it must leave. -1 where the landing is outside the area or
-  /// has no way home in time; zeros for an arrived UAV and where R = 0.
-  void write_home_values(int n, float* out) const;
   int set_observation_size() const { return spec_->set_obs.size; }
   int users() const;
   /// The compact state (spec().compact_state, whatever env.state says).

@@ -359,6 +359,12 @@ std::vector<Field> make_fields() {
                       "the set observation also holds each move's one-slot change of the sum rate R, the others held in place "
                       "(what Greedy ranks moves by; asks the rate oracle for A + 1 position sets per agent and slot, memoised); needs marl.encoder = set",
                       [](Config& c) -> bool& { return c.marl.lookahead; }));
+  f.push_back(boolean("marl.sequential",
+                      "PPO, grid and headings mobility: the UAVs choose one after another in the shield's order (least slack "
+                      "first), each agent's set observation showing the landings the UAVs before it chose (their kernels, "
+                      "and in the move gains and radio map the joint rate with them landed): an autoregressive joint policy, "
+                      "in training and execution; needs marl.encoder = set",
+                      [](Config& c) -> bool& { return c.marl.sequential; }));
   f.push_back(text("marl.lr_schedule",
                    "the learners' learning rate over training: constant, or linear = from marl.learning_rate down to 0 "
                    "at total_steps (CleanRL's anneal_lr)",
@@ -745,6 +751,15 @@ void validate(const Config& c) {
   if (c.marl.lookahead && c.marl.encoder != "set")
     throw InputError("marl.lookahead = true with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
+  if (c.marl.sequential && c.marl.encoder != "set")
+    throw InputError("marl.sequential = true with marl.encoder = \"" + c.marl.encoder +
+                     "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation shows no other UAV)");
+  if (c.marl.sequential && find_learner(c.marl.algo).core != LearnerInfo::Core::Ppo)
+    throw InputError("marl.sequential = true with marl.algo = \"" + c.marl.algo +
+                     "\": allowed with the PPO learners (mappo, ippo), whose policies sample one agent at a time");
+  if (c.marl.sequential && c.trajectory.mobility == "continuous")
+    throw InputError("marl.sequential = true with trajectory.mobility = \"continuous\": allowed with the grid and headings "
+                     "mobility models (their moves land where the shield orders them)");
   if (c.marl.average_decay >= 1)
     throw InputError("marl.average_decay = " + format_double(c.marl.average_decay) +
                      ": allowed 0 <= average_decay < 1 (at 1 the average would never move from the first step's weights)");

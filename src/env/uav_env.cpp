@@ -102,6 +102,7 @@ void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle) {
 
 void UavEnv::reset() {
   pos_ = start_;
+  any_decided_ = false;
   t_ = 1;
   arrived_.assign(static_cast<std::size_t>(n_), false);
   parked_ = 0;
@@ -325,6 +326,7 @@ void UavEnv::land(int n, const Landing& l, StepInfo& info) {
 
 Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
   check_step(actions.size());
+  any_decided_ = false;
   Positions next = pos_;
   for (int n = 0; n < n_; ++n) {
     const int requested = actions[static_cast<std::size_t>(n)];
@@ -343,6 +345,7 @@ Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
 }
 
 Positions UavEnv::begin_step_velocities(const Positions& v, StepInfo& info) {
+  any_decided_ = false;
   check_step(static_cast<std::size_t>(v.rows()));
   if (!mobility_->continuous())
     throw std::invalid_argument("UavEnv::step_velocities: trajectory.mobility = " + mobility_->name() +
@@ -612,10 +615,11 @@ void UavEnv::write_set_observation(int n, float* o) const {
   const KernelAxes::Axis& fewer = ax.count <= ay.count ? ax : ay;
   add_kernels(o, kernel_axes_.f.data() + ax.factors, kernel_axes_.f.data() + ay.factors,
               kernel_axes_.reach.data() + fewer.reach, fewer.count, per_user);
+  const Positions& seen = seen_positions();
   for (int m = 0; m < n_; ++m) {
     if (m == n) continue;
-    add_kernel(o + W, kWideGrid, 2 * d_fly_, 2 * d_fly_, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
-    add_kernel(o + 2 * W, kNearGrid, d_fly_, d_fly_ / 2, pos_(m, 0) - x, pos_(m, 1) - y, 1.0);
+    add_kernel(o + W, kWideGrid, 2 * d_fly_, 2 * d_fly_, seen(m, 0) - x, seen(m, 1) - y, 1.0);
+    add_kernel(o + 2 * W, kNearGrid, d_fly_, d_fly_ / 2, seen(m, 0) - x, seen(m, 1) - y, 1.0);
   }
   o += 2 * W + Q;
   if (spec_params_.lookahead) {
@@ -625,12 +629,22 @@ void UavEnv::write_set_observation(int n, float* o) const {
   if (spec_params_.rate_map > 0) write_rate_map(n, o);
 }
 
+void UavEnv::show_decided(int m, double x, double y) {
+  if (m < 0 || m >= n_) throw std::out_of_range("UavEnv::show_decided: no UAV " + std::to_string(m));
+  if (!any_decided_) seen_ = pos_;
+  any_decided_ = true;
+  seen_(m, 0) = x, seen_(m, 1) = y;
+}
+
+void UavEnv::clear_decided() { any_decided_ = false; }
+
 void UavEnv::write_rate_map(int n, float* o) const {
   const auto& cells = rate_map_offsets(spec_params_.rate_map);
   const int C = static_cast<int>(cells.size());
   std::fill(o, o + C, 0.0f);
   if (arrived(n)) return;
-  std::vector<Positions> sets(1, pos_);  // sets[0]: where the UAVs are now
+  const Positions& seen = seen_positions();
+  std::vector<Positions> sets(1, seen);  // sets[0]: where the UAVs are now (the decided ones landed)
   std::vector<int> at(static_cast<std::size_t>(C), -1);
   for (int c = 0; c < C; ++c) {
     const double x = pos_(n, 0) + d_fly_ * cells[static_cast<std::size_t>(c)][0];
@@ -640,7 +654,7 @@ void UavEnv::write_rate_map(int n, float* o) const {
       continue;
     }
     at[static_cast<std::size_t>(c)] = static_cast<int>(sets.size());
-    sets.push_back(pos_);
+    sets.push_back(seen);
     sets.back()(n, 0) = x;
     sets.back()(n, 1) = y;
   }
@@ -656,7 +670,7 @@ void UavEnv::write_move_gains(int n, float* o) const {
   const int A = actions();
   std::fill(o, o + A, 0.0f);
   if (arrived(n)) return;
-  std::vector<Positions> sets(static_cast<std::size_t>(A) + 1, pos_);  // sets[A]: where the UAVs are now
+  std::vector<Positions> sets(static_cast<std::size_t>(A) + 1, seen_positions());  // sets[A]: where the UAVs are now
   for (int a = 0; a < A; ++a) {
     const Landing l = landing(n, a);
     sets[static_cast<std::size_t>(a)](n, 0) = l.x;

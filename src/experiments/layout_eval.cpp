@@ -190,10 +190,12 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
     for (std::size_t k = 0; k < labels.size(); ++k) {
       auto policy = MarlPolicy::load(opt.policies[k]);
       policy->set_reserve_slack(cfg.marl.reserve_slack);  // an execution setting: the evaluation's
+      if (cfg.marl.sequential) policy->set_sequential(true);  // as trained, or on where the evaluation asks
       timed(*policy, labels[k]);
       if (opt.unsafe) {
         auto raw = MarlPolicy::load(opt.policies[k]);
         raw->set_reserve_slack(cfg.marl.reserve_slack);
+        if (cfg.marl.sequential) raw->set_sequential(true);
         raw->set_safety(false, false);
         timed(*raw, labels[k] + "/raw");
       }

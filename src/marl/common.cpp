@@ -121,6 +121,7 @@ Encoder encoder_of(const Config& cfg, bool context) {
   e.context = context && !e.set;
   e.threads = resolve_threads(cfg.run.threads);
   e.asks_oracle = e.set && (cfg.marl.lookahead || cfg.marl.rate_map > 0);
+  e.sequential = e.set && cfg.marl.sequential;
   return e;
 }
 

@@ -36,6 +36,10 @@ struct Encoder {
   /// marl.rate_map): environments that share one oracle (its memo) are then written on one
   /// thread, environments with oracles of their own in the lanes.
   bool asks_oracle = false;
+  /// marl.sequential (discrete PPO): the UAVs choose one after another in shield order, each
+  /// agent's observation written just before it chooses, with the landings chosen before it shown
+  /// (UavEnv::show_decided).
+  bool sequential = false;
   int width(const UavEnv& env) const;
   void write(const UavEnv& env, int n, float* out) const;
 };

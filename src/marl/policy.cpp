@@ -70,6 +70,7 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
     // A policy written by another version may name fields this one lacks: defaults.
   }
   impl->safety = safety_options(trained);
+  impl->enc.sequential = trained.marl.sequential;  // the UAVs choose one after another, as trained
   impl->command = trained.trajectory.command;
   const int hidden = meta.value("hidden", 0), obs = meta.value("obs_dim", 0), uavs = meta.value("uavs", 0);
   const std::string encoder = meta.value("encoder", "mlp");
@@ -127,6 +128,38 @@ torch::Tensor network_outputs(MarlPolicy::Impl& impl, UavEnv& env) {
   for (int n = 0; n < N; ++n) enc.write(env, n, in.data() + static_cast<std::size_t>(n * D));
   return net(torch::from_blob(in.data(), {N, D})).contiguous();
 }
+
+/// marl.sequential: the UAVs choose one after another in shield order, each its best allowed move
+/// on its observation written just before, with the landings chosen before it shown
+/// (UavEnv::show_decided); each UAV's scores are those of its turn. The joint action is then
+/// shielded_argmax's on those scores, which is the sequential choice itself wherever that choice
+/// lands no two UAVs within D_min (the first UAV's best, the next one's best clear of it, ...), and
+/// the shield's depth-first search over the joint moves where it would.
+std::vector<int> act_sequentially(MarlPolicy::Impl& impl, UavEnv& env) {
+  const int D = impl.enc.width(env), A = env.actions();
+  if (!(env.mobility().actions() == impl.actions) || D != impl.input) network_outputs(impl, env);  // refuses in one line
+  std::vector<float> in(static_cast<std::size_t>(D));
+  std::vector<std::vector<float>> scores(static_cast<std::size_t>(env.uavs()), std::vector<float>(static_cast<std::size_t>(A), 0.0f));
+  WaysMemory ways = impl.ways;  // the turns' pass leaves the memory to the joint choice below
+  sequential_safe_actions(
+      env, impl.safety,
+      [&](int n, ActionSet allowed) {
+        impl.enc.write(env, n, in.data());
+        const auto out = impl.nets.actor(torch::from_blob(in.data(), {1, D})).contiguous();
+        const float* z = out.data_ptr<float>();
+        auto& mine = scores[static_cast<std::size_t>(n)];
+        std::copy_n(z, A, mine.begin());
+        int best = -1;
+        for (int a = 0; a < A; ++a)
+          if ((allowed >> a & 1u) && (best < 0 || z[a] > z[best])) best = a;
+        const UavEnv::Landing l = env.landing(n, best);
+        env.show_decided(n, l.x, l.y);
+        return best;
+      },
+      nullptr, &ways);
+  env.clear_decided();
+  return shielded_argmax(env, impl.safety, scores, &impl.ways);
+}
 }  // namespace
 
 bool MarlPolicy::commands_velocities() const { return impl_->actions.continuous(); }
@@ -151,6 +184,7 @@ std::vector<int> MarlPolicy::act(UavEnv& env) {
   if (impl_->actions.continuous())
     throw std::logic_error("MarlPolicy::act: a continuous policy commands velocities (act_velocities)");
   torch::NoGradGuard ng;
+  if (impl_->enc.sequential) return act_sequentially(*impl_, env);
   const auto out = network_outputs(*impl_, env);
   const int N = env.uavs(), A = env.actions();
   const auto oa = out.accessor<float, 2>();
@@ -158,6 +192,15 @@ std::vector<int> MarlPolicy::act(UavEnv& env) {
   for (int n = 0; n < N; ++n)
     for (int a = 0; a < A; ++a) scores[static_cast<std::size_t>(n)][static_cast<std::size_t>(a)] = oa[n][a];
   return shielded_argmax(env, impl_->safety, scores, &impl_->ways);
+}
+
+bool MarlPolicy::sequential() const { return impl_->enc.sequential; }
+void MarlPolicy::set_sequential(bool sequential) {
+  if (sequential && (impl_->q_based || !impl_->enc.set || impl_->actions.continuous()))
+    throw InputError("marl.sequential = true for a " + impl_->algo + " policy" + (impl_->enc.set ? "" : " on the paper's observation") +
+                     (impl_->actions.continuous() ? " of continuous commands" : "") +
+                     ": allowed for mappo and ippo policies on the set observation with grid or headings moves");
+  impl_->enc.sequential = sequential;
 }
 
 void MarlPolicy::reset(UavEnv&) { impl_->ways = WaysMemory{}; }

@@ -635,7 +635,11 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
   // rate oracle the environments share (its memo) are written on the calling thread first;
   // everything else a lane does touches its own environments (and their own oracles) and rows.
   const bool encode_in_lanes = encoder.threads > 1 && !(encoder.asks_oracle && vec.shares_oracle());
-  const int lane_threads = std::min({resolve_threads(threads), nets.lanes(), kCollectLanes});
+  // marl.sequential: each agent's observation is written just before it chooses, in its lane; with
+  // an oracle the environments share, the lanes then run one after another.
+  const bool sequential = encoder.sequential && C == 0;
+  const bool serial_lanes = sequential && encoder.asks_oracle && vec.shares_oracle();
+  const int lane_threads = serial_lanes ? 1 : std::min({resolve_threads(threads), nets.lanes(), kCollectLanes});
   auto env_range = [&](std::size_t lane) {
     return std::pair<int, int>{static_cast<int>(static_cast<std::size_t>(M) * lane / kCollectLanes),
                                static_cast<int>(static_cast<std::size_t>(M) * (lane + 1) / kCollectLanes)};
@@ -648,8 +652,10 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
     auto encode = [&](int e) {
       for (int n = 0; n < N; ++n) {
         const auto i = static_cast<std::size_t>(e * N + n);
-        encoder.write(vec.env(e), n, obs + i * static_cast<std::size_t>(r.obs_width));
-        critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width), obs + i * static_cast<std::size_t>(r.obs_width));
+        if (!sequential) {
+          encoder.write(vec.env(e), n, obs + i * static_cast<std::size_t>(r.obs_width));
+          critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width), obs + i * static_cast<std::size_t>(r.obs_width));
+        }
         r.active[r.at(t, e, n)] = static_cast<float>(vec.env(e).mask(n));
         r.logprobs[r.at(t, e, n)] = 0.0f;  // agents that STAY without sampling (arrived) keep these
         std::fill_n(r.allowed.data() + r.at(t, e, n) * A, A, 1.0f);
@@ -664,11 +670,16 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
         for (int e = first; e < last; ++e) encode(e);
       const std::size_t row = static_cast<std::size_t>(first) * N;
       const int rows = (last - first) * N;
-      nets.logits(obs + row * static_cast<std::size_t>(r.obs_width), rows, logits.data() + row * static_cast<std::size_t>(width),
-                  static_cast<int>(lane));
-      nets.values(crit + row * static_cast<std::size_t>(r.critic_width), rows, values + row, static_cast<int>(lane));
-      for (std::size_t i = row; i < row + static_cast<std::size_t>(rows); ++i)
-        values[i] = static_cast<float>(value_norm.denormalise(values[i]));
+      auto critic_values = [&] {
+        nets.values(crit + row * static_cast<std::size_t>(r.critic_width), rows, values + row, static_cast<int>(lane));
+        for (std::size_t i = row; i < row + static_cast<std::size_t>(rows); ++i)
+          values[i] = static_cast<float>(value_norm.denormalise(values[i]));
+      };
+      if (!sequential) {
+        nets.logits(obs + row * static_cast<std::size_t>(r.obs_width), rows, logits.data() + row * static_cast<std::size_t>(width),
+                    static_cast<int>(lane));
+        critic_values();
+      }
       for (int e = first; e < last; ++e) {
         const auto ee = static_cast<std::size_t>(e);
         Rng& draw = streams[ee];
@@ -703,6 +714,11 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
         // mask and the shield against the UAVs already placed); arrived agents STAY.
         actions[ee] = sequential_safe_actions(env, safety, [&](int n, ActionSet allowed) {
           const std::size_t i = r.at(t, e, n);
+          if (sequential) {  // its observation now, with the landings chosen before it
+            float* o = obs + static_cast<std::size_t>(e * N + n) * static_cast<std::size_t>(r.obs_width);
+            encoder.write(env, n, o);
+            nets.logits(o, 1, logits.data() + static_cast<std::size_t>(e * N + n) * A, static_cast<int>(lane));
+          }
           const float* z = logits.data() + static_cast<std::size_t>(e * N + n) * A;
           double mx = -1e30;
           for (int k = 0; k < A; ++k)
@@ -726,12 +742,28 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
                 break;
               }
           r.logprobs[i] = static_cast<float>(static_cast<double>(z[a]) - mx - std::log(sum));
+          if (sequential) {
+            const UavEnv::Landing l = env.landing(n, a);
+            env.show_decided(n, l.x, l.y);
+          }
           return a;
         });
+        if (sequential) {  // the rows no agent chose from (arrived UAVs), then the critic's inputs
+          for (int n = 0; n < N; ++n) {
+            const std::size_t i = static_cast<std::size_t>(e * N + n);
+            if (env.arrived(n)) encoder.write(env, n, obs + i * static_cast<std::size_t>(r.obs_width));
+          }
+          env.clear_decided();
+          for (int n = 0; n < N; ++n) {
+            const std::size_t i = static_cast<std::size_t>(e * N + n);
+            critic.write(env, n, crit + i * static_cast<std::size_t>(r.critic_width), obs + i * static_cast<std::size_t>(r.obs_width));
+          }
+        }
         for (int n = 0; n < N; ++n) r.actions[r.at(t, e, n)] = actions[ee][static_cast<std::size_t>(n)];
         next[ee] = vec.begin(e, actions[ee], infos[ee]);
         vec.settle(e, next[ee], infos[ee]);  // its step ends here when its oracle knows every rate
       }
+      if (sequential) critic_values();
     });
     const auto done = vec.finish(next, infos);
     for (int e = 0; e < M; ++e) {

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <functional>
 #include <set>
 #include <stdexcept>
 
@@ -390,6 +391,80 @@ TEST(Env, MoveGainsAreTheOneSlotLookAhead) {
     ADD_FAILURE() << "marl.lookahead with marl.encoder = mlp was accepted";
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("marl.lookahead"), std::string::npos) << e.what();
+  }
+}
+
+// marl.sequential: with UAV m's chosen landing shown (UavEnv::show_decided), another UAV's set
+// observation is the one it would read with m standing there: its UAV kernels, and its move gains
+// and radio map with m there (asked of a separate oracle); its own fields do not change; clearing,
+// stepping and resetting show the UAVs where they are again.
+TEST(Env, DecidedLandingsAreWhatTheLaterAgentsSee) {
+  const Config cfg = look_ahead_scene("grid", 1);
+  const Positions users = make_users(cfg, 9, 5);
+  UavEnv env = make_env(cfg, users);
+  ASSERT_GE(env.uavs(), 2);
+  RateOracle reference(cfg, zf_bf(), users);
+  const ArraySpec& obs = env.spec().set_obs;
+  const SpecField& gains = obs.field("move_gains");
+  const SpecField& wide = obs.field("uavs_wide");
+  const auto D = static_cast<std::size_t>(obs.size);
+  Rng rng(4);
+  step_at_random(env, rng);
+  int changed = 0;
+  for (int a = 0; a < env.actions(); ++a) {
+    if (!env.feasible(0, a) || a == env.hover()) continue;
+    std::vector<float> before(D), shown(D), after(D);
+    env.write_set_observation(1, before.data());
+    const auto l = env.landing(0, a);
+    const Positions where = env.positions();
+    env.show_decided(0, l.x, l.y);
+    EXPECT_EQ(env.positions(), where) << "the UAVs stay where they are";
+    env.write_set_observation(1, shown.data());
+    Positions there = env.positions();
+    there(0, 0) = l.x, there(0, 1) = l.y;
+    EXPECT_EQ(env.seen_positions(), there);
+    const double now = reference.sum_rate(there);
+    for (int b = 0; b < env.actions(); ++b) {
+      Positions p = there;
+      const auto m = env.landing(1, b);
+      p(1, 0) = m.x, p(1, 1) = m.y;
+      ASSERT_NEAR(shown[static_cast<std::size_t>(gains.offset + b)], std::tanh(kGainScale * (reference.sum_rate(p) - now) / now), 1e-6)
+          << "UAV 0's move " << a << ", UAV 1's move " << b;
+    }
+    for (int i = 0; i < obs.field("users_density").offset; ++i)  // own position, destination, slack, time, previous move
+      EXPECT_EQ(shown[static_cast<std::size_t>(i)], before[static_cast<std::size_t>(i)]) << "field entry " << i;
+    if (!std::equal(shown.begin() + wide.offset, shown.begin() + wide.offset + wide.size, before.begin() + wide.offset)) ++changed;
+    env.clear_decided();
+    EXPECT_EQ(env.seen_positions(), env.positions());
+    env.write_set_observation(1, after.data());
+    EXPECT_EQ(after, before) << "cleared";
+  }
+  EXPECT_GT(changed, 0) << "UAV 0's landing shows in UAV 1's grid of the UAVs around it";
+  // A step and a reset show the UAVs where they are.
+  const auto l = env.landing(0, env.hover());
+  env.show_decided(0, l.x + 10, l.y);
+  env.step(std::vector<int>(static_cast<std::size_t>(env.uavs()), env.hover()));
+  EXPECT_EQ(env.seen_positions(), env.positions());
+  env.show_decided(1, 3, 4);
+  env.reset();
+  EXPECT_EQ(env.seen_positions(), env.positions());
+  EXPECT_THROW(env.show_decided(env.uavs(), 0, 0), std::out_of_range);
+  // The paper's observation shows no other UAV; the value-decomposition learners and continuous
+  // commands choose at once: each refused in one line naming marl.sequential.
+  for (const auto& bad : std::vector<std::pair<const char*, std::function<void(Config&)>>>{
+           {"mlp", [](Config& c) { c.marl.encoder = "mlp", c.marl.lookahead = false, c.marl.rate_map = 0; }},
+           {"vdn", [](Config& c) { c.marl.algo = "vdn"; }},
+           {"continuous", [](Config& c) { c.trajectory.mobility = "continuous"; }}}) {
+    Config c = cfg;
+    c.marl.sequential = true;
+    bad.second(c);
+    try {
+      validate(c);
+      ADD_FAILURE() << "marl.sequential with " << bad.first << " was accepted";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("marl.sequential"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(bad.first), std::string::npos) << e.what();
+    }
   }
 }
 

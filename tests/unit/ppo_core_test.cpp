@@ -430,6 +430,20 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
          c.env.resample_users = true;
        }},
       {"continuous commands", [](Config& c) { c.trajectory.mobility = "continuous"; }},
+      {"sequential choices with the look-ahead, one scenario (one shared oracle: the lanes in turn)",
+       [](Config& c) {
+         c.marl.encoder = "set";
+         c.marl.lookahead = true;
+         c.marl.sequential = true;
+       }},
+      {"sequential choices with the look-ahead and the radio map, resampled layouts",
+       [](Config& c) {
+         c.marl.encoder = "set";
+         c.marl.lookahead = true;
+         c.marl.rate_map = 2;
+         c.marl.sequential = true;
+         c.env.resample_users = true;
+       }},
   };
   for (const Case& k : cases) {
     SCOPED_TRACE(k.name);
@@ -486,6 +500,63 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
   auto beamformer = std::make_shared<ZfBeamformer>();
   EXPECT_FALSE(VecEnv(cfg, beamformer, 2, 7).shares_oracle());
   EXPECT_TRUE(VecEnv(cfg, std::make_shared<RateOracle>(cfg, beamformer, make_users(cfg, 6, 3)), 2).shares_oracle());
+}
+
+// marl.sequential: the UAVs choose in shield order (least slack first), and what the actor read
+// for each is its observation with the landings of the UAVs that chose before it shown
+// (UavEnv::show_decided): replayed here on a copy of the environment from the rollout's own
+// actions, every row of every step is the observation written that way, and the critic's input
+// holds the same observation. Three UAVs, so a UAV is seen by one chooser and by two.
+TEST(PpoCore, SequentialAgentsReadTheLandingsChosenBeforeThem) {
+  Config cfg = small_scene();
+  cfg.trajectory.starts = {{0, 0}, {120, 120}, {0, 120}};
+  cfg.trajectory.destinations = {{120, 40}, {0, 80}, {120, 80}};
+  cfg.marl.encoder = "set";
+  cfg.marl.lookahead = true;
+  cfg.marl.rate_map = 1;
+  cfg.marl.sequential = true;
+  validate(cfg);
+  const Encoder enc = encoder_of(cfg, false);
+  ASSERT_TRUE(enc.sequential);
+  const CriticReader critic = CriticReader::of(cfg, enc);
+  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, 6, 3));
+  VecEnv vec(cfg, oracle, 1);
+  UavEnv replay = vec.env(0);
+  const int N = 3, D = enc.width(replay);
+  Rollout r(30, 1, N, D, critic.width(replay));
+  auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1, r.A);
+  Rng rng(5);
+  EpisodeStats stats;
+  collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats, 1);
+  ASSERT_GE(stats.episodes, 2);
+  int shown = 0, differs = 0;
+  for (int t = 0; t < r.T; ++t) {
+    const auto order = shield_order(replay);
+    std::vector<int> act(N, replay.hover());
+    for (int n = 0; n < N; ++n) act[static_cast<std::size_t>(n)] = static_cast<int>(r.actions[r.at(t, 0, n)]);
+    std::vector<float> want(static_cast<std::size_t>(D)), plain(static_cast<std::size_t>(D));
+    for (const int n : order) {
+      replay.write_set_observation(n, want.data());
+      const float* got = r.observations.data() + r.at(t, 0, n) * static_cast<std::size_t>(D);
+      ASSERT_EQ(std::vector<float>(got, got + D), want) << "t = " << t << ", UAV " << n;
+      const float* in_critic = r.critic_inputs.data() + r.at(t, 0, n) * static_cast<std::size_t>(r.critic_width);  // the observation, then the state
+      ASSERT_EQ(std::vector<float>(in_critic, in_critic + D), want) << "t = " << t << ", UAV " << n;
+      if (shown > 0) {
+        UavEnv fresh = replay;
+        fresh.clear_decided();
+        fresh.write_set_observation(n, plain.data());
+        if (plain != want) ++differs;
+      }
+      const auto l = replay.landing(n, act[static_cast<std::size_t>(n)]);
+      replay.show_decided(n, l.x, l.y);
+      ++shown;
+    }
+    shown = 0;
+    replay.clear_decided();
+    replay.step(act);
+    if (replay.done()) replay.reset();
+  }
+  EXPECT_GT(differs, 10) << "the landings chosen before change what a later UAV reads";
 }
 
 // Each environment samples from its own stream: environment e's moves do not depend on how many

@@ -191,6 +191,7 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   std::string encoder = "mlp";      // mlp (the paper's 11-real observation) | set (users and neighbours as sets)
   bool lookahead = false;           // set observation: each move's one-slot change of R (UavEnv::write_move_gains)
   int rate_map = 0;                 // set observation: R around the UAV within this many lattice steps (UavEnv::write_rate_map; 0 = none, at most kMaxRateMap)
+  bool sequential = false;          // the UAVs choose one after another in shield order, each seeing the landings chosen before it (UavEnv::show_decided)
   std::string lr_schedule = "constant";       // constant | linear: the learning rate falls linearly to 0 over total_steps
   std::string entropy_schedule = "constant";  // constant | linear: PPO's entropy_coef falls linearly to 0 over total_steps
   std::string backend = "fast";     // PPO networks: fast (fused float32, CPU) | torch (LibTorch autograd)

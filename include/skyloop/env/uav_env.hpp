@@ -214,6 +214,15 @@ class UavEnv {
   /// WMMSE's steep rates). Zeros for an arrived UAV and where R = 0. The oracle is asked for the
   /// A + 1 position sets in one batched call (memoised).
   void write_move_gains(int n, float* out) const;
+  /// Sequential decisions (marl.sequential): the landing UAV m has chosen this slot, which the set
+  /// observations of the agents written after it show in place of where m is (its kernels in the
+  /// UAV grids, and its position in the move gains' and the radio map's position sets), so an agent
+  /// choosing later sees the slot's joint rate with the earlier choices made. Cleared by
+  /// clear_decided, reset and every step; nothing else reads it.
+  void show_decided(int m, double x, double y);
+  void clear_decided();
+  /// Where the set observation sees the UAVs: positions(), with the decided landings in place.
+  const Positions& seen_positions() const { return any_decided_ ? seen_ : pos_; }
   /// The radio map around UAV n: at each cell c of rate_map_offsets(marl.rate_map), the point
   /// x + D_fly c (x the UAV's position, on or off the lattice), tanh(kGainScale (R_c - R) / R) with
   /// R_c the sum rate with UAV n there and every other UAV where it is; -1 at a point outside the
@@ -298,6 +307,8 @@ class UavEnv {
   SpecParams spec_params_;  // what spec_ is made from (N, K, area, horizon, env.state, marl.encoder)
   std::shared_ptr<const EnvSpec> spec_;
   Positions start_, dest_, pos_;
+  Positions seen_;             // pos_ with the decided landings (show_decided) in place
+  bool any_decided_ = false;   // seen_ differs from pos_
   std::shared_ptr<RateOracle> oracle_;
   std::vector<bool> arrived_;
   int parked_ = 0;  // arrived UAVs so far this episode: the version of the Parked tables

@@ -24,7 +24,8 @@ struct LayoutEvalOptions {
   std::vector<std::uint64_t> users_seeds;  // when not empty: these layouts instead (e.g. those a run trained on)
   std::vector<std::string> planners;    // names of skyloop/planning/registry.hpp (the reference is always solved)
   std::vector<std::string> policies;    // directories (or policy.pt files) of `skyloop train`; each flies with the
-                                        // evaluation config's marl.reserve_slack (an execution setting), its own safety otherwise
+                                        // evaluation config's marl.reserve_slack (an execution setting), sequentially
+                                        // where trained so or where it sets marl.sequential, its own safety otherwise
   std::vector<std::string> policy_names;  // their labels (default: the algorithm, then "-2", "-3" if repeated)
   bool unsafe = false;                  // also run every policy without mask and shield ("<label>/raw")
   bool rollout = false;                 // also fly every policy as the base of a multiagent rollout ("<label>+rollout",

@@ -56,6 +56,11 @@ class MarlPolicy final : public Planner {
   bool action_mask() const;
   bool shield() const;
   void set_safety(bool action_mask, bool shield);
+  /// marl.sequential at execution: the UAVs choose one after another in shield order, each seeing
+  /// the landings chosen before it (UavEnv::show_decided): as trained unless set here; refused
+  /// (InputError) for the value-decomposition learners, the paper's observation and continuous commands.
+  bool sequential() const;
+  void set_sequential(bool sequential);
   /// marl.reserve_slack at execution (safety.hpp; -1: none): as trained unless set here. An
   /// execution-only setting: a policy trained without it may fly with it.
   int reserve_slack() const;

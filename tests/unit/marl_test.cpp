@@ -396,16 +396,24 @@ TEST(Marl, UnknownLearnersAreRefusedWithTheRegisteredNames) {
 
 // A policy trained with the look-ahead (marl.lookahead) flies an environment that writes it, and
 // one that does not is refused in one line (not a shape error from the network).
-TEST(Marl, LookAheadPoliciesNeedTheLookAhead) {
-  Config cfg = small_scenario("mappo", 1024);
+/// A MAPPO policy on the set observation with the look-ahead, trained briefly into `dir`.
+static std::unique_ptr<MarlPolicy> look_ahead_policy(Config& cfg, const std::string& dir, bool sequential) {
+  cfg = small_scenario("mappo", 1024);
   cfg.marl.encoder = "set";
   cfg.marl.lookahead = true;
+  cfg.marl.sequential = sequential;
   validate(cfg);
   MarlTrainOptions opt;
-  opt.out_dir = fresh("lookahead");
+  opt.out_dir = fresh(dir);
   opt.registry = &zf_registry();
   train_marl(cfg, opt);
-  auto policy = MarlPolicy::load(opt.out_dir);
+  return MarlPolicy::load(opt.out_dir);
+}
+
+TEST(Marl, LookAheadPoliciesNeedTheLookAhead) {
+  Config cfg;
+  auto policy = look_ahead_policy(cfg, "lookahead", false);
+  EXPECT_FALSE(policy->sequential());
   UavEnv env(cfg, zf_oracle(cfg, 3));
   const auto a = policy->act(env);
   for (int n = 0; n < env.uavs(); ++n)
@@ -425,16 +433,8 @@ TEST(Marl, LookAheadPoliciesNeedTheLookAhead) {
 // config says so), every move allowed by the mask and the shield, every mission complete on held-out
 // users; same policy, same environment, same moves.
 TEST(Marl, SequentialPoliciesFlyAsTrained) {
-  Config cfg = small_scenario("mappo", 1024);
-  cfg.marl.encoder = "set";
-  cfg.marl.lookahead = true;
-  cfg.marl.sequential = true;
-  validate(cfg);
-  MarlTrainOptions opt;
-  opt.out_dir = fresh("sequential");
-  opt.registry = &zf_registry();
-  train_marl(cfg, opt);
-  auto policy = MarlPolicy::load(opt.out_dir);
+  Config cfg;
+  auto policy = look_ahead_policy(cfg, "sequential", true);
   EXPECT_TRUE(policy->sequential());
   for (const std::uint64_t seed : {3u, 4u}) {
     UavEnv env(cfg, zf_oracle(cfg, seed)), twin(cfg, zf_oracle(cfg, seed));

@@ -109,21 +109,27 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
 }
 
 namespace {
-/// The policy network's outputs [N x width] on the environment's observations, once the
-/// environment's action space is the one it was trained on.
-torch::Tensor network_outputs(MarlPolicy::Impl& impl, UavEnv& env) {
-  torch::NoGradGuard ng;
-  auto& net = impl.q_based ? impl.nets.q : impl.nets.actor;
-  const auto& enc = impl.enc;
+/// The width of the policy's input on this environment, once the environment's action space and
+/// observation are the ones it was trained on (refused in one line otherwise).
+int checked_input(const MarlPolicy::Impl& impl, const UavEnv& env) {
   if (!(env.mobility().actions() == impl.actions))
     throw InputError("policy " + impl.algo + " was trained with trajectory.mobility = \"" + impl.mobility + "\" (" +
                      std::to_string(impl.actions.count()) + " actions) but the environment has trajectory.mobility = \"" +
                      env.mobility().name() + "\" (" + std::to_string(env.actions()) + " actions): allowed the mobility settings "
                      "it was trained with");
-  const int N = env.uavs(), D = enc.width(env);
+  const int D = impl.enc.width(env);
   if (D != impl.input)
     throw InputError("policy " + impl.algo + " reads " + std::to_string(impl.input) + " reals per agent but the environment writes " +
                      std::to_string(D) + " (marl.encoder, marl.lookahead, env.state): allowed the observation settings it was trained with");
+  return D;
+}
+
+/// The policy network's outputs [N x width] on the environment's observations (checked_input).
+torch::Tensor network_outputs(MarlPolicy::Impl& impl, UavEnv& env) {
+  torch::NoGradGuard ng;
+  auto& net = impl.q_based ? impl.nets.q : impl.nets.actor;
+  const auto& enc = impl.enc;
+  const int N = env.uavs(), D = checked_input(impl, env);
   std::vector<float> in(static_cast<std::size_t>(N * D));
   for (int n = 0; n < N; ++n) enc.write(env, n, in.data() + static_cast<std::size_t>(n * D));
   return net(torch::from_blob(in.data(), {N, D})).contiguous();
@@ -136,8 +142,7 @@ torch::Tensor network_outputs(MarlPolicy::Impl& impl, UavEnv& env) {
 /// lands no two UAVs within D_min (the first UAV's best, the next one's best clear of it, ...), and
 /// the shield's depth-first search over the joint moves where it would.
 std::vector<int> act_sequentially(MarlPolicy::Impl& impl, UavEnv& env) {
-  const int D = impl.enc.width(env), A = env.actions();
-  if (!(env.mobility().actions() == impl.actions) || D != impl.input) network_outputs(impl, env);  // refuses in one line
+  const int D = checked_input(impl, env), A = env.actions();
   std::vector<float> in(static_cast<std::size_t>(D));
   std::vector<std::vector<float>> scores(static_cast<std::size_t>(env.uavs()), std::vector<float>(static_cast<std::size_t>(A), 0.0f));
   WaysMemory ways = impl.ways;  // the turns' pass leaves the memory to the joint choice below

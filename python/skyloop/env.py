@@ -47,6 +47,12 @@ class StepResult(NamedTuple):
     info: dict               # arrays [M]: sum_rate, objective, collisions, boundary, arrivals, home, T, success, episode_reward; final_obs, final_state
 
 
+class Turn(NamedTuple):
+    agent: np.ndarray        # int32 [M]: whose turn it is in each environment (-1: every agent there has chosen)
+    obs: np.ndarray          # float32 [M, spec["obs"]["size"]]: that agent's observation, written now (the landings chosen before it shown)
+    action_mask: np.ndarray  # int8 [M, spec["num_actions"]]: its allowed moves (the mask, and the shield against the UAVs placed)
+
+
 class VecEnv:
     """M trajectory environments stepped as one batch. ``config``: a skyloop.Config, a dict of
     overrides or a TOML path; ``oracle``: the beamformer spec behind R[t] (default env.oracle).
@@ -106,6 +112,41 @@ class VecEnv:
             raise InputError(f"actions {actions!r} are not an array: allowed an integer array of shape "
                              f"[{self.num_envs}, {self.num_agents}]") from None
         d = self._env.step(a)
+        return StepResult(d["obs"], d["state"], d["agent_state"], d["action_mask"], d["reward"], d["terminated"],
+                          d["truncated"], d["info"])
+
+    def begin_turns(self) -> Turn:
+        """Starts the slot's turns (``marl.sequential``'s protocol, with the collision shield): in
+        every environment the UAVs not yet home choose one after another, least slack first. Each
+        turn's ``action_mask`` is the configuration's mask (``marl.action_mask``, ``slack_margin``,
+        ``mask_clearance``) with the shield (``marl.shield``) against the UAVs placed so far: the
+        arrived ones and those that chose before. ``obs`` is the turn's agent's observation written
+        just before it chooses: with the set observation (``marl.encoder = "set"``) the landings
+        chosen before it stand in place of where those UAVs are (their kernels, and the joint rate
+        in ``marl.lookahead``'s move gains and ``marl.rate_map``). Grid and headings moves only.
+
+            turn = env.begin_turns()
+            while (turn.agent >= 0).any():
+                turn = env.take_turn(choose(turn.obs, turn.action_mask))  # int [M]; ignored where agent = -1
+            result = env.step_turns()                                    # as step(): the joint moves chosen
+        """
+        d = self._env.begin_turns()
+        return Turn(d["agent"], d["obs"], d["action_mask"])
+
+    def take_turn(self, actions) -> Turn:
+        """``actions``: integer array [M], each environment's move for the agent whose turn it is (one
+        its ``action_mask`` allows; ignored where ``agent`` is -1). Returns the next turn."""
+        from . import InputError
+        try:
+            a = np.asarray(actions)
+        except (ValueError, TypeError):
+            raise InputError(f"actions {actions!r} are not an array: allowed an integer array of shape [{self.num_envs}]") from None
+        d = self._env.take_turn(a)
+        return Turn(d["agent"], d["obs"], d["action_mask"])
+
+    def step_turns(self) -> StepResult:
+        """Steps every environment with the moves its turns chose (``step``'s result)."""
+        d = self._env.step_turns()
         return StepResult(d["obs"], d["state"], d["agent_state"], d["action_mask"], d["reward"], d["terminated"],
                           d["truncated"], d["info"])
 

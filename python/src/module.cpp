@@ -143,6 +143,7 @@ class PyVecEnv {
     {
       py::gil_scoped_release nogil;
       std::lock_guard<std::mutex> lock(mutex_);
+      turns_.clear();  // turns in progress refer to the environments: dropped before they go
       if (seed) vec_ = std::make_unique<VecEnv>(cfg_, bf_, num_envs_, *seed);
       else vec_->reset();
       fill(out);
@@ -210,6 +211,7 @@ class PyVecEnv {
     {
       py::gil_scoped_release nogil;
       std::lock_guard<std::mutex> lock(mutex_);
+      turns_.clear();  // a step ends the slot's turns (and every step clears the landings shown)
       auto final_view = [&](std::size_t i) {
         if (fo.empty()) fo.assign(static_cast<std::size_t>(M) * O, 0.0f), fs.assign(static_cast<std::size_t>(M) * S, 0.0f);
         const UavEnv& e = vec_->env(static_cast<int>(i));
@@ -394,7 +396,124 @@ class PyVecEnv {
     return total > 0 ? hits / total : 0.0;
   }
 
+  /// Sequential turns (the protocol of marl.sequential, with the collision shield) for a learner
+  /// in Python. begin_turns starts the slot's turns in every environment: the UAVs not yet home
+  /// choose one after another, least slack first, each allowed the moves of the configuration's
+  /// training safety (mask, shield against the UAVs placed so far, slack margin, clearance; no
+  /// reserved ways: SafeTurns). take_turn records each environment's move for the agent whose
+  /// turn it is and shows its landing in the set observation of the agents after it
+  /// (UavEnv::show_decided); step_turns steps the joint moves chosen. reset and step drop turns
+  /// in progress.
+  py::dict begin_turns() {
+    if (spec_->action.dims > 0)
+      throw InputError("begin_turns: trajectory.mobility = \"continuous\" has no turns: allowed with \"grid\" or \"headings\"");
+    {
+      py::gil_scoped_release nogil;
+      std::lock_guard<std::mutex> lock(mutex_);
+      turns_.clear();
+      const SafetyOptions safety = training_safety_options(cfg_);
+      for (int i = 0; i < num_envs_; ++i) {
+        vec_->env(i).clear_decided();
+        turns_.emplace_back(vec_->env(i), safety);
+      }
+    }
+    return turn_dict();
+  }
+
+  py::dict take_turn(const py::array& actions_in) {
+    const int M = num_envs_, A = spec_->action.count();
+    const std::string allowed = "allowed an integer array of shape [" + std::to_string(M) +
+                                "] (num_envs): each environment's move for the agent whose turn it is, one its action_mask allows";
+    const char kind = actions_in.dtype().kind();
+    if (kind != 'i' && kind != 'u') throw InputError("actions have dtype " + py::str(actions_in.dtype()).cast<std::string>() + ": " + allowed);
+    const auto a = Array<std::int64_t>::ensure(actions_in);
+    if (a.ndim() != 1 || a.shape(0) != M) throw InputError("actions have shape " + shape_of(actions_in) + ": " + allowed);
+    const auto r = a.unchecked<1>();
+    std::string error;
+    {
+      py::gil_scoped_release nogil;
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (turns_.empty()) error = "take_turn: no turns begun: call begin_turns() first";
+      bool any = false;
+      for (std::size_t i = 0; i < turns_.size() && error.empty(); ++i) {  // every move checked before any is taken
+        const SafeTurns& t = turns_[i];
+        if (t.done()) continue;
+        any = true;
+        const auto v = r(static_cast<py::ssize_t>(i));
+        if (v < 0 || v >= A || !(t.allowed() >> v & 1u)) {
+          std::string ok;
+          for (int k = 0; k < A; ++k)
+            if (t.allowed() >> k & 1u) ok += (ok.empty() ? "" : ", ") + spec_->action.names[static_cast<std::size_t>(k)];
+          error = "actions[" + std::to_string(i) + "] = " + std::to_string(v) + " is not allowed for agent " +
+                  std::to_string(t.uav()) + " this turn: allowed " + ok;
+        }
+      }
+      if (error.empty() && !any) error = "take_turn: every agent has chosen: call step_turns()";
+      if (error.empty())
+        for (std::size_t i = 0; i < turns_.size(); ++i) {
+          SafeTurns& t = turns_[i];
+          if (t.done()) continue;
+          const int n = t.uav(), v = static_cast<int>(r(static_cast<py::ssize_t>(i)));
+          t.choose(v);
+          UavEnv& e = vec_->env(static_cast<int>(i));
+          const UavEnv::Landing l = e.landing(n, v);
+          e.show_decided(n, l.x, l.y);
+        }
+    }
+    if (!error.empty()) throw InputError(error);
+    return turn_dict();
+  }
+
+  py::dict step_turns() {
+    std::vector<std::vector<int>> joint;
+    std::string error;
+    {
+      py::gil_scoped_release nogil;
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (turns_.empty()) error = "step_turns: no turns begun: call begin_turns() first";
+      for (std::size_t i = 0; i < turns_.size() && error.empty(); ++i) {
+        if (!turns_[i].done())
+          error = "step_turns: agent " + std::to_string(turns_[i].uav()) + " of environment " + std::to_string(i) +
+                  " has not chosen: call take_turn until every turn's agent is -1";
+        joint.push_back(turns_[i].actions());
+      }
+    }
+    if (!error.empty()) throw InputError(error);
+    return advance(joint, {});
+  }
+
  private:
+  /// The turn in progress: each environment's agent (-1 once every agent there has chosen), its
+  /// observation written now (the landings chosen before it shown) and its allowed moves.
+  py::dict turn_dict() {
+    const int M = num_envs_, A = spec_->action.count();
+    const std::size_t O = static_cast<std::size_t>(spec_->obs.size), AA = static_cast<std::size_t>(A);
+    auto agent = Array<std::int32_t>({M});
+    auto obs = Array<float>({M, spec_->obs.size});
+    auto mask = Array<std::int8_t>({M, A});
+    std::int32_t* pa = agent.mutable_data();
+    float* po = obs.mutable_data();
+    std::int8_t* pm = mask.mutable_data();
+    {
+      py::gil_scoped_release nogil;
+      std::lock_guard<std::mutex> lock(mutex_);
+      std::fill_n(po, static_cast<std::size_t>(M) * O, 0.0f);
+      std::fill_n(pm, static_cast<std::size_t>(M) * AA, std::int8_t{0});
+      for (int i = 0; i < M; ++i) {
+        const SafeTurns& t = turns_[static_cast<std::size_t>(i)];
+        pa[i] = t.done() ? -1 : t.uav();
+        if (t.done()) continue;
+        vec_->env(i).write_obs(t.uav(), po + static_cast<std::size_t>(i) * O);
+        for (std::size_t k = 0; k < AA; ++k) pm[static_cast<std::size_t>(i) * AA + k] = (t.allowed() >> k & 1u) ? 1 : 0;
+      }
+    }
+    py::dict d;
+    d["agent"] = agent;
+    d["obs"] = obs;
+    d["action_mask"] = mask;
+    return d;
+  }
+
   static std::string shape_of(const py::array& a) {
     std::string s = "[";
     for (py::ssize_t d = 0; d < a.ndim(); ++d) s += (d ? ", " : "") + std::to_string(a.shape(d));
@@ -484,6 +603,7 @@ class PyVecEnv {
   std::unique_ptr<VecEnv> vec_;
   std::shared_ptr<const EnvSpec> spec_;
   std::mutex mutex_;                      // serialises every use of vec_ across Python threads
+  std::vector<SafeTurns> turns_;          // the slot's turns, one per environment (begin_turns), else empty
   Array<float> zero_obs_, zero_state_;
 };
 
@@ -772,6 +892,9 @@ PYBIND11_MODULE(_skyloop, m) {
       .def_property_readonly("config", &PyVecEnv::config)
       .def("reset", &PyVecEnv::reset, py::arg("seed") = py::none())
       .def("step", &PyVecEnv::step, py::arg("actions"))
+      .def("begin_turns", &PyVecEnv::begin_turns)
+      .def("take_turn", &PyVecEnv::take_turn, py::arg("actions"))
+      .def("step_turns", &PyVecEnv::step_turns)
       .def("positions", &PyVecEnv::positions)
       .def("users", &PyVecEnv::users, py::arg("env") = 0)
       .def("hit_rate", &PyVecEnv::hit_rate, "the rate oracles' cache hit rate so far")

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <functional>
 #include <optional>
+#include <stdexcept>
+#include <string>
 
 #include "skyloop/core/config.hpp"
 #include "skyloop/planning/ways_home.hpp"
@@ -241,46 +243,97 @@ std::vector<int> shield_order(const UavEnv& env, Clearance clearance) {
   return order;
 }
 
+struct SafeTurns::State {
+  const UavEnv& env;
+  SafetyOptions safety;
+  WaysMemory* memory;
+  std::vector<int> actions;
+  std::vector<ActionSet> allowed_sets;
+  Placed placed;
+  bool reserve;
+  std::optional<WaysHome> ways;
+  std::size_t urgent = 0;
+  std::vector<int> order;
+  std::size_t i = 0;          // the turn
+  ActionSet allowed = 0, way = 0;  // the turn's allowed moves, and its way home's (urgent UAVs)
+  State(const UavEnv& e, const SafetyOptions& s, WaysMemory* m) : env(e), safety(s), memory(m) {}
+};
+
+SafeTurns::SafeTurns(const UavEnv& env, const SafetyOptions& safety, WaysMemory* memory)
+    : s_(std::make_unique<State>(env, safety, memory)) {
+  State& s = *s_;
+  const int N = env.uavs();
+  s.actions.assign(static_cast<std::size_t>(N), env.hover());
+  s.allowed_sets.assign(static_cast<std::size_t>(N), action_bit(env.hover()));
+  s.placed = arrived_uavs(env);
+  s.reserve = reserving(env, safety);
+  const auto slacks = by_slack(env, safety.clearance);
+  if (s.reserve) {
+    s.order = reserve_order(env, safety, slacks, memory, s.urgent, s.ways);
+  } else {
+    for (const auto& k : slacks) s.order.push_back(k.second);
+  }
+  begin_turn();
+}
+
+SafeTurns::~SafeTurns() = default;
+SafeTurns::SafeTurns(SafeTurns&&) noexcept = default;
+SafeTurns& SafeTurns::operator=(SafeTurns&&) noexcept = default;
+
+bool SafeTurns::done() const { return s_->i == s_->order.size(); }
+int SafeTurns::uav() const {
+  if (done()) throw std::logic_error("SafeTurns::uav: every turn is taken");
+  return s_->order[s_->i];
+}
+ActionSet SafeTurns::allowed() const { return done() ? 0 : s_->allowed; }
+const std::vector<int>& SafeTurns::actions() const { return s_->actions; }
+const std::vector<ActionSet>& SafeTurns::allowed_sets() const { return s_->allowed_sets; }
+
+void SafeTurns::begin_turn() {
+  State& s = *s_;
+  if (done()) {
+    if (s.memory) *s.memory = s.reserve ? s.ways->memory() : WaysMemory{};
+    return;
+  }
+  const UavEnv& env = s.env;
+  const int n = s.order[s.i];
+  ActionSet allowed = allowed_moves(env, n, s.safety);
+  // A UAV with little slack left: its moves that keep a way home clear of the ways reserved
+  // before it (those the mask allows, if any), clear of the UAVs placed without one.
+  ActionSet way = s.i < s.urgent ? s.ways->moves(n) : 0;
+  if (way) way = clear_moves(env, n, (allowed & way) ? (allowed & way) : way, s.placed);
+  if (way) {
+    allowed = way;
+  } else {
+    if (s.reserve) allowed = unless_blocking(env, n, allowed, *s.ways);
+    if (s.safety.shield) allowed = shielded(env, n, allowed, s.placed, s.safety);
+  }
+  s.allowed = allowed;
+  s.way = way;
+}
+
+void SafeTurns::choose(int a) {
+  State& s = *s_;
+  const int n = uav();
+  if (a < 0 || a >= s.env.actions())
+    throw std::out_of_range("SafeTurns::choose: no move " + std::to_string(a) + " (UAV " + std::to_string(n) + ")");
+  if (s.way) s.ways->reserve(n, a);
+  s.actions[static_cast<std::size_t>(n)] = a;
+  s.allowed_sets[static_cast<std::size_t>(n)] = s.allowed;
+  double x, y;
+  landing(s.env, n, a, x, y);
+  s.placed.x.push_back(x), s.placed.y.push_back(y);
+  ++s.i;
+  begin_turn();
+}
+
 std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
                                          const std::function<int(int, ActionSet)>& choose,
                                          std::vector<ActionSet>* allowed_out, WaysMemory* memory) {
-  const int N = env.uavs();
-  std::vector<int> actions(static_cast<std::size_t>(N), env.hover());
-  if (allowed_out) allowed_out->assign(static_cast<std::size_t>(N), action_bit(env.hover()));
-  Placed placed = arrived_uavs(env);
-  const bool reserve = reserving(env, safety);
-  std::optional<WaysHome> ways;
-  std::size_t urgent = 0;
-  const auto slacks = by_slack(env, safety.clearance);
-  std::vector<int> order;
-  if (reserve) {
-    order = reserve_order(env, safety, slacks, memory, urgent, ways);
-  } else {
-    for (const auto& k : slacks) order.push_back(k.second);
-  }
-  for (std::size_t i = 0; i < order.size(); ++i) {
-    const int n = order[i];
-    ActionSet allowed = allowed_moves(env, n, safety);
-    // A UAV with little slack left: its moves that keep a way home clear of the ways reserved
-    // before it (those the mask allows, if any), clear of the UAVs placed without one.
-    ActionSet way = i < urgent ? ways->moves(n) : 0;
-    if (way) way = clear_moves(env, n, (allowed & way) ? (allowed & way) : way, placed);
-    if (way) {
-      allowed = way;
-    } else {
-      if (reserve) allowed = unless_blocking(env, n, allowed, *ways);
-      if (safety.shield) allowed = shielded(env, n, allowed, placed, safety);
-    }
-    const int a = choose(n, allowed);
-    if (way) ways->reserve(n, a);
-    actions[static_cast<std::size_t>(n)] = a;
-    if (allowed_out) (*allowed_out)[static_cast<std::size_t>(n)] = allowed;
-    double x, y;
-    landing(env, n, a, x, y);
-    placed.x.push_back(x), placed.y.push_back(y);
-  }
-  if (memory) *memory = reserve ? ways->memory() : WaysMemory{};
-  return actions;
+  SafeTurns turns(env, safety, memory);
+  while (!turns.done()) turns.choose(choose(turns.uav(), turns.allowed()));
+  if (allowed_out) *allowed_out = turns.allowed_sets();
+  return turns.actions();
 }
 
 namespace {

@@ -757,6 +757,63 @@ TEST(WaysHome, TheSecondUavPlansAroundTheFirstsReservedWay) {
 // with none left; with the ways reserved (from the start: reserve_slack 2) and carried from slot to
 // slot (WaysMemory, as a deployed policy carries them), no episode collides and both are home by
 // T_max.
+// SafeTurns (the Python VecEnv's begin_turns / take_turn) is sequential_safe_actions taken one
+// turn at a time: the same order, allowed sets, actions and ways carried, here with every safety
+// setting on (mask, shield, slack margin, clearance, ways reserved) on a crowded scene.
+TEST(Safety, TurnsTakenOneAtATimeAreTheSequentialChoice) {
+  const Config cfg = crowded(6);
+  UavEnv env = make_env(cfg, layout_users(cfg, 3));
+  SafetyOptions safety{true, true, 1, Clearance::Destinations, 3};
+  auto pick = [](Rng& rng, ActionSet ok) {
+    std::vector<int> c;
+    for (int k = 0; k < kGridActions; ++k)
+      if (ok >> k & 1u) c.push_back(k);
+    return c.empty() ? -1 : c[rng.below(c.size())];
+  };
+  WaysMemory whole, turned;
+  int turns = 0, reserved = 0;
+  for (std::uint64_t slot = 0; !env.done(); ++slot) {
+    Rng r1(slot), r2(slot);
+    std::vector<ActionSet> allowed;
+    std::vector<int> order;
+    const auto a = sequential_safe_actions(env, safety, [&](int n, ActionSet ok) {
+      order.push_back(n);
+      return pick(r1, ok);
+    }, &allowed, &whole);
+    SafeTurns t(env, safety, &turned);
+    for (const int n : order) {
+      ASSERT_FALSE(t.done());
+      ASSERT_EQ(t.uav(), n);
+      ASSERT_EQ(t.allowed(), allowed[static_cast<std::size_t>(n)]);
+      t.choose(pick(r2, t.allowed()));
+      ++turns;
+    }
+    ASSERT_TRUE(t.done());
+    EXPECT_EQ(t.allowed(), 0u);
+    EXPECT_THROW(t.uav(), std::logic_error);
+    EXPECT_EQ(t.actions(), a);
+    EXPECT_EQ(t.allowed_sets(), allowed);
+    ASSERT_EQ(turned.t, whole.t);
+    ASSERT_EQ(turned.points.size(), whole.points.size());
+    for (std::size_t k = 0; k < whole.points.size(); ++k) {
+      EXPECT_EQ(turned.points[k].uav, whole.points[k].uav);
+      EXPECT_EQ(turned.points[k].tau, whole.points[k].tau);
+      EXPECT_EQ(turned.points[k].x, whole.points[k].x);
+      EXPECT_EQ(turned.points[k].y, whole.points[k].y);
+    }
+    reserved += !whole.points.empty();
+    env.step(a);
+  }
+  EXPECT_GT(turns, 0);
+  EXPECT_GT(reserved, 0) << "the scene should reserve some ways home";
+  // A move that does not exist is refused.
+  env.reset();
+  SafeTurns t(env, SafetyOptions{});
+  ASSERT_FALSE(t.done());
+  EXPECT_THROW(t.choose(kGridActions), std::out_of_range);
+  EXPECT_THROW(t.choose(-1), std::out_of_range);
+}
+
 TEST(WaysHome, ReservedWaysAvoidACrossingTheShieldCannotSee) {
   const Config cfg = crossing(13);
   UavEnv env = make_env(cfg, layout_users(cfg, 1));

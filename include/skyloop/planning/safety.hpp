@@ -36,6 +36,7 @@
 // depth first so that a collision is never chosen when any joint action of allowed moves avoids one.
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <vector>
 
 #include "skyloop/env/uav_env.hpp"
@@ -100,6 +101,38 @@ struct WaysMemory {
 std::vector<int> sequential_safe_actions(const UavEnv& env, const SafetyOptions& safety,
                                          const std::function<int(int n, ActionSet allowed)>& choose,
                                          std::vector<ActionSet>* allowed_out = nullptr, WaysMemory* memory = nullptr);
+
+/// The turns of sequential_safe_actions one at a time, for a caller that acts between them (the
+/// Python VecEnv's begin_turns / take_turn: a learner writes each agent's observation just before
+/// it chooses). sequential_safe_actions is a loop over it: the same order, allowed sets and ways.
+/// The environment must not change while the turns run (UavEnv::show_decided excepted).
+class SafeTurns {
+ public:
+  SafeTurns(const UavEnv& env, const SafetyOptions& safety, WaysMemory* memory = nullptr);
+  ~SafeTurns();
+  SafeTurns(SafeTurns&&) noexcept;
+  SafeTurns& operator=(SafeTurns&&) noexcept;
+
+  /// Every UAV that had a turn has chosen (arrived UAVs have none).
+  bool done() const;
+  /// Whose turn it is (not done).
+  int uav() const;
+  /// Its allowed moves: its mask, with the shield against the UAVs placed so far.
+  ActionSet allowed() const;
+  /// Records the move a of the UAV whose turn it is, places its landing, and begins the next turn.
+  /// As with sequential_safe_actions' choose, a should be in allowed() (not checked here: a
+  /// caller that takes moves from outside checks them; std::out_of_range for no such move).
+  void choose(int a);
+  /// Each UAV's move: hover for the arrived ones and for those still to choose.
+  const std::vector<int>& actions() const;
+  /// Each UAV's allowed set as its turn saw it (arrived UAVs and those still to choose: hover).
+  const std::vector<ActionSet>& allowed_sets() const;
+
+ private:
+  struct State;
+  std::unique_ptr<State> s_;
+  void begin_turn();
+};
 
 /// Continuous model: the velocity commands (m/s; row n = UAV n) that replace `wanted` where the
 /// mask or the shield refuses it (above). Arrived UAVs' rows are 0.

@@ -422,12 +422,14 @@ class PyVecEnv {
 
   py::dict take_turn(const py::array& actions_in) {
     const int M = num_envs_, A = spec_->action.count();
-    const std::string allowed = "allowed an integer array of shape [" + std::to_string(M) +
-                                "] (num_envs): each environment's move for the agent whose turn it is, one its action_mask allows";
+    auto allowed = [M] {  // written only for an error: take_turn runs once per agent and slot
+      return "allowed an integer array of shape [" + std::to_string(M) +
+             "] (num_envs): each environment's move for the agent whose turn it is, one its action_mask allows";
+    };
     const char kind = actions_in.dtype().kind();
-    if (kind != 'i' && kind != 'u') throw InputError("actions have dtype " + py::str(actions_in.dtype()).cast<std::string>() + ": " + allowed);
+    if (kind != 'i' && kind != 'u') throw InputError("actions have dtype " + py::str(actions_in.dtype()).cast<std::string>() + ": " + allowed());
     const auto a = Array<std::int64_t>::ensure(actions_in);
-    if (a.ndim() != 1 || a.shape(0) != M) throw InputError("actions have shape " + shape_of(actions_in) + ": " + allowed);
+    if (a.ndim() != 1 || a.shape(0) != M) throw InputError("actions have shape " + shape_of(actions_in) + ": " + allowed());
     const auto r = a.unchecked<1>();
     std::string error;
     {

@@ -100,15 +100,26 @@ def test_bad_turns_raise_and_corrupt_nothing():
         with pytest.raises(sl.InputError) as e:
             env.take_turn(bad)
         assert message in str(e.value)
-    blocked = np.flatnonzero(t.action_mask[0] == 0)
-    if blocked.size:  # a move the shield or the mask refuses, in an otherwise valid batch
-        with pytest.raises(sl.InputError, match="is not allowed"):
-            env.take_turn(np.array([blocked[0], t.action_mask[1].argmax()]))
+    # Fly both in step until a turn refuses a move (the mask or the shield), then offer it in an
+    # otherwise valid batch: refused, and nothing changes.
     rng = np.random.default_rng(4)
-    while (t.agent >= 0).any():
-        a = pick(rng, t.action_mask)
-        t, u = env.take_turn(a), twin.take_turn(a)
-        assert np.array_equal(t.agent, u.agent) and np.array_equal(t.obs, u.obs)
+    refused = False
+    for _ in range(40):
+        while (t.agent >= 0).any():
+            if not refused and (t.agent >= 0).all() and (t.action_mask[0] == 0).any():
+                blocked = np.flatnonzero(t.action_mask[0] == 0)[0]
+                with pytest.raises(sl.InputError, match=f"actions\\[0\\] = {blocked} is not allowed"):
+                    env.take_turn(np.array([blocked, t.action_mask[1].argmax()]))
+                refused = True
+            a = pick(rng, t.action_mask)
+            t, u = env.take_turn(a), twin.take_turn(a)
+            assert np.array_equal(t.agent, u.agent) and np.array_equal(t.obs, u.obs)
+        if refused:
+            break
+        r, q = env.step_turns(), twin.step_turns()
+        assert np.array_equal(r.obs, q.obs)
+        t, u = env.begin_turns(), twin.begin_turns()
+    assert refused
     with pytest.raises(sl.InputError, match="every agent has chosen"):
         env.take_turn(np.zeros(2, dtype=np.int64))
     r, q = env.step_turns(), twin.step_turns()

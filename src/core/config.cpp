@@ -365,6 +365,12 @@ std::vector<Field> make_fields() {
                       "and in the move gains and radio map the joint rate with them landed): an autoregressive joint policy, "
                       "in training and execution; needs marl.encoder = set",
                       [](Config& c) -> bool& { return c.marl.sequential; }));
+  f.push_back(integer("marl.sequential_passes",
+                      "with marl.sequential: the UAVs take their turns this many times each slot and fly the last pass's moves; "
+                      "in every pass after the first a UAV's observation also shows the UAVs after it in the order at the moves "
+                      "they chose in the pass before (their intentions), so the first to choose sees the others too (an actor "
+                      "pass per UAV per pass; in training the earlier passes sample and only the last is trained on); 1 = one pass",
+                      1, kMaxSequentialPasses, [](Config& c) -> int& { return c.marl.sequential_passes; }));
   f.push_back(text("marl.lr_schedule",
                    "the learners' learning rate over training: constant, or linear = from marl.learning_rate down to 0 "
                    "at total_steps (CleanRL's anneal_lr)",
@@ -760,6 +766,9 @@ void validate(const Config& c) {
   if (c.marl.sequential && c.trajectory.mobility == "continuous")
     throw InputError("marl.sequential = true with trajectory.mobility = \"continuous\": allowed with the grid and headings "
                      "mobility models (their moves land where the shield orders them)");
+  if (c.marl.sequential_passes > 1 && !c.marl.sequential)
+    throw InputError("marl.sequential_passes = " + std::to_string(c.marl.sequential_passes) +
+                     " with marl.sequential = false: allowed 1, or more passes with marl.sequential = true (the passes are its turns)");
   if (c.marl.average_decay >= 1)
     throw InputError("marl.average_decay = " + format_double(c.marl.average_decay) +
                      ": allowed 0 <= average_decay < 1 (at 1 the average would never move from the first step's weights)");

@@ -191,11 +191,13 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
       auto policy = MarlPolicy::load(opt.policies[k]);
       policy->set_reserve_slack(cfg.marl.reserve_slack);  // an execution setting: the evaluation's
       if (cfg.marl.sequential) policy->set_sequential(true);  // as trained, or on where the evaluation asks
+      if (cfg.marl.sequential_passes > 1) policy->set_sequential_passes(cfg.marl.sequential_passes);
       timed(*policy, labels[k]);
       if (opt.unsafe) {
         auto raw = MarlPolicy::load(opt.policies[k]);
         raw->set_reserve_slack(cfg.marl.reserve_slack);
         if (cfg.marl.sequential) raw->set_sequential(true);
+        if (cfg.marl.sequential_passes > 1) raw->set_sequential_passes(cfg.marl.sequential_passes);
         raw->set_safety(false, false);
         timed(*raw, labels[k] + "/raw");
       }

@@ -122,8 +122,10 @@ Encoder encoder_of(const Config& cfg, bool context) {
   e.threads = resolve_threads(cfg.run.threads);
   e.asks_oracle = e.set && (cfg.marl.lookahead || cfg.marl.rate_map > 0);
   e.sequential = e.set && cfg.marl.sequential;
+  e.passes = e.sequential ? cfg.marl.sequential_passes : 1;
   return e;
 }
+
 
 
 void RunningStats::update(const float* x, std::size_t count_x) {

@@ -40,10 +40,13 @@ struct Encoder {
   /// agent's observation written just before it chooses, with the landings chosen before it shown
   /// (UavEnv::show_decided).
   bool sequential = false;
+  /// marl.sequential_passes: the turns taken this many times a slot (take_turns).
+  int passes = 1;
   int width(const UavEnv& env) const;
   void write(const UavEnv& env, int n, float* out) const;
 };
 Encoder encoder_of(const Config& cfg, bool context);
+
 
 /// A coefficient over training (marl.lr_schedule, marl.entropy_schedule), resolved once: its
 /// factor at `steps` of `total` environment steps, 1 throughout (constant) or 1 - steps / total

@@ -71,6 +71,7 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   }
   impl->safety = safety_options(trained);
   impl->enc.sequential = trained.marl.sequential;  // the UAVs choose one after another, as trained
+  impl->enc.passes = trained.marl.sequential ? trained.marl.sequential_passes : 1;
   impl->command = trained.trajectory.command;
   const int hidden = meta.value("hidden", 0), obs = meta.value("obs_dim", 0), uavs = meta.value("uavs", 0);
   const std::string encoder = meta.value("encoder", "mlp");
@@ -137,7 +138,9 @@ torch::Tensor network_outputs(MarlPolicy::Impl& impl, UavEnv& env) {
 
 /// marl.sequential: the UAVs choose one after another in shield order, each its best allowed move
 /// on its observation written just before, with the landings chosen before it shown
-/// (UavEnv::show_decided); each UAV's scores are those of its turn. The joint action is then
+/// (UavEnv::show_decided), and with marl.sequential_passes the turns taken that many times, every
+/// UAV also seeing the others' moves of the pass before (take_turns); each UAV's scores are those
+/// of its last turn. The joint action is then
 /// shielded_argmax's on those scores, which is the sequential choice itself wherever that choice
 /// lands no two UAVs within D_min (the first UAV's best, the next one's best clear of it, ...), and
 /// the shield's depth-first search over the joint moves where it would.
@@ -145,10 +148,10 @@ std::vector<int> act_sequentially(MarlPolicy::Impl& impl, UavEnv& env) {
   const int D = checked_input(impl, env), A = env.actions();
   std::vector<float> in(static_cast<std::size_t>(D));
   std::vector<std::vector<float>> scores(static_cast<std::size_t>(env.uavs()), std::vector<float>(static_cast<std::size_t>(A), 0.0f));
-  WaysMemory ways = impl.ways;  // the turns' pass leaves the memory to the joint choice below
-  sequential_safe_actions(
-      env, impl.safety,
-      [&](int n, ActionSet allowed) {
+  WaysMemory ways = impl.ways;  // the turns' passes leave the memory to the joint choice below
+  take_turns(
+      env, impl.safety, impl.enc.passes,
+      [&](int n, ActionSet allowed, bool) {
         impl.enc.write(env, n, in.data());
         const auto out = impl.nets.actor(torch::from_blob(in.data(), {1, D})).contiguous();
         const float* z = out.data_ptr<float>();
@@ -157,11 +160,9 @@ std::vector<int> act_sequentially(MarlPolicy::Impl& impl, UavEnv& env) {
         int best = -1;
         for (int a = 0; a < A; ++a)
           if ((allowed >> a & 1u) && (best < 0 || z[a] > z[best])) best = a;
-        const UavEnv::Landing l = env.landing(n, best);
-        env.show_decided(n, l.x, l.y);
         return best;
       },
-      nullptr, &ways);
+      &ways);
   env.clear_decided();
   return shielded_argmax(env, impl.safety, scores, &impl.ways);
 }
@@ -206,6 +207,17 @@ void MarlPolicy::set_sequential(bool sequential) {
                      (impl_->actions.continuous() ? " of continuous commands" : "") +
                      ": allowed for mappo and ippo policies on the set observation with grid or headings moves");
   impl_->enc.sequential = sequential;
+  if (!sequential) impl_->enc.passes = 1;
+}
+
+int MarlPolicy::sequential_passes() const { return impl_->enc.passes; }
+void MarlPolicy::set_sequential_passes(int passes) {
+  if (passes < 1 || passes > kMaxSequentialPasses)
+    throw InputError("marl.sequential_passes = " + std::to_string(passes) + ": allowed 1 .. " + std::to_string(kMaxSequentialPasses));
+  if (passes > 1 && !impl_->enc.sequential)
+    throw InputError("marl.sequential_passes = " + std::to_string(passes) + " for a policy that does not choose sequentially: allowed "
+                     "1, or more passes with marl.sequential = true");
+  impl_->enc.passes = passes;
 }
 
 void MarlPolicy::reset(UavEnv&) { impl_->ways = WaysMemory{}; }

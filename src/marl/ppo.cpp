@@ -619,6 +619,35 @@ std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int o
 
 // ---- the three phases ----------------------------------------------------------------------------
 
+namespace {
+/// A move drawn from the softmax of the logits z over the allowed moves; `logp` its log-probability.
+int sample_allowed(const float* z, ActionSet allowed, int A, Rng& draw, double& logp) {
+  double mx = -1e30;
+  for (int k = 0; k < A; ++k)
+    if (allowed >> k & 1u) mx = std::max(mx, static_cast<double>(z[k]));
+  double sum = 0;
+  for (int k = 0; k < A; ++k)
+    if (allowed >> k & 1u) sum += std::exp(static_cast<double>(z[k]) - mx);
+  const double u = draw.uniform() * sum;
+  double acc = 0;
+  int a = -1;
+  for (int k = 0; k < A; ++k) {
+    if (!(allowed >> k & 1u)) continue;
+    acc += std::exp(static_cast<double>(z[k]) - mx);
+    if (a < 0 && u < acc) a = k;
+  }
+  if (a < 0)
+    for (int k = A; k-- > 0;)
+      if (allowed >> k & 1u) {
+        a = k;
+        break;
+      }
+  logp = static_cast<double>(z[a]) - mx - std::log(sum);
+  return a;
+}
+}  // namespace
+
+
 void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, const SafetyOptions& safety, PpoNetworks& nets,
              const RunningStats& value_norm, Rng& rng, Rollout& r, EpisodeStats& stats, int threads) {
   const int M = r.M, N = r.N, A = r.A, C = r.C;
@@ -640,6 +669,8 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
   const bool sequential = encoder.sequential && C == 0;
   const bool serial_lanes = sequential && encoder.asks_oracle && vec.shares_oracle();
   const int lane_threads = serial_lanes ? 1 : std::min({resolve_threads(threads), nets.lanes(), kCollectLanes});
+  // marl.sequential_passes: each lane's row for the observation and logits of a pass not trained on.
+  std::vector<float> scratch_rows(sequential && encoder.passes > 1 ? kCollectLanes * (static_cast<std::size_t>(r.obs_width) + A) : 0);
   auto env_range = [&](std::size_t lane) {
     return std::pair<int, int>{static_cast<int>(static_cast<std::size_t>(M) * lane / kCollectLanes),
                                static_cast<int>(static_cast<std::size_t>(M) * (lane + 1) / kCollectLanes)};
@@ -712,42 +743,32 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
         }
         // Each UAV samples from its policy restricted to its allowed moves (the reachability
         // mask and the shield against the UAVs already placed); arrived agents STAY.
-        actions[ee] = sequential_safe_actions(env, safety, [&](int n, ActionSet allowed) {
+        auto record = [&](int n, ActionSet allowed, const float* z) {
           const std::size_t i = r.at(t, e, n);
-          if (sequential) {  // its observation now, with the landings chosen before it
-            float* o = obs + static_cast<std::size_t>(e * N + n) * static_cast<std::size_t>(r.obs_width);
-            encoder.write(env, n, o);
-            nets.logits(o, 1, logits.data() + static_cast<std::size_t>(e * N + n) * A, static_cast<int>(lane));
-          }
-          const float* z = logits.data() + static_cast<std::size_t>(e * N + n) * A;
-          double mx = -1e30;
-          for (int k = 0; k < A; ++k)
-            if (allowed >> k & 1u) mx = std::max(mx, static_cast<double>(z[k]));
-          double sum = 0;
-          for (int k = 0; k < A; ++k)
-            if (allowed >> k & 1u) sum += std::exp(static_cast<double>(z[k]) - mx);
-          const double u = draw.uniform() * sum;
-          double acc = 0;
-          int a = -1;
-          for (int k = 0; k < A; ++k) {
-            r.allowed[i * A + static_cast<std::size_t>(k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
-            if (!(allowed >> k & 1u)) continue;
-            acc += std::exp(static_cast<double>(z[k]) - mx);
-            if (a < 0 && u < acc) a = k;
-          }
-          if (a < 0)
-            for (int k = A; k-- > 0;)
-              if (allowed >> k & 1u) {
-                a = k;
-                break;
-              }
-          r.logprobs[i] = static_cast<float>(static_cast<double>(z[a]) - mx - std::log(sum));
-          if (sequential) {
-            const UavEnv::Landing l = env.landing(n, a);
-            env.show_decided(n, l.x, l.y);
-          }
+          for (int k = 0; k < A; ++k) r.allowed[i * A + static_cast<std::size_t>(k)] = (allowed >> k & 1u) ? 1.0f : 0.0f;
+          double logp = 0;
+          const int a = sample_allowed(z, allowed, A, draw, logp);
+          r.logprobs[i] = static_cast<float>(logp);
           return a;
-        });
+        };
+        if (sequential) {
+          // Each agent's observation now, with the landings chosen before it (and with
+          // marl.sequential_passes, the others' moves of the pass before); the last pass is trained on.
+          float* intention = scratch_rows.empty() ? nullptr : scratch_rows.data() + lane * (static_cast<std::size_t>(r.obs_width) + A);
+          actions[ee] = take_turns(env, safety, encoder.passes, [&](int n, ActionSet allowed, bool last) {
+            float* o = last ? obs + static_cast<std::size_t>(e * N + n) * static_cast<std::size_t>(r.obs_width) : intention;
+            float* z = last ? logits.data() + static_cast<std::size_t>(e * N + n) * A : intention + r.obs_width;
+            encoder.write(env, n, o);
+            nets.logits(o, 1, z, static_cast<int>(lane));
+            if (last) return record(n, allowed, z);
+            double logp = 0;
+            return sample_allowed(z, allowed, A, draw, logp);
+          });
+        } else {
+          actions[ee] = sequential_safe_actions(env, safety, [&](int n, ActionSet allowed) {
+            return record(n, allowed, logits.data() + static_cast<std::size_t>(e * N + n) * A);
+          });
+        }
         if (sequential) {  // the rows no agent chose from (arrived UAVs), then the critic's inputs
           for (int n = 0; n < N; ++n) {
             const std::size_t i = static_cast<std::size_t>(e * N + n);

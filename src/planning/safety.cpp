@@ -550,4 +550,35 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
   return sequential();
 }
 
+std::vector<int> take_turns(UavEnv& env, const SafetyOptions& safety, int passes,
+                            const std::function<int(int n, ActionSet allowed, bool last)>& choose, WaysMemory* memory) {
+  if (passes < 1) throw std::invalid_argument("take_turns: passes = " + std::to_string(passes) + ", allowed >= 1");
+  std::vector<int> moves;
+  const WaysMemory start = memory ? *memory : WaysMemory{};
+  for (int p = 0; p < passes; ++p) {
+    const bool last = p + 1 == passes;
+    if (p > 0) {  // the pass before's moves, every flying UAV's intention
+      env.clear_decided();
+      for (int m = 0; m < env.uavs(); ++m)
+        if (!env.arrived(m)) {
+          const UavEnv::Landing l = env.landing(m, moves[static_cast<std::size_t>(m)]);
+          env.show_decided(m, l.x, l.y);
+        }
+    }
+    WaysMemory ways = start;
+    moves = sequential_safe_actions(
+        env, safety,
+        [&](int n, ActionSet allowed) {
+          if (p > 0) env.show_decided(n, env.positions()(n, 0), env.positions()(n, 1));  // itself where it is
+          const int a = choose(n, allowed, last);
+          const UavEnv::Landing l = env.landing(n, a);
+          env.show_decided(n, l.x, l.y);
+          return a;
+        },
+        nullptr, memory ? &ways : nullptr);
+    if (last && memory) *memory = ways;
+  }
+  return moves;
+}
+
 }  // namespace skyloop

@@ -814,6 +814,76 @@ TEST(Safety, TurnsTakenOneAtATimeAreTheSequentialChoice) {
   EXPECT_THROW(t.choose(-1), std::out_of_range);
 }
 
+// marl.sequential_passes (take_turns): in the first pass each UAV sees the landings of the UAVs
+// that chose before it and the others where they are; in each later pass it sees the UAVs after
+// it at their moves of the pass before (their intentions), those before it at this pass's moves,
+// and itself where it is. The passes choose differently here (first, then last allowed move), so
+// an intention shown in place of a move (or the reverse) fails. One pass is sequential_safe_actions.
+TEST(Safety, LaterPassesShowTheOthersMovesOfThePassBefore) {
+  const Config cfg = crowded(6);
+  UavEnv env = make_env(cfg, layout_users(cfg, 3));
+  SafetyOptions safety{true, true, 1, Clearance::Destinations, 3};
+  int checked = 0, intentions = 0;
+  for (int slot = 0; slot < 6 && !env.done(); ++slot) {
+    for (const int passes : {1, 2, 3}) {
+      std::vector<std::vector<int>> moves(static_cast<std::size_t>(passes), std::vector<int>(static_cast<std::size_t>(env.uavs()), -1));
+      int pass = 0;
+      auto choose = [&](int n, ActionSet ok, bool last) {
+        if (moves[static_cast<std::size_t>(pass)][static_cast<std::size_t>(n)] >= 0) ++pass;  // its second turn: the next pass
+        EXPECT_EQ(last, pass + 1 == passes);
+        const Positions& seen = env.seen_positions();
+        for (int m = 0; m < env.uavs(); ++m) {
+          double x = env.positions()(m, 0), y = env.positions()(m, 1);
+          const int now = moves[static_cast<std::size_t>(pass)][static_cast<std::size_t>(m)];
+          const int before = pass > 0 ? moves[static_cast<std::size_t>(pass - 1)][static_cast<std::size_t>(m)] : -1;
+          if (m != n && now >= 0) {
+            const auto l = env.landing(m, now);
+            x = l.x, y = l.y;
+          } else if (m != n && before >= 0 && !env.arrived(m)) {
+            const auto l = env.landing(m, before);
+            x = l.x, y = l.y;
+            intentions += l.x != env.positions()(m, 0) || l.y != env.positions()(m, 1);
+          }
+          EXPECT_EQ(seen(m, 0), x) << "pass " << pass << ", UAV " << n << " sees UAV " << m;
+          EXPECT_EQ(seen(m, 1), y) << "pass " << pass << ", UAV " << n << " sees UAV " << m;
+        }
+        ++checked;
+        int a = -1;
+        for (int k = 0; k < kGridActions; ++k)
+          if (ok >> k & 1u && (a < 0 || pass % 2 == 1)) a = k;
+        moves[static_cast<std::size_t>(pass)][static_cast<std::size_t>(n)] = a;
+        return a;
+      };
+      WaysMemory memory;
+      const auto a = take_turns(env, safety, passes, choose, &memory);
+      env.clear_decided();
+      EXPECT_EQ(pass + 1, passes);
+      for (int n = 0; n < env.uavs(); ++n)
+        if (!env.arrived(n)) EXPECT_EQ(a[static_cast<std::size_t>(n)], moves.back()[static_cast<std::size_t>(n)]);
+      if (passes == 1) {
+        WaysMemory whole;
+        int p = 0;
+        EXPECT_EQ(a, sequential_safe_actions(env, safety, [&](int n, ActionSet ok) {
+          (void)n;
+          int k = 0;
+          while (!(ok >> k & 1u) && k + 1 < kGridActions) ++k;
+          ++p;
+          return k;
+        }, nullptr, &whole));
+        EXPECT_GT(p, 0);
+      }
+    }
+    env.step(sequential_safe_actions(env, safety, [&](int, ActionSet ok) {
+      int k = 0;
+      while (!(ok >> k & 1u) && k + 1 < kGridActions) ++k;
+      return k;
+    }));
+  }
+  EXPECT_GT(checked, 50);
+  EXPECT_GT(intentions, 10) << "later passes should show UAVs away from where they are";
+  EXPECT_THROW(take_turns(env, safety, 0, [](int, ActionSet, bool) { return 0; }), std::invalid_argument);
+}
+
 TEST(WaysHome, ReservedWaysAvoidACrossingTheShieldCannotSee) {
   const Config cfg = crossing(13);
   UavEnv env = make_env(cfg, layout_users(cfg, 1));

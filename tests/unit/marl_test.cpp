@@ -397,11 +397,12 @@ TEST(Marl, UnknownLearnersAreRefusedWithTheRegisteredNames) {
 // A policy trained with the look-ahead (marl.lookahead) flies an environment that writes it, and
 // one that does not is refused in one line (not a shape error from the network).
 /// A MAPPO policy on the set observation with the look-ahead, trained briefly into `dir`.
-static std::unique_ptr<MarlPolicy> look_ahead_policy(Config& cfg, const std::string& dir, bool sequential) {
+static std::unique_ptr<MarlPolicy> look_ahead_policy(Config& cfg, const std::string& dir, bool sequential, int passes = 1) {
   cfg = small_scenario("mappo", 1024);
   cfg.marl.encoder = "set";
   cfg.marl.lookahead = true;
   cfg.marl.sequential = sequential;
+  cfg.marl.sequential_passes = passes;
   validate(cfg);
   MarlTrainOptions opt;
   opt.out_dir = fresh(dir);
@@ -449,6 +450,61 @@ TEST(Marl, SequentialPoliciesFlyAsTrained) {
       twin.step(a);
     }
     for (int n = 0; n < env.uavs(); ++n) EXPECT_TRUE(env.arrived(n)) << "seed " << seed << ", UAV " << n;
+  }
+}
+
+// marl.sequential_passes: a policy trained taking its turns twice a slot flies that way; a
+// sequential policy flown with more passes than it trained with changes some moves and keeps
+// every move allowed and every mission complete; a policy that does not choose in turn, or a pass
+// count outside 1 .. kMaxSequentialPasses, is refused in one line.
+TEST(Marl, SequentialPassesFlyAsTrainedOrAsSet) {
+  Config cfg;
+  auto twice = look_ahead_policy(cfg, "passes", true, 2);
+  EXPECT_TRUE(twice->sequential());
+  EXPECT_EQ(twice->sequential_passes(), 2);
+  auto once = look_ahead_policy(cfg, "one_pass", true);
+  EXPECT_EQ(once->sequential_passes(), 1);
+  auto thrice = MarlPolicy::load((skyloop::test::ScratchRoot::get().path() / "one_pass").string());
+  thrice->set_sequential_passes(3);
+  int differ = 0;
+  for (MarlPolicy* policy : {twice.get(), thrice.get()})
+    for (const std::uint64_t seed : {3u, 4u}) {
+      UavEnv env(cfg, zf_oracle(cfg, seed)), twin(cfg, zf_oracle(cfg, seed));
+      policy->reset(env);
+      once->reset(twin);
+      while (!env.done()) {
+        const auto a = policy->act(env);
+        EXPECT_EQ(env.seen_positions(), env.positions()) << "act leaves no landing shown";
+        for (int n = 0; n < env.uavs(); ++n)
+          EXPECT_TRUE(allowed_moves(env, n, SafetyOptions{}) >> a[static_cast<std::size_t>(n)] & 1u);
+        if (policy == thrice.get()) {
+          differ += once->act(twin) != a;
+          twin.step(a);
+        }
+        env.step(a);
+      }
+      for (int n = 0; n < env.uavs(); ++n) EXPECT_TRUE(env.arrived(n)) << "seed " << seed << ", UAV " << n;
+    }
+  EXPECT_GT(differ, 0) << "three passes should change some of the one-pass policy's moves";
+  for (const int bad : {0, kMaxSequentialPasses + 1}) {
+    try {
+      once->set_sequential_passes(bad);
+      ADD_FAILURE() << "marl.sequential_passes = " << bad << " was accepted";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("marl.sequential_passes = " + std::to_string(bad)), std::string::npos) << e.what();
+    }
+  }
+  once->set_sequential(false);
+  EXPECT_EQ(once->sequential_passes(), 1);
+  EXPECT_THROW(once->set_sequential_passes(2), InputError);
+  Config plain = small_scenario("mappo", 1024);
+  plain.marl.encoder = "set";
+  plain.marl.sequential_passes = 2;
+  try {
+    validate(plain);
+    ADD_FAILURE() << "marl.sequential_passes = 2 without marl.sequential was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("marl.sequential = false"), std::string::npos) << e.what();
   }
 }
 

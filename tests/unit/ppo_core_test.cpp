@@ -444,6 +444,14 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
          c.marl.sequential = true;
          c.env.resample_users = true;
        }},
+      {"sequential choices in two passes (marl.sequential_passes), resampled layouts",
+       [](Config& c) {
+         c.marl.encoder = "set";
+         c.marl.lookahead = true;
+         c.marl.sequential = true;
+         c.marl.sequential_passes = 2;
+         c.env.resample_users = true;
+       }},
   };
   for (const Case& k : cases) {
     SCOPED_TRACE(k.name);

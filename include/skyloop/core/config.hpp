@@ -154,6 +154,7 @@ struct EnvConfig {                  // [env] the trajectory environment (Section
 };
 
 constexpr int kMaxRateMap = 6;  // marl.rate_map's largest radius: 2 r (r + 1) = 84 cells of the radio map
+constexpr int kMaxSequentialPasses = 4;  // marl.sequential_passes' largest value
 
 struct MarlConfig {                 // [marl] trajectory learning (Section V, VI-C)
   std::string algo = "mappo";       // mappo | ippo | vdn | qmix
@@ -192,6 +193,7 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   bool lookahead = false;           // set observation: each move's one-slot change of R (UavEnv::write_move_gains)
   int rate_map = 0;                 // set observation: R around the UAV within this many lattice steps (UavEnv::write_rate_map; 0 = none, at most kMaxRateMap)
   bool sequential = false;          // the UAVs choose one after another in shield order, each seeing the landings chosen before it (UavEnv::show_decided)
+  int sequential_passes = 1;        // with sequential: the turns taken this many times a slot, each pass showing the UAVs after a UAV at their last pass's moves
   std::string lr_schedule = "constant";       // constant | linear: the learning rate falls linearly to 0 over total_steps
   std::string entropy_schedule = "constant";  // constant | linear: PPO's entropy_coef falls linearly to 0 over total_steps
   std::string backend = "fast";     // PPO networks: fast (fused float32, CPU) | torch (LibTorch autograd)

@@ -61,6 +61,10 @@ class MarlPolicy final : public Planner {
   /// (InputError) for the value-decomposition learners, the paper's observation and continuous commands.
   bool sequential() const;
   void set_sequential(bool sequential);
+  /// marl.sequential_passes at execution (1 .. kMaxSequentialPasses): the turns taken that many
+  /// times a slot, the last pass flown; as trained unless set here; more than 1 needs sequential().
+  int sequential_passes() const;
+  void set_sequential_passes(int passes);
   /// marl.reserve_slack at execution (safety.hpp; -1: none): as trained unless set here. An
   /// execution-only setting: a policy trained without it may fly with it.
   int reserve_slack() const;

@@ -134,6 +134,15 @@ class SafeTurns {
   void begin_turn();
 };
 
+/// marl.sequential's turns (sequential_safe_actions), taken `passes` times (marl.sequential_passes):
+/// choose(n, allowed, last) returns UAV n's move on its turn, with the landings of the UAVs before
+/// it in this pass shown to its observation and, after the first pass, those of the UAVs after it
+/// at their moves of the pass before (UavEnv::show_decided); `last` marks the pass that is flown.
+/// Each pass plans from a copy of *memory (the reserved ways), the last pass's memory is kept. The
+/// last pass's joint action is returned with its landings still shown (the caller clears them).
+std::vector<int> take_turns(UavEnv& env, const SafetyOptions& safety, int passes,
+                            const std::function<int(int n, ActionSet allowed, bool last)>& choose, WaysMemory* memory = nullptr);
+
 /// Continuous model: the velocity commands (m/s; row n = UAV n) that replace `wanted` where the
 /// mask or the shield refuses it (above). Arrived UAVs' rows are 0.
 Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const Positions& wanted);

@@ -127,7 +127,6 @@ Encoder encoder_of(const Config& cfg, bool context) {
 }
 
 
-
 void RunningStats::update(const float* x, std::size_t count_x) {
   if (count_x == 0) return;
   const double n = static_cast<double>(count_x);

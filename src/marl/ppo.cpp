@@ -755,12 +755,12 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
           // Each agent's observation now, with the landings chosen before it (and with
           // marl.sequential_passes, the others' moves of the pass before); the last pass is trained on.
           float* intention = scratch_rows.empty() ? nullptr : scratch_rows.data() + lane * (static_cast<std::size_t>(r.obs_width) + A);
-          actions[ee] = take_turns(env, safety, encoder.passes, [&](int n, ActionSet allowed, bool last) {
-            float* o = last ? obs + static_cast<std::size_t>(e * N + n) * static_cast<std::size_t>(r.obs_width) : intention;
-            float* z = last ? logits.data() + static_cast<std::size_t>(e * N + n) * A : intention + r.obs_width;
+          actions[ee] = take_turns(env, safety, encoder.passes, [&](int n, ActionSet allowed, bool flown) {
+            float* o = flown ? obs + static_cast<std::size_t>(e * N + n) * static_cast<std::size_t>(r.obs_width) : intention;
+            float* z = flown ? logits.data() + static_cast<std::size_t>(e * N + n) * A : intention + r.obs_width;
             encoder.write(env, n, o);
             nets.logits(o, 1, z, static_cast<int>(lane));
-            if (last) return record(n, allowed, z);
+            if (flown) return record(n, allowed, z);
             double logp = 0;
             return sample_allowed(z, allowed, A, draw, logp);
           });

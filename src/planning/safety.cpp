@@ -557,14 +557,8 @@ std::vector<int> take_turns(UavEnv& env, const SafetyOptions& safety, int passes
   const WaysMemory start = memory ? *memory : WaysMemory{};
   for (int p = 0; p < passes; ++p) {
     const bool last = p + 1 == passes;
-    if (p > 0) {  // the pass before's moves, every flying UAV's intention
-      env.clear_decided();
-      for (int m = 0; m < env.uavs(); ++m)
-        if (!env.arrived(m)) {
-          const UavEnv::Landing l = env.landing(m, moves[static_cast<std::size_t>(m)]);
-          env.show_decided(m, l.x, l.y);
-        }
-    }
+    // Every flying UAV chose in the pass before, so its landing there is still shown: its intention
+    // until it chooses again in this pass.
     WaysMemory ways = start;
     moves = sequential_safe_actions(
         env, safety,

@@ -16,10 +16,10 @@ from __future__ import annotations
 import os as _os
 
 from . import _skyloop
-from ._skyloop import ACTIONS, LEARNERS, PLANNERS, Beamformer, Cluster, InputError, Network, Snapshot, SystemModel, beamformers, derive_seed
+from ._skyloop import ACTIONS, LEARNERS, MAX_SEQUENTIAL_PASSES, PLANNERS, Beamformer, Cluster, InputError, Network, Snapshot, SystemModel, beamformers, derive_seed
 
 __all__ = [
-    "ACTIONS", "LEARNERS", "PLANNERS", "Beamformer", "Cluster", "Config", "InputError", "Network", "Snapshot", "SystemModel", "VecEnv",
+    "ACTIONS", "LEARNERS", "MAX_SEQUENTIAL_PASSES", "PLANNERS", "Beamformer", "Cluster", "Config", "InputError", "Network", "Snapshot", "SystemModel", "VecEnv",
     "beamformer", "beamformers", "config", "derive_seed", "evaluate_layouts", "network_sum_rate", "plan", "rates", "sinr", "sum_rate",
     "user_powers",
 ]

@@ -51,6 +51,7 @@ class Turn(NamedTuple):
     agent: np.ndarray        # int32 [M]: whose turn it is in each environment (-1: every agent there has chosen)
     obs: np.ndarray          # float32 [M, spec["obs"]["size"]]: that agent's observation, written now (the landings chosen before it shown)
     action_mask: np.ndarray  # int8 [M, spec["num_actions"]]: its allowed moves (the mask, and the shield against the UAVs placed)
+    last: np.ndarray         # bool [M]: its move is flown (the last pass; False where agent = -1)
 
 
 class VecEnv:
@@ -115,7 +116,7 @@ class VecEnv:
         return StepResult(d["obs"], d["state"], d["agent_state"], d["action_mask"], d["reward"], d["terminated"],
                           d["truncated"], d["info"])
 
-    def begin_turns(self) -> Turn:
+    def begin_turns(self, passes: Optional[int] = None) -> Turn:
         """Starts the slot's turns (``marl.sequential``'s protocol, with the collision shield): in
         every environment the UAVs not yet home choose one after another, least slack first. Each
         turn's ``action_mask`` is the configuration's mask (``marl.action_mask``, ``slack_margin``,
@@ -125,13 +126,21 @@ class VecEnv:
         chosen before it stand in place of where those UAVs are (their kernels, and the joint rate
         in ``marl.lookahead``'s move gains and ``marl.rate_map``). Grid and headings moves only.
 
+        ``passes`` (1 .. ``skyloop.MAX_SEQUENTIAL_PASSES``; default the configuration's
+        ``marl.sequential_passes``): the turns are taken that many times and the last pass is flown
+        (``turn.last``). In every pass after the first each agent also sees the agents after it
+        at their moves of the pass before (their intentions), and itself where it is: the protocol
+        ``skyloop train`` trains and flies with ``marl.sequential_passes``. A learner that trains as
+        it does keeps the last pass's rows and samples the earlier ones without training on them.
+
             turn = env.begin_turns()
             while (turn.agent >= 0).any():
                 turn = env.take_turn(choose(turn.obs, turn.action_mask))  # int [M]; ignored where agent = -1
             result = env.step_turns()                                    # as step(): the joint moves chosen
         """
-        d = self._env.begin_turns()
-        return Turn(d["agent"], d["obs"], d["action_mask"])
+        from . import _as_int
+        d = self._env.begin_turns(None if passes is None else _as_int(passes, "passes", 1, _skyloop.MAX_SEQUENTIAL_PASSES))
+        return Turn(d["agent"], d["obs"], d["action_mask"], d["last"])
 
     def take_turn(self, actions) -> Turn:
         """``actions``: integer array [M], each environment's move for the agent whose turn it is (one
@@ -142,10 +151,10 @@ class VecEnv:
         except (ValueError, TypeError):
             raise InputError(f"actions {actions!r} are not an array: allowed an integer array of shape [{self.num_envs}]") from None
         d = self._env.take_turn(a)
-        return Turn(d["agent"], d["obs"], d["action_mask"])
+        return Turn(d["agent"], d["obs"], d["action_mask"], d["last"])
 
     def step_turns(self) -> StepResult:
-        """Steps every environment with the moves its turns chose (``step``'s result)."""
+        """Steps every environment with the moves its turns chose in the last pass (``step``'s result)."""
         d = self._env.step_turns()
         return StepResult(d["obs"], d["state"], d["agent_state"], d["action_mask"], d["reward"], d["terminated"],
                           d["truncated"], d["info"])

@@ -400,13 +400,19 @@ class PyVecEnv {
   /// in Python. begin_turns starts the slot's turns in every environment: the UAVs not yet home
   /// choose one after another, least slack first, each allowed the moves of the configuration's
   /// training safety (mask, shield against the UAVs placed so far, slack margin, clearance; no
-  /// reserved ways: SafeTurns). take_turn records each environment's move for the agent whose
-  /// turn it is and shows its landing in the set observation of the agents after it
-  /// (UavEnv::show_decided); step_turns steps the joint moves chosen. reset and step drop turns
-  /// in progress.
-  py::dict begin_turns() {
+  /// reserved ways: SafeTurns), taken `passes` times (marl.sequential_passes' protocol, TurnPasses;
+  /// default the configuration's): in every pass after the first each agent also sees the agents
+  /// after it at their moves of the pass before, and the last pass is flown. take_turn records each
+  /// environment's move for the agent whose turn it is and shows its landing in the set
+  /// observation of the agents after it (UavEnv::show_decided); step_turns steps the joint moves
+  /// chosen. reset and step drop turns in progress.
+  py::dict begin_turns(std::optional<int> passes_in) {
     if (spec_->action.dims > 0)
       throw InputError("begin_turns: trajectory.mobility = \"continuous\" has no turns: allowed with \"grid\" or \"headings\"");
+    const int passes = passes_in.value_or(cfg_.marl.sequential_passes);
+    if (passes < 1 || passes > kMaxSequentialPasses)
+      throw InputError("begin_turns: passes = " + std::to_string(passes) + " is out of range: allowed an integer in [1, " +
+                       std::to_string(kMaxSequentialPasses) + "] (marl.sequential_passes' range)");
     {
       py::gil_scoped_release nogil;
       std::lock_guard<std::mutex> lock(mutex_);
@@ -414,7 +420,7 @@ class PyVecEnv {
       const SafetyOptions safety = training_safety_options(cfg_);
       for (int i = 0; i < num_envs_; ++i) {
         vec_->env(i).clear_decided();
-        turns_.emplace_back(vec_->env(i), safety);
+        turns_.emplace_back(vec_->env(i), safety, passes);
       }
     }
     return turn_dict();
@@ -438,7 +444,7 @@ class PyVecEnv {
       if (turns_.empty()) error = "take_turn: no turns begun: call begin_turns() first";
       bool any = false;
       for (std::size_t i = 0; i < turns_.size() && error.empty(); ++i) {  // every move checked before any is taken
-        const SafeTurns& t = turns_[i];
+        const TurnPasses& t = turns_[i];
         if (t.done()) continue;
         any = true;
         const auto v = r(static_cast<py::ssize_t>(i));
@@ -453,13 +459,8 @@ class PyVecEnv {
       if (error.empty() && !any) error = "take_turn: every agent has chosen: call step_turns()";
       if (error.empty())
         for (std::size_t i = 0; i < turns_.size(); ++i) {
-          SafeTurns& t = turns_[i];
-          if (t.done()) continue;
-          const int n = t.uav(), v = static_cast<int>(r(static_cast<py::ssize_t>(i)));
-          t.choose(v);
-          UavEnv& e = vec_->env(static_cast<int>(i));
-          const UavEnv::Landing l = e.landing(n, v);
-          e.show_decided(n, l.x, l.y);
+          TurnPasses& t = turns_[i];
+          if (!t.done()) t.choose(static_cast<int>(r(static_cast<py::ssize_t>(i))));  // shows its landing
         }
     }
     if (!error.empty()) throw InputError(error);
@@ -486,14 +487,17 @@ class PyVecEnv {
 
  private:
   /// The turn in progress: each environment's agent (-1 once every agent there has chosen), its
-  /// observation written now (the landings chosen before it shown) and its allowed moves.
+  /// observation written now (the landings chosen before it shown), its allowed moves and whether
+  /// its move is flown (the last pass).
   py::dict turn_dict() {
     const int M = num_envs_, A = spec_->action.count();
     const std::size_t O = static_cast<std::size_t>(spec_->obs.size), AA = static_cast<std::size_t>(A);
     auto agent = Array<std::int32_t>({M});
     auto obs = Array<float>({M, spec_->obs.size});
     auto mask = Array<std::int8_t>({M, A});
+    auto last = Array<bool>({M});
     std::int32_t* pa = agent.mutable_data();
+    bool* pl = last.mutable_data();
     float* po = obs.mutable_data();
     std::int8_t* pm = mask.mutable_data();
     {
@@ -502,8 +506,9 @@ class PyVecEnv {
       std::fill_n(po, static_cast<std::size_t>(M) * O, 0.0f);
       std::fill_n(pm, static_cast<std::size_t>(M) * AA, std::int8_t{0});
       for (int i = 0; i < M; ++i) {
-        const SafeTurns& t = turns_[static_cast<std::size_t>(i)];
+        const TurnPasses& t = turns_[static_cast<std::size_t>(i)];
         pa[i] = t.done() ? -1 : t.uav();
+        pl[i] = !t.done() && t.last();
         if (t.done()) continue;
         vec_->env(i).write_obs(t.uav(), po + static_cast<std::size_t>(i) * O);
         for (std::size_t k = 0; k < AA; ++k) pm[static_cast<std::size_t>(i) * AA + k] = (t.allowed() >> k & 1u) ? 1 : 0;
@@ -513,6 +518,7 @@ class PyVecEnv {
     d["agent"] = agent;
     d["obs"] = obs;
     d["action_mask"] = mask;
+    d["last"] = last;
     return d;
   }
 
@@ -605,7 +611,7 @@ class PyVecEnv {
   std::unique_ptr<VecEnv> vec_;
   std::shared_ptr<const EnvSpec> spec_;
   std::mutex mutex_;                      // serialises every use of vec_ across Python threads
-  std::vector<SafeTurns> turns_;          // the slot's turns, one per environment (begin_turns), else empty
+  std::vector<TurnPasses> turns_;         // the slot's turns, one per environment (begin_turns), else empty
   Array<float> zero_obs_, zero_state_;
 };
 
@@ -894,7 +900,7 @@ PYBIND11_MODULE(_skyloop, m) {
       .def_property_readonly("config", &PyVecEnv::config)
       .def("reset", &PyVecEnv::reset, py::arg("seed") = py::none())
       .def("step", &PyVecEnv::step, py::arg("actions"))
-      .def("begin_turns", &PyVecEnv::begin_turns)
+      .def("begin_turns", &PyVecEnv::begin_turns, py::arg("passes") = py::none())
       .def("take_turn", &PyVecEnv::take_turn, py::arg("actions"))
       .def("step_turns", &PyVecEnv::step_turns)
       .def("positions", &PyVecEnv::positions)
@@ -921,6 +927,7 @@ PYBIND11_MODULE(_skyloop, m) {
   m.attr("ACTIONS") = py::tuple(py::cast(grid_actions().names));
   m.attr("PLANNERS") = py::tuple(py::cast(builtin_planners().names()));
   m.attr("LEARNERS") = py::tuple(py::cast(learner_names()));
+  m.attr("MAX_SEQUENTIAL_PASSES") = kMaxSequentialPasses;
 #ifdef SKYLOOP_HAS_TORCH
   m.attr("HAS_TORCH") = true;
 #else

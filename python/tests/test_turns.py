@@ -136,3 +136,70 @@ def test_continuous_commands_have_no_turns():
     env.reset()
     with pytest.raises(sl.InputError, match="continuous"):
         env.begin_turns()
+
+
+def test_later_passes_show_the_intentions_and_fly_the_last():
+    # marl.sequential_passes' protocol (src/planning/safety.cpp, take_turns): the order repeats, the
+    # first agent of pass 2 sees the later agents at their moves of pass 1 and itself where it is,
+    # and the last pass is flown.
+    env, twin = sl.VecEnv(CROWDED, 4, 5), sl.VecEnv(CROWDED, 4, 5)
+    env.reset(), twin.reset()
+    hover = env.spec["hover"]
+    rng = np.random.default_rng(2)
+    unchanged = changed = 0
+    for slot in range(30):
+        moving = slot % 2 == 1  # in pass 1 the first agent leaves where it can; in odd slots the later ones as well
+        turns = [[] for _ in range(env.num_envs)]  # (agent, obs, move, last) per environment
+        turn = env.begin_turns(passes=2)
+        while (turn.agent >= 0).any():
+            a = pick(rng, turn.action_mask)
+            for i in np.flatnonzero(turn.agent >= 0):
+                m = turn.action_mask[i]
+                if not turn.last[i]:
+                    away = np.flatnonzero((m == 1) & (np.arange(len(m)) != hover))
+                    a[i] = rng.choice(away) if len(away) and (not turns[i] or moving) else (hover if m[hover] else m.argmax())
+                turns[i].append((turn.agent[i], turn.obs[i].copy(), a[i], turn.last[i]))
+            turn = env.take_turn(a)
+        assert not turn.last.any()
+        joint = np.full((env.num_envs, env.num_agents), hover, dtype=np.int64)
+        for i in range(env.num_envs):
+            p1 = [r for r in turns[i] if not r[3]]
+            p2 = [r for r in turns[i] if r[3]]
+            assert [r[0] for r in p1] == [r[0] for r in p2]  # the same order twice, pass 1 first
+            assert all(not r[3] for r in turns[i][:len(p1)])
+            for n, _, move, _ in p2:
+                joint[i, n] = move
+            if len(p1) < 2:
+                continue
+            later_moved = any(r[2] != hover for r in p1[1:])
+            same = np.array_equal(p1[0][1], p2[0][1])
+            if not later_moved:  # its own move of pass 1 is no intention: its row is the one of pass 1
+                assert same, (slot, i)
+                unchanged += 1
+            else:
+                changed += not same
+        r, ref = env.step_turns(), twin.step(joint)  # the moves of the last pass are flown
+        for x, y in zip(r[:7], ref[:7]):
+            assert np.array_equal(x, y)
+    assert unchanged > 10 and changed > 10, (unchanged, changed)
+
+
+def test_passes_default_to_the_configuration_and_are_checked():
+    env = sl.VecEnv({**CROWDED, "marl.sequential": True, "marl.sequential_passes": 3}, 1, 1)
+    env.reset()
+    turn, agents = env.begin_turns(), []
+    while (turn.agent >= 0).any():
+        agents.append((int(turn.agent[0]), bool(turn.last[0])))
+        turn = env.take_turn(turn.action_mask.argmax(-1))
+    flying = len(agents) // 3
+    assert flying > 0 and len(agents) == 3 * flying
+    assert agents[:flying] == agents[flying:2 * flying] and [a for a, _ in agents[:flying]] == [a for a, _ in agents[2 * flying:]]
+    assert [last for _, last in agents] == [False] * 2 * flying + [True] * flying
+    one = env.begin_turns(passes=1)
+    assert one.last[0]
+    for bad, message in [(0, "passes = 0 is out of range: allowed an integer in [1, 4]"),
+                         (sl.MAX_SEQUENTIAL_PASSES + 1, "passes = 5 is out of range"),
+                         (1.5, "passes = 1.5 has the wrong type"), ("2", "passes = '2' has the wrong type")]:
+        with pytest.raises(sl.InputError) as e:
+            env.begin_turns(passes=bad)
+        assert message in str(e.value)

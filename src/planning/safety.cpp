@@ -550,29 +550,70 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
   return sequential();
 }
 
+struct TurnPasses::State {
+  UavEnv& env;
+  SafetyOptions safety;
+  int passes, p = 0;
+  WaysMemory* memory;
+  WaysMemory start, ways;  // each pass plans from a copy of the memory it began with
+  std::optional<SafeTurns> turns;
+  State(UavEnv& e, const SafetyOptions& s, int n, WaysMemory* m) : env(e), safety(s), passes(n), memory(m) {
+    if (m) start = *m;
+  }
+  void begin_pass() {
+    ways = start;
+    turns.emplace(env, safety, memory ? &ways : nullptr);
+  }
+};
+
+TurnPasses::TurnPasses(UavEnv& env, const SafetyOptions& safety, int passes, WaysMemory* memory) {
+  if (passes < 1) throw std::invalid_argument("take_turns: passes = " + std::to_string(passes) + ", allowed >= 1");
+  s_ = std::make_unique<State>(env, safety, passes, memory);
+  s_->begin_pass();
+  settle();
+}
+
+TurnPasses::~TurnPasses() = default;
+TurnPasses::TurnPasses(TurnPasses&&) noexcept = default;
+TurnPasses& TurnPasses::operator=(TurnPasses&&) noexcept = default;
+
+bool TurnPasses::done() const { return s_->turns->done(); }
+int TurnPasses::uav() const { return s_->turns->uav(); }
+int TurnPasses::pass() const { return s_->p; }
+bool TurnPasses::last() const { return s_->p + 1 == s_->passes; }
+ActionSet TurnPasses::allowed() const { return s_->turns->allowed(); }
+const std::vector<int>& TurnPasses::actions() const { return s_->turns->actions(); }
+
+void TurnPasses::choose(int a) {
+  State& s = *s_;
+  const int n = uav();
+  s.turns->choose(a);  // std::out_of_range for no such move, before anything changes
+  const UavEnv::Landing l = s.env.landing(n, a);
+  s.env.show_decided(n, l.x, l.y);
+  settle();
+}
+
+void TurnPasses::settle() {
+  State& s = *s_;
+  // Every flying UAV chose in the pass before, so its landing there is still shown: its intention
+  // until it chooses again in this pass.
+  while (s.turns->done() && s.p + 1 < s.passes) {
+    ++s.p;
+    s.begin_pass();
+  }
+  if (s.turns->done()) {
+    if (s.memory) *s.memory = s.ways;  // the last pass's ways
+    return;
+  }
+  const int n = s.turns->uav();
+  if (s.p > 0) s.env.show_decided(n, s.env.positions()(n, 0), s.env.positions()(n, 1));  // itself where it is
+}
+
 std::vector<int> take_turns(UavEnv& env, const SafetyOptions& safety, int passes,
                             const std::function<int(int n, ActionSet allowed, bool last)>& choose, WaysMemory* memory) {
-  if (passes < 1) throw std::invalid_argument("take_turns: passes = " + std::to_string(passes) + ", allowed >= 1");
-  std::vector<int> moves;
-  const WaysMemory start = memory ? *memory : WaysMemory{};
-  for (int p = 0; p < passes; ++p) {
-    const bool last = p + 1 == passes;
-    // Every flying UAV chose in the pass before, so its landing there is still shown: its intention
-    // until it chooses again in this pass.
-    WaysMemory ways = start;
-    moves = sequential_safe_actions(
-        env, safety,
-        [&](int n, ActionSet allowed) {
-          if (p > 0) env.show_decided(n, env.positions()(n, 0), env.positions()(n, 1));  // itself where it is
-          const int a = choose(n, allowed, last);
-          const UavEnv::Landing l = env.landing(n, a);
-          env.show_decided(n, l.x, l.y);
-          return a;
-        },
-        nullptr, memory ? &ways : nullptr);
-    if (last && memory) *memory = ways;
-  }
-  return moves;
+  TurnPasses turns(env, safety, passes, memory);
+  while (!turns.done()) turns.choose(choose(turns.uav(), turns.allowed(), turns.last()));
+  return turns.actions();
 }
 
 }  // namespace skyloop

@@ -134,6 +134,39 @@ class SafeTurns {
   void begin_turn();
 };
 
+/// take_turns (below) one turn at a time, for a caller that acts between them (the Python VecEnv's
+/// begin_turns(passes) / take_turn). In every pass after the first, the turn's own UAV is shown
+/// where it is as its turn begins (its landing of the pass before is no intention of its own);
+/// choose(a) shows the landing of a. take_turns is a loop over it.
+class TurnPasses {
+ public:
+  TurnPasses(UavEnv& env, const SafetyOptions& safety, int passes, WaysMemory* memory = nullptr);
+  ~TurnPasses();
+  TurnPasses(TurnPasses&&) noexcept;
+  TurnPasses& operator=(TurnPasses&&) noexcept;
+
+  /// Every pass is taken (no UAV flying: at once).
+  bool done() const;
+  /// Whose turn it is (not done).
+  int uav() const;
+  /// The pass of the turn in progress, from 0 (passes - 1 once done).
+  int pass() const;
+  /// The turn in progress is in the last pass: its move is flown.
+  bool last() const;
+  /// Its allowed moves (SafeTurns::allowed; 0 once done).
+  ActionSet allowed() const;
+  /// Records the move a of the UAV whose turn it is, shows its landing, and begins the next turn
+  /// (after a pass's last turn, the next pass's first).
+  void choose(int a);
+  /// The last pass's joint move once done (before: the pass in progress's, hover for those still to choose).
+  const std::vector<int>& actions() const;
+
+ private:
+  struct State;
+  std::unique_ptr<State> s_;
+  void settle();
+};
+
 /// marl.sequential's turns (sequential_safe_actions), taken `passes` times (marl.sequential_passes):
 /// choose(n, allowed, last) returns UAV n's move on its turn, with the landings of the UAVs before
 /// it in this pass shown to its observation and, after the first pass, those of the UAVs after it

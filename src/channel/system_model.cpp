@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 
 #include "skyloop/channel/network.hpp"
 #include "skyloop/core/rng.hpp"
@@ -41,18 +42,20 @@ Association SystemModel::associate(const Positions& uavs, const Positions& users
   return a;
 }
 
-void SystemModel::associate(const Positions& uavs, const Positions& users, Association& a) const {
+void SystemModel::associate(const Positions& uavs, const Positions& users, Association& a, std::vector<double>* nearest) const {
   const auto n_uav = static_cast<int>(uavs.rows());
   const auto n_user = static_cast<int>(users.rows());
   a.serving.assign(static_cast<std::size_t>(n_user), -1);
   a.users.resize(static_cast<std::size_t>(n_uav));
   for (auto& members : a.users) members.clear();  // capacity kept for the next call
+  if (nearest) nearest->assign(static_cast<std::size_t>(n_user), std::numeric_limits<double>::infinity());
   // Nearest UAV by 3-D distance, lowest index on ties, served if within R_c. Every distance is
   // the same distance() call on both paths, so both give the same association bit for bit.
   auto serve = [&](int k, int best, double best_d) {
     if (best >= 0 && best_d <= coverage_) {
       a.serving[static_cast<std::size_t>(k)] = best;
       a.users[static_cast<std::size_t>(best)].push_back(k);
+      if (nearest) (*nearest)[static_cast<std::size_t>(k)] = best_d;
     }
   };
   const double dz = channel_->height_above_users();
@@ -113,6 +116,42 @@ void SystemModel::associate(const Positions& uavs, const Positions& users, Assoc
     serve(k, best, best_d);
   }
   // Users were visited in ascending order: each cluster's list is ascending.
+}
+
+void SystemModel::reassociate(const Positions& uavs, const Positions& users, int moved, Association& a,
+                              std::vector<double>& nearest) const {
+  const auto n_uav = static_cast<int>(uavs.rows());
+  const auto n_user = static_cast<int>(users.rows());
+  if (moved < 0 || moved >= n_uav || a.serving.size() != static_cast<std::size_t>(n_user) ||
+      a.users.size() != static_cast<std::size_t>(n_uav) || nearest.size() != static_cast<std::size_t>(n_user))
+    throw std::invalid_argument("SystemModel::reassociate: no association of these positions to update");
+  const double mx = uavs(moved, 0), my = uavs(moved, 1);
+  for (int k = 0; k < n_user; ++k) {
+    const auto kk = static_cast<std::size_t>(k);
+    const int was = a.serving[kk];
+    if (was == moved) {  // its nearest may be anyone now: searched afresh, as associate's scan
+      int best = -1;
+      double best_d = std::numeric_limits<double>::infinity();
+      for (int n = 0; n < n_uav; ++n) {
+        const double d = distance(uavs(n, 0), uavs(n, 1), users(k, 0), users(k, 1));
+        if (d < best_d) best_d = d, best = n;
+      }
+      const bool served = best_d <= coverage_;
+      a.serving[kk] = served ? best : -1;
+      nearest[kk] = served ? best_d : std::numeric_limits<double>::infinity();
+      continue;
+    }
+    // Served by another UAV (its distance is the nearest of all) or by none (none within R_c, the
+    // moved UAV's old place included): only the moved UAV's new distance can change that.
+    const double d = distance(mx, my, users(k, 0), users(k, 1));
+    if (was >= 0 ? (d < nearest[kk] || (d == nearest[kk] && moved < was)) : d <= coverage_) {
+      a.serving[kk] = moved;
+      nearest[kk] = d;
+    }
+  }
+  for (auto& members : a.users) members.clear();
+  for (int k = 0; k < n_user; ++k)  // ascending, as associate lists them
+    if (const int n = a.serving[static_cast<std::size_t>(k)]; n >= 0) a.users[static_cast<std::size_t>(n)].push_back(k);
 }
 
 Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions& users_xy,

@@ -1,6 +1,7 @@
 #include "skyloop/env/rate_oracle.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -20,13 +21,40 @@ std::size_t RateOracle::KeyHash::operator()(const Key& k) const {
   return static_cast<std::size_t>(k.big.empty() ? h : hash_bytes(k.big.data(), sizeof(std::uint64_t) * k.big.size(), h));
 }
 
+namespace {
+std::atomic<std::uint64_t> next_oracle_id{1};
+}  // namespace
+
 RateOracle::RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, Positions users)
-    : model_(cfg), beamformer_(std::move(beamformer)), users_(std::move(users)), threads_(resolve_threads(cfg.run.threads)) {}
+    : model_(cfg),
+      beamformer_(std::move(beamformer)),
+      users_(std::move(users)),
+      threads_(resolve_threads(cfg.run.threads)),
+      id_(next_oracle_id.fetch_add(1)) {}
 
 void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const {
   const auto n = static_cast<std::size_t>(uavs.rows());
-  thread_local Association a;  // storage reused across calls
-  model_.associate(uavs, users_, a);
+  // The last association this thread made, kept (storage and all): the position sets a batch asks
+  // about come in runs that differ from the one before in one UAV (a UAV's moves, its radio map),
+  // and a set that moves one UAV is reassociated for that UAV's distances alone.
+  struct Last {
+    std::uint64_t oracle = 0;
+    Positions uavs;
+    Association a;
+    std::vector<double> nearest;
+  };
+  thread_local Last last;
+  int moved = -1, changed = 2;  // UAVs moved since the last association (2: two or more, or none made)
+  if (last.oracle == id_ && last.uavs.rows() == uavs.rows()) {
+    changed = 0;
+    for (Eigen::Index u = 0; u < uavs.rows() && changed < 2; ++u)
+      if (!(uavs(u, 0) == last.uavs(u, 0) && uavs(u, 1) == last.uavs(u, 1))) ++changed, moved = static_cast<int>(u);
+  }
+  if (changed == 1) model_.reassociate(uavs, users_, moved, last.a, last.nearest);
+  else if (changed > 1) model_.associate(uavs, users_, last.a, &last.nearest);
+  last.oracle = id_;
+  last.uavs = uavs;
+  const Association& a = last.a;
   keys.resize(n);  // each key's mask storage is kept and cleared: no allocation per call
   const std::size_t words = (static_cast<std::size_t>(users_.rows()) + 63) / 64;
   for (std::size_t i = 0; i < n; ++i) {

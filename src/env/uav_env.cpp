@@ -670,16 +670,19 @@ void UavEnv::write_move_gains(int n, float* o) const {
   const int A = actions();
   std::fill(o, o + A, 0.0f);
   if (arrived(n)) return;
-  std::vector<Positions> sets(static_cast<std::size_t>(A) + 1, seen_positions());  // sets[A]: where the UAVs are now
+  // sets[0]: where the UAVs are now; sets[1 + a]: UAV n after move a. Each set moves one UAV from
+  // the one before it (the first: the UAV that chose before n, shown landed), which the oracle
+  // reassociates for that UAV alone (RateOracle::keys_of).
+  std::vector<Positions> sets(static_cast<std::size_t>(A) + 1, seen_positions());
   for (int a = 0; a < A; ++a) {
     const Landing l = landing(n, a);
-    sets[static_cast<std::size_t>(a)](n, 0) = l.x;
-    sets[static_cast<std::size_t>(a)](n, 1) = l.y;
+    sets[static_cast<std::size_t>(a) + 1](n, 0) = l.x;
+    sets[static_cast<std::size_t>(a) + 1](n, 1) = l.y;
   }
   const auto r = oracle_->sum_rates(sets);
-  const double now = r[static_cast<std::size_t>(A)];
+  const double now = r[0];
   if (!(now > 0)) return;
-  for (int a = 0; a < A; ++a) o[a] = static_cast<float>(std::tanh(kGainScale * (r[static_cast<std::size_t>(a)] - now) / now));
+  for (int a = 0; a < A; ++a) o[a] = static_cast<float>(std::tanh(kGainScale * (r[static_cast<std::size_t>(a) + 1] - now) / now));
 }
 
 void UavEnv::write_compact_state(float* s) const {

@@ -3,6 +3,7 @@
 
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/channel/rates.hpp"
+#include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/planning/planners.hpp"
 
@@ -181,6 +182,45 @@ TEST(Env, CacheNeverChangesAValue) {
   EXPECT_GT(cached.stats().hits, 0u);
   EXPECT_GT(cached.stats().misses, 0u);
   EXPECT_GT(cached.stats().hit_rate(), 0.0);
+}
+
+// The oracle reassociates a position set that moves one UAV from the one before it (RateOracle's
+// keys_of, SystemModel::reassociate): batches shaped like a UAV's moves and radio map, and sets
+// asked one at a time, give the rates of the clusters built afresh, bit for bit (16 UAVs, 400
+// users on 1 km: the spatial index; 3 UAVs: the plain scan).
+TEST(Env, OracleRatesOfOneUavsMovesAreTheDirectRates) {
+  for (const auto& [uavs, users, side] : {std::tuple{16, 400, 1000.0}, std::tuple{3, 12, 200.0}}) {
+    const Config cfg = resolve_config(std::nullopt, {"scenario.uavs=" + std::to_string(uavs), "scenario.area_x_m=" + std::to_string(side),
+                                                     "scenario.area_y_m=" + std::to_string(side), "trajectory.layout=generated",
+                                                     "trajectory.t_max=" + std::to_string(int(side / 20) + 10)});
+    auto bf = zf_bf();
+    const Positions u = make_users(cfg, users, 5);
+    RateOracle oracle(cfg, bf, u), other(cfg, bf, make_users(cfg, users, 6));
+    const SystemModel model(cfg);
+    Rng rng(3);
+    Positions seen(uavs, 2);
+    for (int n = 0; n < uavs; ++n)
+      seen(n, 0) = 20.0 * static_cast<double>(rng.below(static_cast<std::uint64_t>(side / 20) + 1)),
+      seen(n, 1) = 20.0 * static_cast<double>(rng.below(static_cast<std::uint64_t>(side / 20) + 1));
+    for (int round = 0; round < 12; ++round) {
+      const int n = static_cast<int>(rng.below(static_cast<std::uint64_t>(uavs)));
+      std::vector<Positions> sets(1, seen);
+      for (int c = 0; c < 9; ++c) {
+        sets.push_back(seen);
+        sets.back()(n, 0) += 20.0 * (c % 3 - 1), sets.back()(n, 1) += 20.0 * (c / 3 - 1);
+      }
+      const auto batch = oracle.sum_rates(sets);
+      other.sum_rates(sets);  // another oracle's users in between: its association is not this one's
+      for (std::size_t i = 0; i < sets.size(); ++i) {
+        double direct = 0;
+        for (const auto& c : model.clusters(Snapshot{sets[i], u})) direct += sum_rate(c, bf->design(c));
+        ASSERT_EQ(batch[i], direct) << uavs << " UAVs, round " << round << ", set " << i;
+      }
+      for (std::size_t i = sets.size(); i-- > 0;)  // one at a time, from the memo, in the other order
+        ASSERT_EQ(oracle.sum_rate(sets[i]), batch[i]) << uavs << " UAVs, round " << round << ", set " << i;
+      seen = sets[1 + rng.below(9)];  // the next slot starts from one of the moves
+    }
+  }
 }
 
 TEST(Env, VectorEnvMatchesSingleEnvs) {

@@ -859,7 +859,9 @@ TEST(Safety, LaterPassesShowTheOthersMovesOfThePassBefore) {
       env.clear_decided();
       EXPECT_EQ(pass + 1, passes);
       for (int n = 0; n < env.uavs(); ++n)
-        if (!env.arrived(n)) EXPECT_EQ(a[static_cast<std::size_t>(n)], moves.back()[static_cast<std::size_t>(n)]);
+        if (!env.arrived(n)) {
+          EXPECT_EQ(a[static_cast<std::size_t>(n)], moves.back()[static_cast<std::size_t>(n)]);
+        }
       if (passes == 1) {
         WaysMemory whole;
         int p = 0;

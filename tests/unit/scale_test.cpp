@@ -2,7 +2,10 @@
 // users, the sequential greedy's masks, the compact state, and one-line refusals of bad sizes.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <limits>
+#include <stdexcept>
 
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
@@ -57,6 +60,55 @@ TEST(Scale, SpatialIndexAssociationEqualsBruteForce) {
   for (int i = 0; i < 16; ++i) uavs(i, 0) = 50.0 + 100.0 * (i % 4), uavs(i, 1) = 50.0 + 100.0 * (i / 4);
   for (int k = 0; k < 40; ++k) users(k, 0) = 100.0 + 100.0 * (k % 3), users(k, 1) = 50.0 + 7.5 * (k / 3);
   EXPECT_EQ(model.associate(uavs, users).serving, brute_force(model, uavs, users).serving);
+}
+
+// The rate oracle's runs of position sets that move one UAV (its moves, its radio map) update the
+// association for that UAV alone (SystemModel::reassociate): the same association as a fresh one,
+// over the grid path and the plain scan, with ties (UAVs and users on a lattice, a UAV moved onto
+// another's place) and users left unserved.
+TEST(Scale, ReassociatingOneMovedUavIsAssociating) {
+  for (const auto& [uavs, users, side] : {std::tuple{16, 400, 1000.0}, std::tuple{64, 1600, 2000.0}, std::tuple{3, 40, 200.0}}) {
+    const Config cfg = city(uavs, users, side);
+    const SystemModel model(cfg);
+    Rng rng(static_cast<std::uint64_t>(uavs));
+    Snapshot s = model.random_snapshot(uavs, users, 7);
+    for (Eigen::Index k = 0; k < s.users.rows() / 4; ++k)  // a quarter of the users on the 20 m lattice: ties
+      s.users(k, 0) = 20.0 * std::round(s.users(k, 0) / 20.0), s.users(k, 1) = 20.0 * std::round(s.users(k, 1) / 20.0);
+    Association a;
+    std::vector<double> nearest;
+    model.associate(s.uavs, s.users, a, &nearest);
+    int unserved = 0;
+    for (int step = 0; step < 300; ++step) {
+      const int n = static_cast<int>(rng.below(static_cast<std::uint64_t>(uavs)));
+      switch (rng.below(3)) {
+        case 0:  // one lattice move
+          s.uavs(n, rng.below(2)) += rng.below(2) ? 20.0 : -20.0;
+          break;
+        case 1:  // onto another UAV's place
+          s.uavs.row(n) = s.uavs.row(static_cast<Eigen::Index>(rng.below(static_cast<std::uint64_t>(uavs))));
+          break;
+        default:  // anywhere on the lattice
+          s.uavs(n, 0) = 20.0 * static_cast<double>(rng.below(static_cast<std::uint64_t>(side / 20) + 1));
+          s.uavs(n, 1) = 20.0 * static_cast<double>(rng.below(static_cast<std::uint64_t>(side / 20) + 1));
+      }
+      model.reassociate(s.uavs, s.users, n, a, nearest);
+      Association fresh;
+      std::vector<double> fresh_nearest;
+      model.associate(s.uavs, s.users, fresh, &fresh_nearest);
+      ASSERT_EQ(a.serving, fresh.serving) << uavs << " UAVs, step " << step;
+      ASSERT_EQ(a.users, fresh.users) << uavs << " UAVs, step " << step;
+      ASSERT_EQ(nearest, fresh_nearest) << uavs << " UAVs, step " << step;
+      ASSERT_EQ(a.users, brute_force(model, s.uavs, s.users).users);
+      unserved += static_cast<int>(std::count(a.serving.begin(), a.serving.end(), -1));
+    }
+    if (uavs != 3) {
+      EXPECT_GT(unserved, 0) << uavs << " UAVs";  // R_c leaves some users out
+    }
+  }
+  const SystemModel model(city(3, 4, 200));
+  Association a;
+  std::vector<double> nearest;
+  EXPECT_THROW(model.reassociate(Positions::Zero(3, 2), Positions::Zero(4, 2), 0, a, nearest), std::invalid_argument);
 }
 
 TEST(Scale, GeneratedLayoutIsSeededSeparatedAndReachable) {

@@ -88,8 +88,14 @@ class SystemModel {
   /// UAVs a spatial index (a grid of cells one horizontal coverage radius wide) visits only the
   /// UAVs around each user: O(K + N) for spread-out UAVs instead of O(K N), same result.
   Association associate(const Positions& uavs, const Positions& users) const;
-  /// The same into `out`, reusing its storage (the rate oracle's hot path).
-  void associate(const Positions& uavs, const Positions& users, Association& out) const;
+  /// The same into `out`, reusing its storage (the rate oracle's hot path); `nearest`, when given,
+  /// receives each user's distance to its serving UAV (+inf where unserved), for reassociate.
+  void associate(const Positions& uavs, const Positions& users, Association& out, std::vector<double>* nearest = nullptr) const;
+  /// `a` and `nearest`, associate's result for positions that differ from `uavs` in row `moved`
+  /// alone, made associate's result for `uavs`: the moved UAV's distance to every user, and a
+  /// search of all UAVs for the users it served, instead of every user's search. The same result
+  /// bit for bit (the same distance() calls and ties; Scale.ReassociatingOneMovedUavIsAssociating).
+  void reassociate(const Positions& uavs, const Positions& users, int moved, Association& a, std::vector<double>& nearest) const;
   static constexpr int kAssociationGridFrom = 8;
   /// The non-empty clusters of a snapshot, ascending UAV index (noise and bandwidth share of the
   /// spectrum model; a per-cluster beamformer sees nothing else).

@@ -77,6 +77,7 @@ class RateOracle {
   std::unordered_map<std::vector<double>, std::vector<double>, JointHash> joint_cache_;  // per-UAV rates
   OracleStats stats_;
   int threads_ = 1;  // cfg.run.threads, resolved
+  std::uint64_t id_;  // this model and these users (copies keep it): keys_of's last association is theirs
 };
 
 /// R for (oracle i, positions i) pairs, e.g. the M environments of a vector environment (each with

@@ -94,8 +94,14 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
   const std::size_t m = oracles.size();
   // One association at a time (reused storage); what R needs of it is kept flat: per position set
   // its clusters' rates in UAV order, a hit's value at once, a miss's looked up once computed.
-  thread_local std::vector<Key> keys;
+  thread_local std::vector<Key> keys, prev_keys;
   thread_local std::vector<std::vector<int>> members;
+  // A set asked right after another of the same oracle (a UAV's moves, its radio map) mostly keeps
+  // its clusters: a cluster whose key is the one before's takes that part's rate (or, while that
+  // one is a miss, its value once computed: `aliases`) without a memo lookup.
+  const RateOracle* prev_oracle = nullptr;
+  std::vector<std::ptrdiff_t> part_of, prev_part_of;  // per UAV of the set (and of the set before): its part, -1 none
+  std::vector<std::pair<std::size_t, std::size_t>> aliases;  // (part, the earlier part whose rate it takes)
   std::vector<std::size_t> parts_begin(m + 1, 0);
   std::vector<double> part_rate;        // the cluster's rate, or NaN until its miss is computed
   std::vector<std::size_t> part_later;  // parts whose rate is a miss of this batch (with its key and oracle below)
@@ -139,6 +145,7 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
     o.keys_of(*uavs[s], keys, members);
     parts_begin[s] = part_rate.size();
     if (o.joint()) {
+      prev_oracle = nullptr;
       jkeys[s] = RateOracle::joint_key(*uavs[s]);
       auto& mine = joint_pending[&o];
       if (o.joint_cache_.count(jkeys[s]) || mine.count(jkeys[s])) {
@@ -154,10 +161,21 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
       continue;
     }
     std::unordered_map<Key, char, RateOracle::KeyHash>* mine = nullptr;
+    const bool chained = prev_oracle == &o && prev_keys.size() == keys.size();
+    part_of.assign(keys.size(), -1);
     for (std::size_t i = 0; i < keys.size(); ++i) {
       if (members[i].empty()) continue;
       const Key& key = keys[i];
       const std::size_t part = part_rate.size();
+      part_of[i] = static_cast<std::ptrdiff_t>(part);
+      if (chained && prev_part_of[i] >= 0 && key == prev_keys[i]) {
+        const auto q = static_cast<std::size_t>(prev_part_of[i]);
+        const double known = part_rate[q];
+        part_rate.push_back(known);
+        if (std::isnan(known)) aliases.emplace_back(part, q);
+        ++o.stats_.hits;  // a memo hit, or a miss this batch computes: a hit as below
+        continue;
+      }
       part_rate.push_back(std::numeric_limits<double>::quiet_NaN());
       if (const auto it = o.cache_.find(key); it != o.cache_.end()) {
         ++o.stats_.hits;
@@ -181,6 +199,9 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
         clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[i],
                                                     static_cast<int>(uavs[s]->rows()), slot));
     }
+    prev_oracle = &o;
+    std::swap(keys, prev_keys);
+    std::swap(part_of, prev_part_of);
   }
   parts_begin[m] = part_rate.size();
   int threads = 1;
@@ -218,6 +239,7 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
     }
   }
   for (std::size_t j = 0; j < part_later.size(); ++j) part_rate[part_later[j]] = later_oracle[j]->cache_.at(later_keys[j]);
+  for (const auto& [part, q] : aliases) part_rate[part] = part_rate[q];  // in order: q is filled before
   std::vector<double> out(m, 0.0);
   for (std::size_t s = 0; s < m; ++s) {
     if (oracles[s]->joint()) {

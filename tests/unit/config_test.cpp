@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <filesystem>
+
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
@@ -30,6 +32,18 @@ TEST(Config, DefaultsAreThePaperValues) {
 TEST(Config, PaperTomlEqualsDefaults) {
   const Config file = resolve_config(std::string(SKYLOOP_SOURCE_DIR) + "/configs/paper.toml", {});
   EXPECT_EQ(to_toml(file), to_toml(Config{}));
+}
+
+// Every configuration shipped in configs/ (the recipes the README trains with) resolves: a key
+// renamed or a value out of range in one of them is a user's first command failing.
+TEST(Config, ShippedConfigsResolve) {
+  int n = 0;
+  for (const auto& e : std::filesystem::directory_iterator(std::string(SKYLOOP_SOURCE_DIR) + "/configs")) {
+    if (e.path().extension() != ".toml") continue;
+    EXPECT_NO_THROW(resolve_config(e.path().string(), {})) << e.path();
+    ++n;
+  }
+  EXPECT_GE(n, 4);  // paper, generalise, generalise_fleet, generalise_wmmse
 }
 
 TEST(Config, ShowRoundTrips) {

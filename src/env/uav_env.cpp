@@ -9,6 +9,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/layouts.hpp"
 
@@ -838,15 +839,28 @@ std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<S
                                      const std::function<void(std::size_t)>& before_reset) {
   const std::size_t m = envs_.size();
   std::vector<std::size_t> open;  // the environments whose step is still to end
-  std::vector<RateOracle*> oracles;
-  std::vector<const Positions*> ptrs;
-  for (std::size_t i = 0; i < m; ++i) {
-    if (settled_[i]) continue;
-    open.push_back(i);
-    oracles.push_back(&envs_[i]->oracle());
-    ptrs.push_back(&next[i]);
-  }
-  const auto rates = open.empty() ? std::vector<double>{} : batch_sum_rates(oracles, ptrs);
+  for (std::size_t i = 0; i < m; ++i)
+    if (!settled_[i]) open.push_back(i);
+  // Oracles of their own (no memo shared): the open environments in contiguous lanes, each lane's
+  // misses one batch on a thread of its own (a cluster's rate is designed per cluster, so the
+  // numbers do not depend on the lanes). A shared oracle: one batch, its misses split over the
+  // threads. The steps end once every rate is known.
+  int threads = 1;
+  if (!shared_ && !in_parallel_for())
+    for (std::size_t i : open) threads = std::max(threads, envs_[i]->oracle().threads());
+  const std::size_t lanes = std::min(open.size(), static_cast<std::size_t>(threads));
+  std::vector<double> rates(open.size());
+  parallel_for(lanes, static_cast<int>(lanes), [&](std::size_t lane) {
+    const std::size_t first = open.size() * lane / lanes, last = open.size() * (lane + 1) / lanes;
+    std::vector<RateOracle*> oracles;
+    std::vector<const Positions*> ptrs;
+    for (std::size_t j = first; j < last; ++j) {
+      oracles.push_back(&envs_[open[j]]->oracle());
+      ptrs.push_back(&next[open[j]]);
+    }
+    const auto r = batch_sum_rates(oracles, ptrs);
+    std::copy(r.begin(), r.end(), rates.begin() + static_cast<std::ptrdiff_t>(first));
+  });
   for (std::size_t j = 0; j < open.size(); ++j) {
     const std::size_t i = open[j];
     envs_[i]->end_step(next[i], rates[j], info[i]);

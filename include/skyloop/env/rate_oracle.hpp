@@ -48,6 +48,8 @@ class RateOracle {
   const SystemModel& model() const { return model_; }
   const OracleStats& stats() const { return stats_; }
   std::size_t cache_size() const { return cache_.size() + joint_cache_.size(); }
+  /// The threads a batch of this oracle's misses may use (cfg.run.threads, resolved).
+  int threads() const { return threads_; }
 
  private:
   friend std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles,

@@ -382,8 +382,9 @@ class VecEnv {
   /// step() in its two phases, for a caller that prepares each environment's move on threads of
   /// its own (the PPO learner's collect): begin(i, ...) moves environment i alone and touches no
   /// other (calls for different i may run at once); finish() then asks the rate oracles for every
-  /// environment in one batch, ends each step and resets the finished environments, on the
-  /// calling thread. step(actions) is begin for every i, then finish.
+  /// environment (in one batch per thread of run.threads where each environment has an oracle of
+  /// its own), then ends each step and resets the finished environments on the calling thread.
+  /// step(actions) is begin for every i, then finish.
   Positions begin(int i, const std::vector<int>& actions, StepInfo& info);
   Positions begin_velocities(int i, const Positions& velocities, StepInfo& info);
   /// Environments settled since their begin are skipped.

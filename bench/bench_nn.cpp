@@ -107,7 +107,7 @@ BENCHMARK(BM_GnnDecision)->Arg(0)->Arg(1)->ArgName("torch")->Unit(benchmark::kMi
 BENCHMARK(BM_GnnStructuredDecision)->Arg(0)->Arg(1)->ArgName("torch")->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_DeepSetsDecision)->Arg(0)->Arg(1)->ArgName("torch")->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_MsPointNetDecision)->Arg(0)->Arg(1)->ArgName("torch")->Unit(benchmark::kMicrosecond);
-BENCHMARK(BM_GnnClusters)->ArgsProduct({{1, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_GnnClusters)->ArgsProduct({{1, 8, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_DeepSetsClusters)->ArgsProduct({{1, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_MsPointNetClusters)->ArgsProduct({{1, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
 

@@ -187,17 +187,19 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
       auto p = builtin_planners().create(name, args);
       timed(*p, name);
     }
-    for (std::size_t k = 0; k < labels.size(); ++k) {
+    // The execution settings are the evaluation's: the reserve, and turns as trained or where asked.
+    auto load = [&](std::size_t k) {
       auto policy = MarlPolicy::load(opt.policies[k]);
-      policy->set_reserve_slack(cfg.marl.reserve_slack);  // an execution setting: the evaluation's
-      if (cfg.marl.sequential) policy->set_sequential(true);  // as trained, or on where the evaluation asks
+      policy->set_reserve_slack(cfg.marl.reserve_slack);
+      if (cfg.marl.sequential) policy->set_sequential(true);
       if (cfg.marl.sequential_passes > 1) policy->set_sequential_passes(cfg.marl.sequential_passes);
+      return policy;
+    };
+    for (std::size_t k = 0; k < labels.size(); ++k) {
+      auto policy = load(k);
       timed(*policy, labels[k]);
       if (opt.unsafe) {
-        auto raw = MarlPolicy::load(opt.policies[k]);
-        raw->set_reserve_slack(cfg.marl.reserve_slack);
-        if (cfg.marl.sequential) raw->set_sequential(true);
-        if (cfg.marl.sequential_passes > 1) raw->set_sequential_passes(cfg.marl.sequential_passes);
+        auto raw = load(k);
         raw->set_safety(false, false);
         timed(*raw, labels[k] + "/raw");
       }

@@ -92,16 +92,23 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
 }
 
 void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle) {
+  const double r = oracle->sum_rate(start_);
+  set_oracle(std::move(oracle), r);
+}
+
+void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle, double start_rate) {
   oracle_ = std::move(oracle);
   kernel_axes_.clear();
   if (users() != spec_params_.users) {
     spec_params_.users = users();
     spec_ = shared_env_spec(spec_params_);
   }
-  reset();
+  reset(start_rate);
 }
 
-void UavEnv::reset() {
+void UavEnv::reset() { reset(oracle_->sum_rate(start_)); }
+
+void UavEnv::reset(double start_rate) {
   pos_ = start_;
   any_decided_ = false;
   t_ = 1;
@@ -126,9 +133,8 @@ void UavEnv::reset() {
     const double d = std::hypot(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1));
     prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / mobility_->reach() - 1e-9));
   }
-  const double r = oracle_->sum_rate(pos_);
-  rates_.assign(1, r);
-  rate_sum_ = r;
+  rates_.assign(1, start_rate);
+  rate_sum_ = start_rate;
   done_ = all;
   tot_arr_ = tot_bud_ = tot_col_ = 0;
   tot_reward_ = 0;
@@ -364,13 +370,22 @@ Positions UavEnv::begin_step_velocities(const Positions& v, StepInfo& info) {
   return next;
 }
 
+bool UavEnv::at_destination(const Positions& p, int n) const { return same(p(n, 0), dest_(n, 0)) && same(p(n, 1), dest_(n, 1)); }
+
+bool UavEnv::ends_episode(const Positions& next) const {
+  if (t_ + 1 >= t_max_) return true;
+  for (int n = 0; n < n_; ++n)
+    if (!arrived(n) && !at_destination(next, n)) return false;
+  return true;
+}
+
 void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
   pos_ = next;
   ++t_;
   bool all = true;
   for (int n = 0; n < n_; ++n) {
     auto&& arrived_n = arrived_[static_cast<std::size_t>(n)];
-    if (!arrived_n && same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1))) {
+    if (!arrived_n && at_destination(pos_, n)) {
       arrived_n = true;
       ++info.arrivals;
       ++parked_;
@@ -768,27 +783,41 @@ void UavEnv::write_obs(int n, float* out) const {
 
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed)
     : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(seed), episodes_(static_cast<std::size_t>(count), 0),
-      settled_(static_cast<std::size_t>(count), 0) {
-  for (int i = 0; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(cfg_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i)))));
+      settled_(static_cast<std::size_t>(count), 0), prepared_(static_cast<std::size_t>(count)) {
+  for (int i = 0; i < count; ++i)
+    envs_.push_back(std::make_unique<UavEnv>(cfg_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i), 0))));
 }
 
 bool VecEnv::sampling() const { return !shared_ && cfg_.env.resample_users && cfg_.env.users_file.empty(); }
 
-Positions VecEnv::users_of(std::size_t i) const {
-  if (sampling()) return layout_users(cfg_, training_layout_seed(seed_, i, episodes_[i]));
+Positions VecEnv::users_of(std::size_t i, std::uint64_t episode) const {
+  if (sampling()) return layout_users(cfg_, training_layout_seed(seed_, i, episode));
   return make_users(cfg_, cfg_.scenario.users, derive_seed(seed_, static_cast<std::uint64_t>(i)));
 }
 
+std::shared_ptr<RateOracle> VecEnv::next_oracle(std::size_t i) const {
+  return std::make_shared<RateOracle>(cfg_, beamformer_, users_of(i, episodes_[i] + 1));
+}
+
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count)
-    : cfg_(cfg), seed_(0), episodes_(static_cast<std::size_t>(count), 0), settled_(static_cast<std::size_t>(count), 0), shared_(true) {
+    : cfg_(cfg), seed_(0), episodes_(static_cast<std::size_t>(count), 0), settled_(static_cast<std::size_t>(count), 0),
+      prepared_(static_cast<std::size_t>(count)), shared_(true) {
   for (int i = 0; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(cfg_, oracle));
 }
 
 void VecEnv::reset_env(std::size_t i) {
-  ++episodes_[i];
   if (sampling()) {
-    envs_[i]->set_oracle(std::make_shared<RateOracle>(cfg_, beamformer_, users_of(i)));
+    // The oracle finish() prepared with its start's rate, else a new one.
+    Prepared p = std::move(prepared_[i]);
+    prepared_[i] = Prepared{};
+    if (!p.oracle) {
+      p.oracle = next_oracle(i);
+      p.start_rate = p.oracle->sum_rate(envs_[i]->starts());
+    }
+    ++episodes_[i];
+    envs_[i]->set_oracle(std::move(p.oracle), p.start_rate);
   } else {
+    ++episodes_[i];
     envs_[i]->reset();
   }
 }
@@ -858,8 +887,20 @@ std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<S
       oracles.push_back(&envs_[open[j]]->oracle());
       ptrs.push_back(&next[open[j]]);
     }
+    // An episode this step ends: its environment's next oracle, the start's rate in the same batch.
+    std::vector<std::size_t> ending;
+    for (std::size_t j = first; j < last && sampling(); ++j) {
+      const std::size_t i = open[j];
+      if (!envs_[i]->ends_episode(next[i])) continue;
+      ending.push_back(i);
+      prepared_[i].oracle = next_oracle(i);
+      oracles.push_back(prepared_[i].oracle.get());
+      ptrs.push_back(&envs_[i]->starts());
+    }
     const auto r = batch_sum_rates(oracles, ptrs);
-    std::copy(r.begin(), r.end(), rates.begin() + static_cast<std::ptrdiff_t>(first));
+    const std::size_t stepped = last - first;
+    std::copy(r.begin(), r.begin() + static_cast<std::ptrdiff_t>(stepped), rates.begin() + static_cast<std::ptrdiff_t>(first));
+    for (std::size_t k = 0; k < ending.size(); ++k) prepared_[ending[k]].start_rate = r[stepped + k];
   });
   for (std::size_t j = 0; j < open.size(); ++j) {
     const std::size_t i = open[j];

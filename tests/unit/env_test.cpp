@@ -5,6 +5,7 @@
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/env/layouts.hpp"
 #include "skyloop/planning/planners.hpp"
 
 using namespace skyloop;
@@ -241,6 +242,54 @@ TEST(Env, VectorEnvMatchesSingleEnvs) {
       if (s.done) single[static_cast<std::size_t>(i)]->reset();
     }
   }
+}
+
+TEST(Env, ResampledVectorEnvMatchesSingleEnvs) {
+  // With env.resample_users, finish() makes the next episode's oracle and asks for its start's
+  // rate in the batch of the step that ends an episode (every UAV home, or T_max). An environment
+  // stepped alone, given the same layouts (training_layout_seed) by set_oracle, must see the same
+  // rates, rewards and ends; the first reward of each episode reads R at the start.
+  Config cfg;
+  cfg.env.resample_users = true;
+  cfg.env.reward = "objective";
+  const int M = 4;
+  VecEnv vec(cfg, zf_bf(), M, 11);
+  std::vector<std::unique_ptr<UavEnv>> single;
+  std::vector<std::uint64_t> episode(M, 0);
+  auto layout = [&](int i) {
+    return std::make_shared<RateOracle>(cfg, zf_bf(), layout_users(cfg, training_layout_seed(11, static_cast<std::size_t>(i), episode[static_cast<std::size_t>(i)])));
+  };
+  for (int i = 0; i < M; ++i) single.push_back(std::make_unique<UavEnv>(cfg, layout(i)));
+  Rng rng(5);
+  int homes = 0, timeouts = 0;
+  for (int step = 0; step < 24 * 8; ++step) {
+    std::vector<std::vector<int>> actions(M, std::vector<int>(3));
+    for (int i = 0; i < M; ++i)
+      for (int n = 0; n < 3; ++n) {  // mostly a move that brings the UAV nearer home, so episodes end both ways
+        const UavEnv& e = vec.env(i);
+        int best = static_cast<int>(rng.below(5));
+        if (rng.uniform() < 0.8)
+          for (int a = 0; a < e.actions(); ++a)
+            if (e.feasible(n, a) && e.min_moves(n, e.landing(n, a)) < e.min_moves(n, e.landing(n, best))) best = a;
+        actions[static_cast<std::size_t>(i)][static_cast<std::size_t>(n)] = best;
+      }
+    const auto infos = vec.step(actions);
+    for (int i = 0; i < M; ++i) {
+      const auto ii = static_cast<std::size_t>(i);
+      const StepInfo s = single[ii]->step(actions[ii]);
+      ASSERT_EQ(s.sum_rate, infos[ii].sum_rate) << "step " << step << ", environment " << i;
+      ASSERT_EQ(s.reward, infos[ii].reward) << "step " << step << ", environment " << i;
+      ASSERT_EQ(s.done, infos[ii].done) << "step " << step << ", environment " << i;
+      ASSERT_EQ(s.objective, infos[ii].objective);
+      if (!s.done) continue;
+      (s.T < single[ii]->t_max() ? homes : timeouts) += 1;
+      ++episode[ii];
+      single[ii]->set_oracle(layout(i));
+      ASSERT_EQ(single[ii]->oracle().users(), vec.env(i).oracle().users());
+    }
+  }
+  EXPECT_GT(homes, 0) << "episodes that end with every UAV home";
+  EXPECT_GT(timeouts, 0) << "episodes that end at T_max";
 }
 
 TEST(Env, SettlingAStepEarlyChangesNothing) {

@@ -269,6 +269,10 @@ class UavEnv {
 
  private:
   friend class VecEnv;
+  /// reset() given R at the start (what the oracle says there).
+  void reset(double start_rate);
+  /// set_oracle() given R at the start under the new oracle.
+  void set_oracle(std::shared_ptr<RateOracle> oracle, double start_rate);
   /// Phase 1 of step(): moves, boundary and collision counts; returns the new positions.
   Positions begin_step(const std::vector<int>& actions, StepInfo& info);
   /// The same for velocity commands (continuous model).
@@ -280,6 +284,11 @@ class UavEnv {
   int home_slots(int n, double x, double y, double vx, double vy) const;
   /// Phase 2: arrival, R, reward, termination, given R at the new positions.
   void end_step(const Positions& next, double rate, StepInfo& info);
+  /// Whether UAV n at `p` is at its destination (end_step's arrival rule).
+  bool at_destination(const Positions& p, int n) const;
+  /// Whether end_step(next, ...) ends the episode (every UAV home, or T_max reached), without
+  /// ending it: VecEnv prepares the next episode's oracle alongside the step's rates.
+  bool ends_episode(const Positions& next) const;
   /// Phi_n at slot t for UAV n at (x, y); updates T_min[t-1].
   int feasibility_indicator(int n, double x, double y, int t);
 
@@ -402,13 +411,21 @@ class VecEnv {
  private:
   void reset_env(std::size_t i);
   bool sampling() const;                 // a new training layout every episode
-  Positions users_of(std::size_t i) const;  // environment i's users in its current episode
+  Positions users_of(std::size_t i, std::uint64_t episode) const;  // environment i's users in that episode
+  /// Environment i's oracle for its next episode (sampling() only), its start's rate asked in
+  /// the batch of the step that ends the episode; reset_env takes it.
+  std::shared_ptr<RateOracle> next_oracle(std::size_t i) const;
   Config cfg_;
   std::shared_ptr<const Beamformer> beamformer_;
   std::uint64_t seed_;
   std::vector<std::unique_ptr<UavEnv>> envs_;
   std::vector<std::uint64_t> episodes_;
   std::vector<char> settled_;  // settle()d since begin, per environment
+  struct Prepared {
+    std::shared_ptr<RateOracle> oracle;  // next_oracle(i), made by finish()
+    double start_rate = 0;               // R at the start under it
+  };
+  std::vector<Prepared> prepared_;
   bool shared_ = false;
 };
 

@@ -243,6 +243,19 @@ std::vector<int> shield_order(const UavEnv& env, Clearance clearance) {
   return order;
 }
 
+namespace {
+
+/// The order in which the UAVs choose this slot (the turns and the joint search alike): where the
+/// UAVs with little slack reserve their ways home, reserve_order's (`urgent` and `ways` as there);
+/// else the shield order.
+std::vector<int> turn_order(const UavEnv& env, const SafetyOptions& safety, const WaysMemory* memory, std::size_t& urgent,
+                            std::optional<WaysHome>& ways) {
+  if (reserving(env, safety)) return reserve_order(env, safety, by_slack(env, safety.clearance), memory, urgent, ways);
+  return shield_order(env, safety.clearance);
+}
+
+}  // namespace
+
 struct SafeTurns::State {
   const UavEnv& env;
   SafetyOptions safety;
@@ -267,12 +280,7 @@ SafeTurns::SafeTurns(const UavEnv& env, const SafetyOptions& safety, WaysMemory*
   s.allowed_sets.assign(static_cast<std::size_t>(N), action_bit(env.hover()));
   s.placed = arrived_uavs(env);
   s.reserve = reserving(env, safety);
-  const auto slacks = by_slack(env, safety.clearance);
-  if (s.reserve) {
-    s.order = reserve_order(env, safety, slacks, memory, s.urgent, s.ways);
-  } else {
-    for (const auto& k : slacks) s.order.push_back(k.second);
-  }
+  s.order = turn_order(env, safety, memory, s.urgent, s.ways);
   begin_turn();
 }
 
@@ -481,15 +489,9 @@ std::vector<int> shielded_argmax(const UavEnv& env, const SafetyOptions& safety,
   };
   if (!safety.shield) return sequential();
   const bool reserve = reserving(env, safety);
-  const auto slacks = by_slack(env, safety.clearance);
   std::size_t urgent = 0;
-  std::vector<int> order;
   std::optional<WaysHome> ways;
-  if (reserve) {
-    order = reserve_order(env, safety, slacks, memory, urgent, ways);
-  } else {
-    for (const auto& k : slacks) order.push_back(k.second);
-  }
+  const std::vector<int> order = turn_order(env, safety, memory, urgent, ways);
   std::vector<int> actions(static_cast<std::size_t>(env.uavs()), env.hover());
   // Each UAV's moves best first, those that keep the slack margin before those that spend it: the
   // first collision-free joint move spends margin only where a collision demands it.

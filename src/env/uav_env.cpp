@@ -887,20 +887,22 @@ std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<S
       oracles.push_back(&envs_[open[j]]->oracle());
       ptrs.push_back(&next[open[j]]);
     }
-    // An episode this step ends: its environment's next oracle, the start's rate in the same batch.
+    // An episode this step ends: its environment's next oracle, the start's rate in the same batch
+    // (kept for reset_env only once the batch has succeeded).
     std::vector<std::size_t> ending;
+    std::vector<std::shared_ptr<RateOracle>> fresh;
     for (std::size_t j = first; j < last && sampling(); ++j) {
       const std::size_t i = open[j];
       if (!envs_[i]->ends_episode(next[i])) continue;
       ending.push_back(i);
-      prepared_[i].oracle = next_oracle(i);
-      oracles.push_back(prepared_[i].oracle.get());
+      fresh.push_back(next_oracle(i));
+      oracles.push_back(fresh.back().get());
       ptrs.push_back(&envs_[i]->starts());
     }
     const auto r = batch_sum_rates(oracles, ptrs);
     const std::size_t stepped = last - first;
     std::copy(r.begin(), r.begin() + static_cast<std::ptrdiff_t>(stepped), rates.begin() + static_cast<std::ptrdiff_t>(first));
-    for (std::size_t k = 0; k < ending.size(); ++k) prepared_[ending[k]].start_rate = r[stepped + k];
+    for (std::size_t k = 0; k < ending.size(); ++k) prepared_[ending[k]] = Prepared{std::move(fresh[k]), r[stepped + k]};
   });
   for (std::size_t j = 0; j < open.size(); ++j) {
     const std::size_t i = open[j];

@@ -44,7 +44,7 @@ using SumSquares = double (*)(const float*, long);
 using ColumnAtKernel = void (*)(const float*, int, int, const float*, int, int, float*, int);
 
 struct Choice {
-  Kernel fn, fn_at;
+  Kernel fn, fn_at, fn_panels;
   GatedKernel gated;
   Elementwise tanh;
   Sums sums;
@@ -56,7 +56,7 @@ struct Choice {
 };
 
 #define SKYLOOP_GEMM_CHOICE(ns, name) \
-  Choice { ns::gemm, ns::gemm_at, ns::gemm_gated, ns::tanh_inplace, ns::column_sums, ns::tanh_backward, ns::adam_step, ns::sum_squares, \
+  Choice { ns::gemm, ns::gemm_at, ns::gemm_panels, ns::gemm_gated, ns::tanh_inplace, ns::column_sums, ns::tanh_backward, ns::adam_step, ns::sum_squares, \
          ns::gemm_at_column, name }
 
 Choice choose() {
@@ -89,7 +89,8 @@ Dense pack(const float* w, int out, int in_total, int first, int count, const fl
   d.wt.assign(static_cast<std::size_t>(count) * d.out_pad, 0.0f);
   for (int o = 0; o < out; ++o)
     for (int i = 0; i < count; ++i)
-      d.wt[static_cast<std::size_t>(i) * d.out_pad + o] = w[static_cast<std::size_t>(o) * in_total + first + i];
+      d.wt[(static_cast<std::size_t>(o / kColBlock) * count + i) * kColBlock + o % kColBlock] =
+          w[static_cast<std::size_t>(o) * in_total + first + i];
   if (bias) {
     d.bias.assign(static_cast<std::size_t>(d.out_pad), 0.0f);
     std::memcpy(d.bias.data(), bias, sizeof(float) * static_cast<std::size_t>(out));
@@ -99,7 +100,8 @@ Dense pack(const float* w, int out, int in_total, int first, int count, const fl
 
 void gemm(const float* A, int lda, int rows, const Dense& w, float* C, int ldc, bool accumulate) {
   if (ldc < w.out_pad) throw std::logic_error("fast::gemm: unpadded buffers");
-  chosen().fn(A, lda, rows, w.wt.data(), w.in, w.out_pad, w.out_pad, w.bias.empty() ? nullptr : w.bias.data(), C, ldc, accumulate);
+  chosen().fn_panels(A, lda, rows, w.wt.data(), w.in, w.out_pad, w.out_pad, w.bias.empty() ? nullptr : w.bias.data(), C, ldc,
+                     accumulate);
 }
 
 void matmul(const float* A, int lda, int rows, const float* B, int inner, int cols_pad, const float* bias, float* C, int ldc,

@@ -13,8 +13,10 @@ constexpr int kColBlock = 16;   // weights pad their output width to a multiple 
 
 inline int pad_cols(int cols) { return (cols + kColBlock - 1) / kColBlock * kColBlock; }
 
-/// A linear map packed for the kernel: W^T as [in x out_pad] row-major (columns >= out are
-/// zero), the bias padded the same way (empty: no bias).
+/// A linear map packed for the kernel: W^T [in x out_pad] (columns >= out are zero) in column
+/// panels of kColBlock, each panel [in x kColBlock] row-major and contiguous (element (i, o) at
+/// wt[((o / kColBlock) * in + i) * kColBlock + o % kColBlock]), the bias padded the same way
+/// (empty: no bias).
 struct Dense {
   int in = 0, out = 0, out_pad = 0;
   std::vector<float> wt, bias;

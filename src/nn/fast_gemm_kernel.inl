@@ -26,9 +26,9 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void store(floa
 /// summed over k in order, whatever the blocking.
 template <int MR, int NV, bool TA = false>
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void block(const float* A, int lda, const float* w,
-                                                                            int in, int out_pad, const float* bias,
-                                                                            float* C, int ldc, bool accumulate,
-                                                                            const float* gate) {
+                                                                            int in, int ldb, long vstep,
+                                                                            const float* bias, float* C, int ldc,
+                                                                            bool accumulate, const float* gate) {
   vf s[MR][NV];
   for (int r = 0; r < MR; ++r)
     for (int v = 0; v < NV; ++v) {
@@ -40,9 +40,9 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void block(cons
         s[r][v] = vf{};
       }
     }
-  for (int k = 0; k < in; ++k, w += out_pad) {
+  for (int k = 0; k < in; ++k, w += ldb) {
     vf wv[NV];
-    for (int v = 0; v < NV; ++v) wv[v] = load(w + v * V);
+    for (int v = 0; v < NV; ++v) wv[v] = load(w + v * vstep);
     for (int r = 0; r < MR; ++r) {
       const float a = TA ? A[static_cast<long>(k) * lda + r] : A[r * lda + k];
       for (int v = 0; v < NV; ++v) s[r][v] += a * wv[v];
@@ -62,37 +62,45 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void block(cons
 
 /// MR rows of C across the columns [0, live), one panel of 2 V (or a last one of V) columns at a
 /// time: the MR rows of A stay in the L1 cache across the panels, and so does B when it is as
-/// small as the learners' layers (64 x 64 floats), so A is read from memory once.
+/// small as the learners' layers (64 x 64 floats), so A is read from memory once. B is row-major
+/// of row stride out_pad, or (panels) in column panels of kColBlock, each [in x kColBlock]
+/// contiguous (Dense's layout): a panel is read as one stream, where a row stride of 128 floats
+/// puts every row of a panel in the same few sets of the L1 cache.
 template <int MR, bool TA>
 SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void row_block(const float* A, int lda, const float* wt, int in,
-                                                                                int out_pad, int live, const float* bias, float* C,
-                                                                                bool accumulate, int ldc, const float* gate) {
+                                                                                int out_pad, bool panels, int live,
+                                                                                const float* bias, float* C, bool accumulate,
+                                                                                int ldc, const float* gate) {
+  const int ldb = panels ? kColBlock : out_pad;
+  const long vstep = panels && V >= kColBlock ? static_cast<long>(in) * kColBlock : V;
   for (int j = 0; j < live; j += 2 * V) {
     const float* b = bias ? bias + j : nullptr;
     const float* g = gate ? gate + j : nullptr;
-    if (live - j >= 2 * V) block<MR, 2, TA>(A, lda, wt + j, in, out_pad, b, C + j, ldc, accumulate, g);
-    else block<MR, 1, TA>(A, lda, wt + j, in, out_pad, b, C + j, ldc, accumulate, g);
+    const float* w = panels ? wt + static_cast<long>(j / kColBlock) * in * kColBlock + j % kColBlock : wt + j;
+    if (live - j >= 2 * V) block<MR, 2, TA>(A, lda, w, in, ldb, vstep, b, C + j, ldc, accumulate, g);
+    else block<MR, 1, TA>(A, lda, w, in, ldb, vstep, b, C + j, ldc, accumulate, g);
   }
 }
 
 /// Every row of C over the columns [0, width), in blocks of 6 rows.
 template <bool TA>
-SKYLOOP_GEMM_TARGET static void gemm_rows(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int width,
-                                          const float* bias, float* C, int ldc, bool accumulate, const float* gate) {
+SKYLOOP_GEMM_TARGET static void gemm_rows(const float* A, int lda, int rows, const float* wt, int in, int out_pad, bool panels,
+                                          int width, const float* bias, float* C, int ldc, bool accumulate, const float* gate) {
   auto a_at = [&](int i) { return A + (TA ? static_cast<long>(i) : static_cast<long>(i) * lda); };
   auto g_at = [&](int i) { return gate ? gate + static_cast<long>(i) * ldc : nullptr; };
   int i = 0;
   for (; i + 6 <= rows; i += 6)
-    row_block<6, TA>(a_at(i), lda, wt, in, out_pad, width, bias, C + static_cast<long>(i) * ldc, accumulate, ldc, g_at(i));
+    row_block<6, TA>(a_at(i), lda, wt, in, out_pad, panels, width, bias, C + static_cast<long>(i) * ldc, accumulate, ldc,
+                     g_at(i));
   const float* a = a_at(i);
   const float* g = g_at(i);
   float* c = C + static_cast<long>(i) * ldc;
   switch (rows - i) {
-    case 5: row_block<5, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
-    case 4: row_block<4, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
-    case 3: row_block<3, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
-    case 2: row_block<2, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
-    case 1: row_block<1, TA>(a, lda, wt, in, out_pad, width, bias, c, accumulate, ldc, g); break;
+    case 5: row_block<5, TA>(a, lda, wt, in, out_pad, panels, width, bias, c, accumulate, ldc, g); break;
+    case 4: row_block<4, TA>(a, lda, wt, in, out_pad, panels, width, bias, c, accumulate, ldc, g); break;
+    case 3: row_block<3, TA>(a, lda, wt, in, out_pad, panels, width, bias, c, accumulate, ldc, g); break;
+    case 2: row_block<2, TA>(a, lda, wt, in, out_pad, panels, width, bias, c, accumulate, ldc, g); break;
+    case 1: row_block<1, TA>(a, lda, wt, in, out_pad, panels, width, bias, c, accumulate, ldc, g); break;
     default: break;
   }
 }
@@ -103,18 +111,25 @@ SKYLOOP_GEMM_TARGET static void gemm_rows(const float* A, int lda, int rows, con
 /// sweeps the panels once, each across every row block (B's panel stays in the L1 cache).
 template <bool TA>
 SKYLOOP_GEMM_TARGET static void gemm_any(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
-                                         const float* bias, float* C, int ldc, bool accumulate, const float* gate = nullptr) {
+                                         const float* bias, float* C, int ldc, bool accumulate, const float* gate = nullptr,
+                                         bool panels = false) {
   const int live = (cols + V - 1) / V * V;
-  if (!TA) return gemm_rows<TA>(A, lda, rows, wt, in, out_pad, live, bias, C, ldc, accumulate, gate);
+  if (!TA) return gemm_rows<TA>(A, lda, rows, wt, in, out_pad, panels, live, bias, C, ldc, accumulate, gate);
   for (int j = 0; j < live; j += 2 * V)
-    gemm_rows<TA>(A, lda, rows, wt + j, in, out_pad, live - j >= 2 * V ? 2 * V : V, bias ? bias + j : nullptr, C + j, ldc,
-                  accumulate, nullptr);
+    gemm_rows<TA>(A, lda, rows, wt + j, in, out_pad, false, live - j >= 2 * V ? 2 * V : V, bias ? bias + j : nullptr, C + j,
+                  ldc, accumulate, nullptr);
 }
 
 /// C = A B (+ bias) with A [rows x in] of row stride lda.
 SKYLOOP_GEMM_TARGET static void gemm(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
                                      const float* bias, float* C, int ldc, bool accumulate) {
   gemm_any<false>(A, lda, rows, wt, in, out_pad, cols, bias, C, ldc, accumulate);
+}
+
+/// C = A B (+ bias) with B in column panels of kColBlock (Dense's layout, fast_gemm.hpp).
+SKYLOOP_GEMM_TARGET static void gemm_panels(const float* A, int lda, int rows, const float* wt, int in, int out_pad, int cols,
+                                            const float* bias, float* C, int ldc, bool accumulate) {
+  gemm_any<false>(A, lda, rows, wt, in, out_pad, cols, bias, C, ldc, accumulate, nullptr, true);
 }
 
 /// C[j * ldc] += sum_k A[k, j] B[k * ldb] for j < cols: gemm_at's arithmetic for one output

@@ -355,3 +355,47 @@ TEST(NnInternal, FusedTanhBackwardEqualsItsTwoPasses) {
           }
       }
 }
+
+// A Dense layer (fast::pack: W^T in column panels of 16, the beamformers' layout) gives the
+// floats of the same W^T row-major through matmul bit for bit, on every kernel variant: row
+// counts off the 6-row block, input widths off and on the kernel's vectors, output widths below,
+// at and past one panel and past the 2-vector blocks (the tail of V columns), with and without a
+// bias, overwriting and accumulating, and a row stride of C wider than the padded columns.
+TEST(NnInternal, DensePanelsEqualTheRowMajorKernel) {
+  std::mt19937 g(17);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  namespace fast = skyloop::nn::fast;
+  for (const int rows : {1, 5, 6, 13, 40})
+    for (const int in : {1, 8, 130})
+      for (const int out : {1, 5, 16, 17, 33, 48, 128, 130}) {
+        const int out_pad = fast::pad_cols(out), ldc = out_pad + 16;
+        std::vector<float> w(static_cast<std::size_t>(out) * in), bias(static_cast<std::size_t>(out));
+        for (auto& x : w) x = u(g);
+        for (auto& x : bias) x = u(g);
+        std::vector<float> wt(static_cast<std::size_t>(in) * out_pad, 0.0f), bias_pad(static_cast<std::size_t>(out_pad), 0.0f);
+        for (int o = 0; o < out; ++o) {
+          for (int i = 0; i < in; ++i) wt[static_cast<std::size_t>(i) * out_pad + o] = w[static_cast<std::size_t>(o) * in + i];
+          bias_pad[static_cast<std::size_t>(o)] = bias[static_cast<std::size_t>(o)];
+        }
+        std::vector<float> A(static_cast<std::size_t>(rows) * in);
+        for (auto& x : A) x = u(g);
+        for (const bool with_bias : {false, true}) {
+          const fast::Dense d = fast::pack(w.data(), out, in, 0, in, with_bias ? bias.data() : nullptr);
+          std::vector<float> panels(static_cast<std::size_t>(rows) * ldc, 0.5f), rowmajor = panels;
+          for (const bool accumulate : {false, true}) {
+            fast::gemm(A.data(), in, rows, d, panels.data(), ldc, accumulate);
+            fast::matmul(A.data(), in, rows, wt.data(), in, out_pad, with_bias ? bias_pad.data() : nullptr, rowmajor.data(), ldc,
+                         accumulate);
+            ASSERT_EQ(std::memcmp(panels.data(), rowmajor.data(), sizeof(float) * panels.size()), 0)
+                << "rows " << rows << " in " << in << " out " << out << " bias " << with_bias << " accumulate " << accumulate;
+            if (accumulate) continue;
+            // And both are the layer: the last row's last output against a sum in double
+            // (|terms| <= 1, so float32 rounding over `in` terms stays below in * 1e-6).
+            double ref = with_bias ? bias[static_cast<std::size_t>(out - 1)] : 0.0;
+            for (int i = 0; i < in; ++i)
+              ref += static_cast<double>(A[static_cast<std::size_t>(rows - 1) * in + i]) * w[static_cast<std::size_t>(out - 1) * in + i];
+            EXPECT_NEAR(panels[static_cast<std::size_t>(rows - 1) * ldc + out - 1], ref, 1e-6 * (in + 1));
+          }
+        }
+      }
+}

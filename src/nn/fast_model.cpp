@@ -56,10 +56,10 @@ SKYLOOP_CLONES void relu(Mat& m) {
   }
 }
 
-/// LayerNorm over each row's columns (biased variance), as torch::nn::LayerNorm. The row sums
-/// run over 8 interleaved partial sums (vectorisable without reassociating across the lanes'
-/// own order).
-SKYLOOP_CLONES void layer_norm(Mat& m, const Norm& n) {
+/// LayerNorm over each row's columns (biased variance), as torch::nn::LayerNorm, then the ReLU
+/// that follows it in every block, in the last pass's store. The row sums run over 8 interleaved
+/// partial sums (vectorisable without reassociating across the lanes' own order).
+SKYLOOP_CLONES void layer_norm_relu(Mat& m, const Norm& n) {
   const int d = m.cols;
   const float* __restrict gamma = n.gamma.data();
   const float* __restrict beta = n.beta.data();
@@ -81,12 +81,14 @@ SKYLOOP_CLONES void layer_norm(Mat& m, const Norm& n) {
     for (int i = 0; i < 8; ++i) var += part[i];
     for (; c < d; ++c) var += (x[c] - mean) * (x[c] - mean);
     const float inv = 1.0f / std::sqrt(var / static_cast<float>(d) + n.eps);
-    for (c = 0; c < d; ++c) x[c] = (x[c] - mean) * inv * gamma[c] + beta[c];
+    for (c = 0; c < d; ++c) x[c] = std::max((x[c] - mean) * inv * gamma[c] + beta[c], 0.0f);
   }
 }
 
-/// GraphNorm over each cluster's user rows, as GraphNormImpl (models.cpp).
-SKYLOOP_CLONES void graph_norm(Mat& m, const Norm& n, const Segments& s, std::vector<float>& tmp) {
+/// GraphNorm over each cluster's user rows, as GraphNormImpl (models.cpp), then the ReLU that
+/// follows it in every block. Two passes read a cluster's rows (mean, then variance) and one writes them:
+/// x - mean is recomputed in the last, the same float as a stored one (no contraction here).
+SKYLOOP_CLONES void graph_norm_relu(Mat& m, const Norm& n, const Segments& s, std::vector<float>& tmp) {
   const int d = m.cols;
   tmp.assign(static_cast<std::size_t>(2 * d), 0.0f);
   float* __restrict mean = tmp.data();
@@ -104,16 +106,16 @@ SKYLOOP_CLONES void graph_norm(Mat& m, const Norm& n, const Segments& s, std::ve
     }
     for (int j = 0; j < d; ++j) mean[j] = alpha[j] * (mean[j] * inv_k);
     for (int r = a; r < b; ++r) {
-      float* __restrict x = m.row(r);
+      const float* __restrict x = m.row(r);
       for (int j = 0; j < d; ++j) {
-        x[j] -= mean[j];
-        var[j] += x[j] * x[j];
+        const float t = x[j] - mean[j];
+        var[j] += t * t;
       }
     }
     for (int j = 0; j < d; ++j) var[j] = gamma[j] / std::sqrt(var[j] * inv_k + n.eps);
     for (int r = a; r < b; ++r) {
       float* __restrict x = m.row(r);
-      for (int j = 0; j < d; ++j) x[j] = x[j] * var[j] + beta[j];
+      for (int j = 0; j < d; ++j) x[j] = std::max((x[j] - mean[j]) * var[j] + beta[j], 0.0f);
     }
   }
 }
@@ -242,9 +244,11 @@ struct Work {
   std::vector<float> scratch;
 };
 
-void apply_norm(Mat& m, const Norm& n, const Segments& s, Work& w) {
-  if (n.kind == NormKind::Graph) graph_norm(m, n, s, w.scratch);
-  else if (n.kind == NormKind::Layer) layer_norm(m, n);
+/// The block's norm, then its ReLU (fused into the norm's last pass).
+void norm_relu(Mat& m, const Norm& n, const Segments& s, Work& w) {
+  if (n.kind == NormKind::Graph) graph_norm_relu(m, n, s, w.scratch);
+  else if (n.kind == NormKind::Layer) layer_norm_relu(m, n);
+  else relu(m);
 }
 
 /// out = block(parts) over `rows` rows (users, or clusters for a UAV block).
@@ -266,13 +270,11 @@ void run(const Block& b, const std::vector<Part>& parts, int rows, const Segment
       for (int j = 0; j < hidden; ++j) o[j] += t[j];
     }
   }
-  apply_norm(w.h, b.n1, s, w);
-  relu(w.h);
+  norm_relu(w.h, b.n1, s, w);
   out.resize(rows, b.l2.out);
   gemm(w.h.v.data(), w.h.ld, rows, b.l2, out.v.data(), out.ld, false);
   if (!b.final) {
-    apply_norm(out, b.n2, s, w);
-    relu(out);
+    norm_relu(out, b.n2, s, w);
   }
 }
 

@@ -365,7 +365,7 @@ TEST(NnInternal, DensePanelsEqualTheRowMajorKernel) {
   std::mt19937 g(17);
   std::uniform_real_distribution<float> u(-1.0f, 1.0f);
   namespace fast = skyloop::nn::fast;
-  for (const int rows : {1, 5, 6, 13, 40})
+  for (const int rows : {1, 5, 6, 13, 40, 73})
     for (const int in : {1, 8, 130})
       for (const int out : {1, 5, 16, 17, 33, 48, 128, 130}) {
         const int out_pad = fast::pad_cols(out), ldc = out_pad + 16;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 #include <limits>
 #include <stdexcept>
 
@@ -252,13 +253,15 @@ void norm_relu(Mat& m, const Norm& n, const Segments& s, Work& w) {
 }
 
 /// out = block(parts) over `rows` rows (users, or clusters for a UAV block).
-void run(const Block& b, const std::vector<Part>& parts, int rows, const Segments& s, Mat& out, Work& w) {
+/// The parts come as an initializer list (on the stack: a forward allocates nothing per block).
+void run(const Block& b, std::initializer_list<Part> parts, int rows, const Segments& s, Mat& out, Work& w) {
   const int hidden = b.l1.front().out;
+  const Part* part = parts.begin();
   w.h.resize(rows, hidden);
-  gemm(parts[0].m->v.data(), parts[0].m->ld, rows, b.l1[0], w.h.v.data(), w.h.ld, false);
+  gemm(part[0].m->v.data(), part[0].m->ld, rows, b.l1[0], w.h.v.data(), w.h.ld, false);
   for (std::size_t i = 1; i < parts.size(); ++i) {
-    const Mat& in = *parts[i].m;
-    if (!parts[i].broadcast) {
+    const Mat& in = *part[i].m;
+    if (!part[i].broadcast) {
       gemm(in.v.data(), in.ld, rows, b.l1[i], w.h.v.data(), w.h.ld, true);
       continue;
     }
@@ -280,8 +283,10 @@ void run(const Block& b, const std::vector<Part>& parts, int rows, const Segment
 
 }  // namespace
 
+enum class Arch { Gnn, DeepSets, MsPointNet };  // nn.model, resolved once when the model is built
+
 struct Model::Impl {
-  std::string kind;  // gnn | deepsets | mspointnet
+  Arch arch = Arch::Gnn;
   bool structured = false;
   bool log_features = false;  // nn.features = "log" (models.hpp, encode_features)
   int antennas = 0;
@@ -302,7 +307,7 @@ namespace {
 
 struct Buffers {
   Work w;
-  Mat x, xin, u, a, mu, ma, mo, mean, u2, a2, y, pooled;
+  Mat x, xin, u, a, mu, ma, mo, mean, u2, a2, y, pooled, per_antenna;
 };
 
 Buffers& buffers() {
@@ -315,7 +320,7 @@ Buffers& buffers() {
 void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
   Buffers& B = buffers();
   const int U = s.users(), C = s.clusters();
-  if (kind == "gnn") {
+  if (arch == Arch::Gnn) {
     run(user_enc, {{&x, false}}, U, s, B.u, w);
     segment_mean(B.u, s, B.mean);
     run(uav_enc, {{&B.mean, false}}, C, s, B.a, w);
@@ -333,7 +338,7 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
     return;
   }
   const Mat* feature = &B.u;
-  if (kind == "deepsets") {
+  if (arch == Arch::DeepSets) {
     run(phi1, {{&x, false}}, U, s, B.u2, w);
     run(phi2, {{&B.u2, false}}, U, s, B.u, w);
   } else {  // mspointnet: x -> [U, L * 3c] (antenna-major) -> mix per antenna -> projection
@@ -341,7 +346,7 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
     gemm(x.v.data(), x.ld, U, conv, B.u2.v.data(), B.u2.ld, false);
     relu(B.u2);
     // Each user row holds L antenna rows of 3c channels: the 1x1 mix is one GEMM over U * L rows.
-    Mat per_antenna;
+    Mat& per_antenna = B.per_antenna;
     per_antenna.resize(U * antennas, channels);
     for (int r = 0; r < U; ++r)
       for (int l = 0; l < antennas; ++l)
@@ -368,13 +373,13 @@ Model::~Model() = default;
 
 std::unique_ptr<Model> Model::build(const ModelInfo& info, const Params& p) {
   auto m = std::make_unique<Impl>();
-  m->kind = info.model;
   m->structured = info.readout == "structured";
   m->log_features = info.features == "log";
   m->antennas = info.antennas;
   m->feature_scale = static_cast<float>(info.feature_scale);
   const int L = info.antennas, d = info.hidden, out = m->structured ? 2 : 2 * L;
   if (info.model == "gnn") {
+    m->arch = Arch::Gnn;
     m->user_enc = Block::load(p, "user_enc", {2 * L}, d, d, NormKind::Graph, false);
     m->uav_enc = Block::load(p, "uav_enc", {d}, d, d, NormKind::Layer, false);
     for (int l = 0; l < info.layers; ++l) {
@@ -386,12 +391,14 @@ std::unique_ptr<Model> Model::build(const ModelInfo& info, const Params& p) {
     }
     m->out = Block::load(p, "out", {d}, d, out, NormKind::Graph, true);
   } else if (info.model == "deepsets") {
+    m->arch = Arch::DeepSets;
     const int w = 2 * d;
     m->phi1 = Block::load(p, "phi1", {2 * L}, w, w, NormKind::None, false);
     m->phi2 = Block::load(p, "phi2", {w}, w, w, NormKind::None, false);
     m->head1 = Block::load(p, "head1", {w, w}, w, w, NormKind::None, false);
     m->head2 = Block::load(p, "head2", {w}, w, out, NormKind::None, true);
   } else if (info.model == "mspointnet") {
+    m->arch = Arch::MsPointNet;
     const int c = d / 2, w = 2 * d;
     m->channels = 3 * c;
     // Conv1d k = 1, 3, 5 (padding 0, 1, 2) over the antenna axis of s = [Re h; Im h] as one dense

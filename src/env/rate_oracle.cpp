@@ -252,10 +252,23 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
 }
 
 std::vector<double> RateOracle::sum_rates(const std::vector<Positions>& all) {
-  std::vector<RateOracle*> self(all.size(), this);
-  std::vector<const Positions*> ptrs;
-  for (const auto& p : all) ptrs.push_back(&p);
-  return batch_sum_rates(self, ptrs);
+  // In chunks whose channels (users x antennas x fast slots per position set, at most: a user is
+  // in one cluster) stay within 2^24 complex entries (256 MiB): a planner's batch over every cell
+  // and slot with thousands of users would otherwise hold them all at once. The rates are the
+  // same: a chunk's misses are in the memo for the next.
+  const double per_set = static_cast<double>(std::max<Eigen::Index>(users_.rows(), 1)) * model_.antennas() * model_.fast_slots();
+  const std::size_t chunk = static_cast<std::size_t>(std::max(1.0, std::floor(16777216.0 / per_set)));
+  std::vector<double> out;
+  out.reserve(all.size());
+  for (std::size_t first = 0; first < all.size(); first += chunk) {
+    const std::size_t last = std::min(all.size(), first + chunk);
+    std::vector<RateOracle*> self(last - first, this);
+    std::vector<const Positions*> ptrs;
+    for (std::size_t i = first; i < last; ++i) ptrs.push_back(&all[i]);
+    const auto r = batch_sum_rates(self, ptrs);
+    out.insert(out.end(), r.begin(), r.end());
+  }
+  return out;
 }
 
 std::optional<double> RateOracle::cached_sum_rate(const Positions& uavs) {

@@ -176,12 +176,13 @@ EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Pl
   return run_episode(env, planner);
 }
 
-Run::Run(const Config& cfg, const MarlTrainOptions& opt)
+Run::Run(const Config& cfg, const MarlTrainOptions& opt, const std::function<void(const VecEnv&)>& check)
     : dir(opt.out_dir),
       last((dir / "last.pt").string()),
       final_path((dir / "policy.pt").string()),
       device(device_of(cfg)),
       vec(make_training_envs(cfg, *opt.registry)) {
+  if (check) check(vec);
   set_torch_threads(cfg.run.threads);
   if (opt.resume && !std::filesystem::exists(last))
     throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");

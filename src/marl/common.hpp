@@ -142,9 +142,11 @@ torch::Device device_of(const Config& cfg);
 std::string learner_backend(const Config& cfg);
 
 /// What every learner needs before its loop: torch threads set, the run's paths (checked for
-/// --resume), the device, and M environments on the shared training scenario.
+/// --resume), the device, and M environments on the shared training scenario. `check`, when
+/// given, sees the environments before the run directory is touched (--force removes an earlier
+/// run only once it has passed): the learner's checks of what its sizes need (require_memory).
 struct Run {
-  Run(const Config& cfg, const MarlTrainOptions& opt);
+  Run(const Config& cfg, const MarlTrainOptions& opt, const std::function<void(const VecEnv&)>& check = {});
   std::filesystem::path dir;
   std::string last, final_path;
   torch::Device device{torch::kCPU};

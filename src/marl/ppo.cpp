@@ -14,6 +14,7 @@
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/parallel.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/memory.hpp"
 #include "skyloop/core/progress.hpp"
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/nn/learned.hpp"
@@ -99,6 +100,15 @@ Rollout::Rollout(int steps, int envs, int agents, int obs, int critic, int actio
   next_values.resize(static_cast<std::size_t>(M) * N);
   advantages.resize(S);
   returns.resize(S);
+}
+
+double Rollout::bytes(int steps, int envs, int agents, int obs, int critic, int action_count, int dims, int minibatches) {
+  // Per sample: its floats above (observation, critic input, raw action, allowed moves, log-prob,
+  // value, active, advantage, return) and the action; per environment step: reward and done.
+  const double per_sample = 4.0 * (obs + critic + dims + action_count + 6) + 8.0;
+  const double samples = static_cast<double>(steps) * envs * agents;
+  const double gathered = samples / std::max(minibatches, 1) * (per_sample + 4.0 * 2);
+  return samples * per_sample + 8.0 * steps * envs + gathered;
 }
 
 void UpdateStats::add(const UpdateStats& o, double w) {
@@ -918,10 +928,20 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
 
 MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   const auto& m = cfg.marl;
-  Run run(cfg, opt);
-  VecEnv& vec = run.vec;
   const Encoder encoder = encoder_of(cfg, false);
   const CriticReader critic = CriticReader::of(cfg, encoder);
+  Run run(cfg, opt, [&](const VecEnv& v) {
+    const ActionSpec& actions = v.env(0).mobility().actions();
+    const int n = v.env(0).uavs(), obs = encoder.width(v.env(0)), crit = critic.width(v.env(0));
+    const double bytes = Rollout::bytes(m.rollout, v.size(), n, obs, crit, actions.dims > 0 ? 0 : v.env(0).actions(),
+                                        actions.dims, m.minibatches);
+    require_memory(bytes,
+                   fmt::format("the PPO rollout of marl.rollout = {} steps x marl.envs = {} environments x {} UAVs ({} + {} "
+                               "floats an agent step)", m.rollout, v.size(), n, obs, crit),
+                   fmt::format("allowed marl.rollout x marl.envs <= {:.0f} for this scenario",
+                               std::floor(memory_limit_bytes() / (bytes / (static_cast<double>(m.rollout) * v.size())))));
+  });
+  VecEnv& vec = run.vec;
   const SafetyOptions safety = training_safety_options(cfg);
   const int N = vec.env(0).uavs(), M = vec.size(), obs_width = encoder.width(vec.env(0)), critic_width = critic.width(vec.env(0));
   // The continuous model: a squashed Gaussian over its command (C dimensions), else a softmax over the A actions.

@@ -59,6 +59,8 @@ struct Rollout {
     return (static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)) * N + static_cast<std::size_t>(n);
   }
   std::size_t samples() const { return static_cast<std::size_t>(T) * M * N; }
+  /// The bytes a rollout of these sizes holds, with one minibatch of it gathered (update's scratch).
+  static double bytes(int steps, int envs, int agents, int obs_width, int critic_width, int actions, int dims, int minibatches);
 };
 
 /// Minibatch rows gathered contiguously from a rollout (advantages normalised, returns and old

@@ -11,6 +11,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/memory.hpp"
 #include "skyloop/core/progress.hpp"
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/core/rng.hpp"
@@ -24,6 +25,12 @@ namespace {
 struct EpisodeBuffer {
   torch::Tensor obs, state, mask, allow, act, rew, done, valid;
   int64_t capacity = 0, size = 0, next = 0;
+  /// The bytes the tensors below hold.
+  static double bytes(int64_t cap, int64_t tmax, int64_t n, int64_t d, int64_t s, int64_t actions) {
+    const double slots = static_cast<double>(cap) * static_cast<double>(tmax);
+    const double transitions = static_cast<double>(cap) * static_cast<double>(tmax - 1);
+    return slots * 4.0 * static_cast<double>(n * d + n * actions + s + n) + transitions * (8.0 * static_cast<double>(n) + 12.0);
+  }
   EpisodeBuffer(int64_t cap, int64_t tmax, int64_t n, int64_t d, int64_t s, int64_t actions, int64_t hover) : capacity(cap) {
     obs = torch::zeros({cap, tmax, n, d});
     allow = torch::ones({cap, tmax, n, actions});
@@ -248,7 +255,16 @@ class ValueDecompositionCore {
 MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOptions& opt) {
   using Clock = std::chrono::steady_clock;
   const auto& m = cfg.marl;
-  Run run(cfg, opt);
+  Run run(cfg, opt, [&](const VecEnv& v) {
+    const UavEnv& e = v.env(0);
+    const int n = e.uavs(), d = encoder_of(cfg, true).width(e);
+    const double per_episode = EpisodeBuffer::bytes(1, e.t_max(), n, d, e.state_size(), e.actions());
+    require_memory(per_episode * static_cast<double>(m.buffer_episodes),
+                   fmt::format("the {} replay buffer of marl.buffer_episodes = {} episodes of trajectory.t_max = {} slots x {} UAVs",
+                               m.algo, m.buffer_episodes, e.t_max(), n),
+                   fmt::format("allowed marl.buffer_episodes <= {:.0f} for this scenario",
+                               std::floor(memory_limit_bytes() / per_episode)));
+  });
   VecEnv& vec = run.vec;
   const int N = vec.env(0).uavs(), M = vec.size();
   ValueDecompositionCore core(cfg, vec);

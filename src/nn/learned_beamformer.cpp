@@ -178,20 +178,32 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
   }
   if (impl_->fast) return design_fast(nonempty, where, std::move(out), threads);
   c10::InferenceMode inference;  // no autograd bookkeeping at all (cheaper than NoGradGuard)
-  const std::vector<int> owner(nonempty.size(), 0);
-  const nn::ClusterSet set = nn::make_cluster_set(nonempty, owner, 1);
-  const auto ids = torch::arange(static_cast<int64_t>(nonempty.size()), torch::kInt64);
-  const nn::Batch b = nn::make_batch(set, ids, impl_->info.feature_scale, impl_->device, impl_->dtype);
-  const auto raw = impl_->model->forward(b.x, b.graph).to(torch::kCPU).to(torch::kFloat64).contiguous();
-  const auto acc = raw.accessor<double, 2>();
+  // In batches of at most kBatchRows users (or one cluster), so that a batch's tensors stay bounded.
+  constexpr int kBatchRows = 65536;
   const int L = impl_->info.antennas;
-  int64_t row = 0;
-  for (std::size_t i = 0; i < nonempty.size(); ++i) {
-    const Cluster& c = nonempty[i];
-    MatrixXcd W(L, c.size());
-    for (int k = 0; k < c.size(); ++k, ++row)
-      for (int l = 0; l < L; ++l) W(l, k) = cdouble(acc[row][l], acc[row][L + l]);
-    out[where[i]] = impl_->finish(c, std::move(W));
+  for (std::size_t begin = 0; begin < nonempty.size();) {
+    std::vector<Cluster> part;
+    int rows = 0;
+    std::size_t end = begin;
+    for (; end < nonempty.size() && (end == begin || rows + nonempty[end].size() <= kBatchRows); ++end) {
+      part.push_back(nonempty[end]);
+      rows += nonempty[end].size();
+    }
+    const std::vector<int> owner(part.size(), 0);
+    const nn::ClusterSet set = nn::make_cluster_set(part, owner, 1);
+    const auto ids = torch::arange(static_cast<int64_t>(part.size()), torch::kInt64);
+    const nn::Batch b = nn::make_batch(set, ids, impl_->info.feature_scale, impl_->device, impl_->dtype);
+    const auto raw = impl_->model->forward(b.x, b.graph).to(torch::kCPU).to(torch::kFloat64).contiguous();
+    const auto acc = raw.accessor<double, 2>();
+    int64_t row = 0;
+    for (std::size_t i = begin; i < end; ++i) {
+      const Cluster& c = nonempty[i];
+      MatrixXcd W(L, c.size());
+      for (int k = 0; k < c.size(); ++k, ++row)
+        for (int l = 0; l < L; ++l) W(l, k) = cdouble(acc[row][l], acc[row][L + l]);
+      out[where[i]] = impl_->finish(c, std::move(W));
+    }
+    begin = end;
   }
   return out;
 }
@@ -204,13 +216,25 @@ std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<Cluster>
   constexpr std::size_t kSlice = 8;
   const std::size_t slices = std::max<std::size_t>(
       1, std::min<std::size_t>(static_cast<std::size_t>(resolve_threads(threads)), nonempty.size() / kSlice));
+  // A slice is passed in pieces of at most kPieceRows users (or one cluster): the activations a
+  // pass holds (about 5 KB a user row, kept by the thread for the next pass) stay bounded whatever
+  // the batch. A cluster's design does not depend on the others in its pass: the same floats.
+  constexpr int kPieceRows = 16384;
   parallel_for(slices, static_cast<int>(slices), [&](std::size_t i) {
     const std::size_t first = nonempty.size() * i / slices, last = nonempty.size() * (i + 1) / slices;
     std::vector<const Cluster*> part;
-    for (std::size_t j = first; j < last; ++j) part.push_back(&nonempty[j]);
-    auto raw = impl_->fast->forward(part);
-    for (std::size_t j = first; j < last; ++j)
-      out[where[j]] = impl_->finish(nonempty[j], std::move(raw[j - first]));
+    for (std::size_t begin = first; begin < last;) {
+      part.clear();
+      int rows = 0;
+      std::size_t end = begin;
+      for (; end < last && (end == begin || rows + nonempty[end].size() <= kPieceRows); ++end) {
+        part.push_back(&nonempty[end]);
+        rows += nonempty[end].size();
+      }
+      auto raw = impl_->fast->forward(part);
+      for (std::size_t j = begin; j < end; ++j) out[where[j]] = impl_->finish(nonempty[j], std::move(raw[j - begin]));
+      begin = end;
+    }
   });
   return out;
 }

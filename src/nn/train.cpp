@@ -14,6 +14,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/memory.hpp"
 #include "skyloop/core/progress.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/beamforming/registry.hpp"
@@ -82,12 +83,29 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   const std::string last_path = (dir / "last.pt").string(), best_path = (dir / "model.pt").string();
   if (opt.resume && !fs::exists(last_path))
     throw InputError("--resume: '" + last_path + "' does not exist: allowed a directory of an earlier training run");
+  const bool network = nn::make_model(cfg.nn.model, cfg.channel.antennas, 4, 1)->network();
+  {
+    // What the data sets hold (measured: about 2.2 KB a snapshot at N = 3, K = 12, L = 4): each
+    // user's channel row twice (the snapshot's clusters and the set's tensors), N of them for a
+    // network, and a few hundred bytes a cluster; the test set as networks.
+    const double N = cfg.scenario.uavs, K = cfg.scenario.users, L = cfg.channel.antennas;
+    auto per_snapshot = [&](bool whole) { return (whole ? N : 1.0) * K * L * 32.0 + 200.0 * N + 64.0; };
+    const double learn = static_cast<double>(cfg.nn.train_samples) + static_cast<double>(cfg.nn.val_samples);
+    const double bytes = learn * per_snapshot(network) + static_cast<double>(cfg.nn.test_samples) * per_snapshot(true);
+    require_memory(bytes,
+                   fmt::format("nn.train_samples = {} + nn.val_samples = {} + nn.test_samples = {} snapshots of {} UAVs x {} "
+                               "users x {} antennas", cfg.nn.train_samples, cfg.nn.val_samples, cfg.nn.test_samples,
+                               cfg.scenario.uavs, cfg.scenario.users, cfg.channel.antennas),
+                   fmt::format("allowed nn.train_samples + nn.val_samples <= {:.0f} for this scenario and nn.test_samples",
+                               std::max(0.0, std::floor((memory_limit_bytes() - static_cast<double>(cfg.nn.test_samples) *
+                                                                                    per_snapshot(true)) /
+                                                        per_snapshot(network)))));
+  }
   check_fresh_run_dir(opt.out_dir, {"model.pt", "last.pt", "test.json", "metrics.csv"}, opt.resume, opt.force);
   remove_stale_temporaries(opt.out_dir);
 
   // Data: snapshots of N UAVs and K users; their clusters are the graph instances.
   const auto t_data = Clock::now();
-  const bool network = nn::make_model(cfg.nn.model, cfg.channel.antennas, 4, 1)->network();
   const nn::TrainData train = nn::make_data(cfg, nn::Split::Train, static_cast<std::size_t>(cfg.nn.train_samples), network);
   const nn::TrainData val = nn::make_data(cfg, nn::Split::Validation, static_cast<std::size_t>(cfg.nn.val_samples), network);
   const double data_s = std::chrono::duration<double>(Clock::now() - t_data).count();

@@ -124,6 +124,31 @@ TEST(Cli, FailedRunLeavesEarlierOutputIntact) {
     EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << e.path();
 }
 
+// An input that asks for more memory than any machine has (a PPO rollout, a replay buffer, a
+// beamformer's data sets: terabytes here) is refused in one line naming the fields, before the run
+// directory is touched (--force removes an earlier run only once the checks pass).
+TEST(Cli, InputsBeyondMemoryAreRefusedBeforeTheRunDirectory) {
+  const std::string dir = tmpdir("memory");
+  {
+    std::ofstream(dir + "/policy.pt") << "earlier run";
+    std::ofstream(dir + "/model.pt") << "earlier model";
+  }
+  const std::pair<std::string, std::string> cases[] = {
+      {"train --set marl.envs=4096 --set marl.rollout=1000000", "marl.rollout = 1000000 steps x marl.envs = 4096"},
+      {"train --algo vdn --set marl.buffer_episodes=10000000 --set trajectory.t_max=10000", "marl.buffer_episodes = 10000000"},
+      {"beamform train --set scenario.users=4096 --set nn.train_samples=100000000", "nn.train_samples = 100000000"},
+  };
+  for (const auto& [args, names] : cases) {
+    const auto r = run(args + " --force --out " + dir);
+    EXPECT_EQ(r.code, 2) << args << ": " << r.err;
+    EXPECT_EQ(lines(r.err), 1) << r.err;
+    EXPECT_NE(r.err.find(names), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("of memory this process may use: allowed"), std::string::npos) << r.err;
+  }
+  EXPECT_EQ(slurp(dir + "/policy.pt"), "earlier run");
+  EXPECT_EQ(slurp(dir + "/model.pt"), "earlier model");
+}
+
 TEST(Cli, SnapshotJsonHasEveryPerUserQuantity) {
   const auto r = run("snapshot --scenario " + kSrc + "/configs/scenarios/two_uavs.toml --method zf --json");
   ASSERT_EQ(r.code, 0) << r.err;

@@ -224,6 +224,34 @@ TEST(Env, OracleRatesOfOneUavsMovesAreTheDirectRates) {
   }
 }
 
+// A batch of position sets whose channels exceed the oracle's chunk (2^24 complex entries: here
+// 4,096 users x 4 antennas, 1,024 sets a chunk) is asked in chunks: every rate is the one the set
+// gets alone and from the clusters built afresh, bit for bit, across the chunks' seams.
+TEST(Env, OracleChunksOfLargeBatchesGiveTheDirectRates) {
+  Config cfg;
+  auto bf = zf_bf();
+  const Positions users = make_users(cfg, 4096, 8);
+  RateOracle oracle(cfg, bf, users), alone(cfg, bf, users);
+  const SystemModel model(cfg);
+  Positions start(3, 2);
+  start << 60, 60, 60, 140, 140, 100;
+  std::vector<Positions> sets;
+  for (int i = 0; i < 2500; ++i) {  // UAV i % 3 at one of its nine moves: 27 distinct sets
+    sets.push_back(start);
+    const int n = i % 3, c = (i / 3) % 9;
+    sets.back()(n, 0) += 20.0 * (c % 3 - 1), sets.back()(n, 1) += 20.0 * (c / 3 - 1);
+  }
+  const auto batch = oracle.sum_rates(sets);
+  ASSERT_EQ(batch.size(), sets.size());
+  for (std::size_t i = 0; i < 27; ++i) {
+    double direct = 0;
+    for (const auto& c : model.clusters(Snapshot{sets[i], users})) direct += sum_rate(c, bf->design(c));
+    ASSERT_EQ(batch[i], direct) << "set " << i;
+    ASSERT_EQ(alone.sum_rate(sets[i]), batch[i]) << "set " << i;
+    for (std::size_t j = i + 27; j < sets.size(); j += 27) ASSERT_EQ(batch[j], batch[i]) << "set " << j;
+  }
+}
+
 TEST(Env, VectorEnvMatchesSingleEnvs) {
   Config cfg;
   VecEnv vec(cfg, zf_bf(), 4, 11);

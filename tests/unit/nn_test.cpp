@@ -162,6 +162,29 @@ TEST(Learned, BatchedEqualsOneByOne) {
   }
 }
 
+// A batch larger than one pass is served in pieces (the fast path at most 16,384 user rows a pass
+// on each thread, the torch path 65,536 a batch), so that what a pass holds stays bounded whatever
+// the batch: every cluster still gets the beams it gets alone. On the fast path those are the same
+// floats (a cluster never meets another in the arithmetic of a pass); the torch path in float64
+// is held to kF64Tol as above.
+TEST(Learned, BatchesBeyondOnePassEqualOneByOne) {
+  const auto big = test::clusters_of_size(tiny_config("gnn"), 64, 1100, 91);  // 70,400 user rows
+  const Config cfg = tiny_config("gnn");
+  const auto fast = LearnedBeamformer::load(tiny_model("gnn"), cfg);
+  ASSERT_TRUE(fast->fast());
+  for (int threads : {1, 2}) {
+    const auto W = fast->design_batch(big, threads);
+    for (std::size_t i = 0; i < big.size(); i += 7) ASSERT_EQ(W[i], fast->design(big[i])) << "cluster " << i << ", threads " << threads;
+    ASSERT_EQ(W.back(), fast->design(big.back()));
+  }
+  const auto reference = LearnedBeamformer::load(tiny_model("gnn"), f64(cfg));
+  ASSERT_FALSE(reference->fast());
+  const auto W = reference->design_batch(big);
+  for (std::size_t i = 0; i < big.size(); i += 50)
+    EXPECT_LT((W[i] - reference->design(big[i])).norm(), kF64Tol * std::sqrt(big[i].p_max)) << "cluster " << i;
+  EXPECT_LT((W.back() - reference->design(big.back())).norm(), kF64Tol * std::sqrt(big.back().p_max));
+}
+
 // The rate oracle hands a batch's misses to the beamformer on run.threads threads (the fast path
 // in slices of clusters): every rate must be the same double on one thread, on two, and from
 // inside a parallel_for (where the oracle stays on its thread).

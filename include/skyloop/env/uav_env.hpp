@@ -375,6 +375,7 @@ class VecEnv {
   VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count);
   int size() const { return static_cast<int>(envs_.size()); }
   UavEnv& env(int i) { return *envs_[static_cast<std::size_t>(i)]; }
+  const UavEnv& env(int i) const { return *envs_[static_cast<std::size_t>(i)]; }
   /// Whether the environments share one rate oracle (the second constructor); otherwise each
   /// environment's oracle is its own and no other environment touches it.
   bool shares_oracle() const { return shared_; }

@@ -28,9 +28,7 @@ double cgroup_limit(const char* path) {
   }
 }
 
-}  // namespace
-
-double memory_limit_bytes() {
+double read_memory_limit() {
   double limit = 0.0;
   auto take = [&](double v) {
     if (v > 0) limit = limit > 0 ? std::min(limit, v) : v;
@@ -41,6 +39,13 @@ double memory_limit_bytes() {
   take(cgroup_limit("/sys/fs/cgroup/memory/memory.limit_in_bytes"));
   rlimit as{};
   if (getrlimit(RLIMIT_AS, &as) == 0 && as.rlim_cur != RLIM_INFINITY) take(static_cast<double>(as.rlim_cur));
+  return limit;
+}
+
+}  // namespace
+
+double memory_limit_bytes() {
+  static const double limit = read_memory_limit();  // read once: callers may sit on hot paths
   return limit;
 }
 

@@ -160,8 +160,19 @@ void MobilityModel::home_command(double dx, double dy, double& vx, double& vy) c
 
 LatticeFrame::LatticeFrame(double x, double y, double area_x, double area_y, double d)
     : ox(std::fmod(x, d)), oy(std::fmod(y, d)), pitch(d) {
-  nx = static_cast<int>(std::floor((area_x - ox) / d + 1e-9)) + 1;
-  ny = static_cast<int>(std::floor((area_y - oy) / d + 1e-9)) + 1;
+  const double fx = std::floor((area_x - ox) / d + 1e-9) + 1, fy = std::floor((area_y - oy) / d + 1e-9) + 1;
+  if (fx * fy > kMaxLatticeCells) {
+    // The finest pitch within the limit: (area_x / d + 1) (area_y / d + 1) <= kMaxLatticeCells.
+    const double a = kMaxLatticeCells - 1, b = -(area_x + area_y), c = -area_x * area_y;
+    const double finest = (-b + std::sqrt(b * b - 4 * a * c)) / (2 * a);
+    throw InputError("the D_fly lattice of the " + format_double(area_x) + " x " + format_double(area_y) +
+                     " m area (scenario.area_x_m x scenario.area_y_m) at trajectory.d_fly_m = " + format_double(d) + " has " +
+                     format_double(fx * fy) + " points: allowed at most 2^24 (16,777,216), i.e. trajectory.d_fly_m >= " +
+                     format_double(std::ceil(finest * 1000) / 1000) + " m on this area (the planners, the headings model and "
+                     "the mask's clearances plan on it)");
+  }
+  nx = static_cast<int>(fx);
+  ny = static_cast<int>(fy);
 }
 
 int LatticeFrame::cell(double x, double y) const {

@@ -77,6 +77,18 @@ BestKnownPlan solve_best_known(UavEnv& env, std::ostream* progress, int max_roun
   const int N = env.uavs(), Tmax = env.t_max();
   std::vector<Lattice> lat;
   for (int n = 0; n < N; ++n) lat.emplace_back(env, n);
+  {
+    // A best response's rate table holds (T_max + 1) x the UAV's lattice points: at most 2^27
+    // doubles (1 GiB), the optimal planner's limit on its value table.
+    constexpr double kMaxTableEntries = 134217728.0;
+    double cells = 0;
+    for (const auto& l : lat) cells = std::max(cells, static_cast<double>(l.cells()));
+    if ((Tmax + 1.0) * cells > kMaxTableEntries)
+      throw InputError("the best-known planner's rate table has " + format_double((Tmax + 1.0) * cells) +
+                       " entries ((trajectory.t_max + 1) x " + format_double(cells) +
+                       " lattice points of a UAV): allowed at most 2^27 (1 GiB), i.e. trajectory.t_max <= " +
+                       std::to_string(static_cast<long long>(kMaxTableEntries / cells) - 1) + " on this lattice; use seqgreedy beyond");
+  }
   std::vector<int> s_cell(static_cast<std::size_t>(N)), d_cell(static_cast<std::size_t>(N));
   for (int n = 0; n < N; ++n) {
     s_cell[static_cast<std::size_t>(n)] = lat[static_cast<std::size_t>(n)].cell(env.starts()(n, 0), env.starts()(n, 1));

@@ -149,6 +149,27 @@ TEST(Cli, InputsBeyondMemoryAreRefusedBeforeTheRunDirectory) {
   EXPECT_EQ(slurp(dir + "/model.pt"), "earlier model");
 }
 
+// A lattice finer than 2^24 points (the planners, the headings model and the mask's clearances
+// index positions by it in int) and a best-known rate table over 2^27 entries are refused in one
+// line that names the fields and the largest value allowed, not met with std::bad_alloc.
+TEST(Cli, LatticesAndPlannerTablesBeyondTheirLimitsAreRefused) {
+  const std::string huge = "--set scenario.area_x_m=100000 --set scenario.area_y_m=100000 --set trajectory.d_fly_m=0.1 "
+                           "--set trajectory.t_max=10000";
+  const std::pair<std::string, std::string> cases[] = {
+      {"plan --planner bestknown " + huge, "at trajectory.d_fly_m = 0.1 has 1e+12 points: allowed at most 2^24"},
+      {"plan --planner greedy --set trajectory.mobility=headings --set trajectory.speeds_mps=[0,0.05] " + huge,
+       "trajectory.d_fly_m >= "},
+      {"plan --planner bestknown --set scenario.area_x_m=20000 --set scenario.area_y_m=20000 --set trajectory.t_max=2000",
+       "the best-known planner's rate table has"},
+  };
+  for (const auto& [args, says] : cases) {
+    const auto r = run(args);
+    EXPECT_EQ(r.code, 2) << args << ": " << r.err;
+    EXPECT_EQ(lines(r.err), 1) << r.err;
+    EXPECT_NE(r.err.find(says), std::string::npos) << r.err;
+  }
+}
+
 TEST(Cli, SnapshotJsonHasEveryPerUserQuantity) {
   const auto r = run("snapshot --scenario " + kSrc + "/configs/scenarios/two_uavs.toml --method zf --json");
   ASSERT_EQ(r.code, 0) << r.err;

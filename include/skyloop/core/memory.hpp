@@ -10,7 +10,7 @@ namespace skyloop {
 
 /// The memory this process may use, in bytes: the least of the machine's physical memory, the
 /// cgroup's limit (cgroup v2 memory.max, v1 memory.limit_in_bytes: what Slurm and containers set)
-/// and RLIMIT_AS (ulimit -v). 0 when none of them is known.
+/// and RLIMIT_AS (ulimit -v), read once per process. 0 when none of them is known.
 double memory_limit_bytes();
 
 /// Throws InputError "<what> needs <X> GiB, more than the <Y> GiB of memory this process may use:

@@ -57,9 +57,13 @@ struct LatticeStep {
   int dx = 0, dy = 0;
 };
 
+/// The most points a UAV's lattice may have (2^24: its distance tables are 64 MiB of int).
+constexpr double kMaxLatticeCells = 16777216.0;
+
 /// The lattice of pitch D_fly through a point, clipped to the area [0, area_x] x [0, area_y]:
 /// origin (ox, oy) in [0, pitch), nx x ny points, cell = iy * nx + ix. What the environment's
-/// reachability, the DP and the best-known planner index positions by.
+/// reachability, the DP and the best-known planner index positions by. More than
+/// kMaxLatticeCells points is refused (InputError naming the area and trajectory.d_fly_m).
 struct LatticeFrame {
   double ox = 0, oy = 0, pitch = 1;
   int nx = 0, ny = 0;

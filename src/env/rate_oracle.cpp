@@ -82,6 +82,10 @@ std::vector<double> RateOracle::joint_key(const Positions& uavs) {
 }
 
 namespace {
+/// A memo entry's bytes besides its key's and value's heap arrays: the hash node, the key's
+/// inline part, the value and the bucket (about; only the memo's bound reads it).
+constexpr double kEntryBytes = 112.0;
+
 double total_of(const std::vector<double>& per_uav) {
   double t = 0.0;
   for (double r : per_uav) t += r;  // fixed order: a hit sums the same doubles as the miss
@@ -140,6 +144,14 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
   std::unordered_map<const RateOracle*, std::unordered_map<std::vector<double>, char, RateOracle::JointHash>> joint_pending;
   std::vector<std::vector<double>> jkeys(m);
   std::vector<RateOracle*> later_oracle;
+  // A memo past its bound starts afresh before the batch looks anything up (the batch reads back
+  // what it inserts, so never in the middle of one).
+  for (RateOracle* o : oracles)
+    if (o->memo_bytes_ > o->memo_limit_) {
+      o->cache_ = {};
+      o->joint_cache_ = {};
+      o->memo_bytes_ = 0;
+    }
   for (std::size_t s = 0; s < m; ++s) {
     RateOracle& o = *oracles[s];
     o.keys_of(*uavs[s], keys, members);
@@ -218,6 +230,7 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
           rate += sum_rate(clusters[g][c], W[c]);
         }
         miss.oracle->cache_.emplace(miss.key, miss.slots == 1 ? rate : rate / miss.slots);
+        miss.oracle->memo_bytes_ += kEntryBytes + 8.0 * static_cast<double>(miss.key.big.size());
       }
     }
     if (!networks[g].empty()) {
@@ -234,6 +247,7 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
         }
         if (miss.slots > 1)
           for (double& r : per_uav) r /= miss.slots;
+        miss.oracle->memo_bytes_ += kEntryBytes + 8.0 * static_cast<double>(miss.key.size() + per_uav.size());
         miss.oracle->joint_cache_.emplace(miss.key, std::move(per_uav));
       }
     }

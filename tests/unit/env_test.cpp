@@ -252,6 +252,40 @@ TEST(Env, OracleChunksOfLargeBatchesGiveTheDirectRates) {
   }
 }
 
+// The memo's bound (RateOracle::set_memo_limit): past it the next batch starts the memo afresh,
+// so it stays bounded however many positions a run visits, and every rate is still the double an
+// unbounded oracle gives (orthogonal spectra, per cluster; the shared spectrum, per joint key).
+TEST(Env, BoundedMemoGivesTheUnboundedRates) {
+  for (const char* spectrum : {"orthogonal", "shared"}) {
+    const Config cfg = resolve_config(std::nullopt, {std::string("channel.spectrum=") + spectrum});
+    auto bf = zf_bf();
+    const Positions users = make_users(cfg, 12, 4);
+    RateOracle bounded(cfg, bf, users), unbounded(cfg, bf, users);
+    constexpr double kLimit = 4096;  // a few dozen entries
+    bounded.set_memo_limit(kLimit);
+    Rng rng(5);
+    auto random_set = [&] {
+      Positions p(3, 2);
+      for (int n = 0; n < 3; ++n) p(n, 0) = 20.0 * static_cast<double>(rng.below(11)), p(n, 1) = 20.0 * static_cast<double>(rng.below(11));
+      return p;
+    };
+    double most = 0;
+    for (int round = 0; round < 150; ++round) {
+      std::vector<Positions> sets;
+      for (int i = 0; i < 4; ++i) sets.push_back(random_set());
+      sets.push_back(sets.front());  // a repeat within the batch
+      const auto a = bounded.sum_rates(sets), b = unbounded.sum_rates(sets);
+      for (std::size_t i = 0; i < sets.size(); ++i) ASSERT_EQ(a[i], b[i]) << spectrum << ", round " << round << ", set " << i;
+      ASSERT_EQ(bounded.cluster_rates(sets[1]), unbounded.cluster_rates(sets[1])) << spectrum << ", round " << round;
+      most = std::max(most, bounded.memo_bytes());
+    }
+    // Past the bound by at most one batch's entries (each of them about 112 bytes and its arrays).
+    EXPECT_LT(most, kLimit + 6 * 3 * 200.0) << spectrum;
+    EXPECT_GT(unbounded.memo_bytes(), 4 * kLimit) << spectrum;  // the bound was reached, repeatedly
+    EXPECT_GT(bounded.stats().misses, unbounded.stats().misses) << spectrum;  // and values computed again
+  }
+}
+
 TEST(Env, VectorEnvMatchesSingleEnvs) {
   Config cfg;
   VecEnv vec(cfg, zf_bf(), 4, 11);

@@ -48,6 +48,12 @@ class RateOracle {
   const SystemModel& model() const { return model_; }
   const OracleStats& stats() const { return stats_; }
   std::size_t cache_size() const { return cache_.size() + joint_cache_.size(); }
+  /// The memo's bound: once what it holds passes this many bytes (estimated per entry), the next
+  /// batch starts it afresh. A value is the same doubles computed again (every cluster's design is
+  /// its own), so the bound costs time, never a different rate; it keeps a long run whose positions
+  /// never repeat (continuous mobility over fixed users) from growing without end. Default 1 GiB.
+  void set_memo_limit(double bytes) { memo_limit_ = bytes; }
+  double memo_bytes() const { return memo_bytes_; }
   /// The threads a batch of this oracle's misses may use (cfg.run.threads, resolved).
   int threads() const { return threads_; }
 
@@ -78,6 +84,7 @@ class RateOracle {
   std::unordered_map<Key, double, KeyHash> cache_;
   std::unordered_map<std::vector<double>, std::vector<double>, JointHash> joint_cache_;  // per-UAV rates
   OracleStats stats_;
+  double memo_bytes_ = 0, memo_limit_ = 1073741824.0;  // what the memo holds (estimated), its bound
   int threads_ = 1;  // cfg.run.threads, resolved
   std::uint64_t id_;  // this model and these users (copies keep it): keys_of's last association is theirs
 };

@@ -15,6 +15,23 @@
 
 namespace skyloop {
 
+namespace {
+
+/// Calls pass(begin, end) over the clusters [first, last) in consecutive pieces of at most
+/// max_rows users (a cluster larger than that alone): what one pass holds stays bounded whatever
+/// the batch. A cluster's beams do not depend on the others in its pass.
+template <typename Pass>
+void in_pieces(const std::vector<Cluster>& clusters, std::size_t first, std::size_t last, int max_rows, Pass pass) {
+  for (std::size_t begin = first; begin < last;) {
+    std::size_t end = begin;
+    for (int rows = 0; end < last && (end == begin || rows + clusters[end].size() <= max_rows); ++end) rows += clusters[end].size();
+    pass(begin, end);
+    begin = end;
+  }
+}
+
+}  // namespace
+
 struct LearnedBeamformer::Impl {
   ModelInfo info;
   std::shared_ptr<nn::BeamNetImpl> model;
@@ -178,17 +195,10 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
   }
   if (impl_->fast) return design_fast(nonempty, where, std::move(out), threads);
   c10::InferenceMode inference;  // no autograd bookkeeping at all (cheaper than NoGradGuard)
-  // In batches of at most kBatchRows users (or one cluster), so that a batch's tensors stay bounded.
-  constexpr int kBatchRows = 65536;
+  // In batches of at most 65,536 users, so that a batch's tensors stay bounded.
   const int L = impl_->info.antennas;
-  for (std::size_t begin = 0; begin < nonempty.size();) {
-    std::vector<Cluster> part;
-    int rows = 0;
-    std::size_t end = begin;
-    for (; end < nonempty.size() && (end == begin || rows + nonempty[end].size() <= kBatchRows); ++end) {
-      part.push_back(nonempty[end]);
-      rows += nonempty[end].size();
-    }
+  in_pieces(nonempty, 0, nonempty.size(), 65536, [&](std::size_t begin, std::size_t end) {
+    const std::vector<Cluster> part(nonempty.begin() + static_cast<std::ptrdiff_t>(begin), nonempty.begin() + static_cast<std::ptrdiff_t>(end));
     const std::vector<int> owner(part.size(), 0);
     const nn::ClusterSet set = nn::make_cluster_set(part, owner, 1);
     const auto ids = torch::arange(static_cast<int64_t>(part.size()), torch::kInt64);
@@ -203,8 +213,7 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
         for (int l = 0; l < L; ++l) W(l, k) = cdouble(acc[row][l], acc[row][L + l]);
       out[where[i]] = impl_->finish(c, std::move(W));
     }
-    begin = end;
-  }
+  });
   return out;
 }
 
@@ -216,25 +225,16 @@ std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<Cluster>
   constexpr std::size_t kSlice = 8;
   const std::size_t slices = std::max<std::size_t>(
       1, std::min<std::size_t>(static_cast<std::size_t>(resolve_threads(threads)), nonempty.size() / kSlice));
-  // A slice is passed in pieces of at most kPieceRows users (or one cluster): the activations a
-  // pass holds (about 5 KB a user row, kept by the thread for the next pass) stay bounded whatever
-  // the batch. A cluster's design does not depend on the others in its pass: the same floats.
-  constexpr int kPieceRows = 16384;
+  // A slice is passed in pieces of at most 16,384 users: the activations a pass holds (about 5 KB
+  // a user row, kept by the thread for the next pass) stay bounded, with the same floats.
   parallel_for(slices, static_cast<int>(slices), [&](std::size_t i) {
-    const std::size_t first = nonempty.size() * i / slices, last = nonempty.size() * (i + 1) / slices;
     std::vector<const Cluster*> part;
-    for (std::size_t begin = first; begin < last;) {
+    in_pieces(nonempty, nonempty.size() * i / slices, nonempty.size() * (i + 1) / slices, 16384, [&](std::size_t begin, std::size_t end) {
       part.clear();
-      int rows = 0;
-      std::size_t end = begin;
-      for (; end < last && (end == begin || rows + nonempty[end].size() <= kPieceRows); ++end) {
-        part.push_back(&nonempty[end]);
-        rows += nonempty[end].size();
-      }
+      for (std::size_t j = begin; j < end; ++j) part.push_back(&nonempty[j]);
       auto raw = impl_->fast->forward(part);
       for (std::size_t j = begin; j < end; ++j) out[where[j]] = impl_->finish(nonempty[j], std::move(raw[j - begin]));
-      begin = end;
-    }
+    });
   });
   return out;
 }

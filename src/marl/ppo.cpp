@@ -930,23 +930,22 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   const auto& m = cfg.marl;
   const Encoder encoder = encoder_of(cfg, false);
   const CriticReader critic = CriticReader::of(cfg, encoder);
+  // The sizes, read from the environments before the run directory is touched (the rollout's
+  // memory is checked there). The continuous model: a squashed Gaussian over its command (C
+  // dimensions), else a softmax over the A actions.
+  int N = 0, M = 0, obs_width = 0, critic_width = 0, C = 0, A = 0;
   Run run(cfg, opt, [&](const VecEnv& v) {
-    const ActionSpec& actions = v.env(0).mobility().actions();
-    const int n = v.env(0).uavs(), obs = encoder.width(v.env(0)), crit = critic.width(v.env(0));
-    const double bytes = Rollout::bytes(m.rollout, v.size(), n, obs, crit, actions.dims > 0 ? 0 : v.env(0).actions(),
-                                        actions.dims, m.minibatches);
+    N = v.env(0).uavs(), M = v.size(), obs_width = encoder.width(v.env(0)), critic_width = critic.width(v.env(0));
+    C = v.env(0).mobility().actions().dims, A = C > 0 ? 0 : v.env(0).actions();
+    const double bytes = Rollout::bytes(m.rollout, M, N, obs_width, critic_width, A, C, m.minibatches);
     require_memory(bytes,
                    fmt::format("the PPO rollout of marl.rollout = {} steps x marl.envs = {} environments x {} UAVs ({} + {} "
-                               "floats an agent step)", m.rollout, v.size(), n, obs, crit),
+                               "floats an agent step)", m.rollout, M, N, obs_width, critic_width),
                    fmt::format("allowed marl.rollout x marl.envs <= {:.0f} for this scenario",
-                               std::floor(memory_limit_bytes() / (bytes / (static_cast<double>(m.rollout) * v.size())))));
+                               std::floor(memory_limit_bytes() / (bytes / (static_cast<double>(m.rollout) * M)))));
   });
   VecEnv& vec = run.vec;
   const SafetyOptions safety = training_safety_options(cfg);
-  const int N = vec.env(0).uavs(), M = vec.size(), obs_width = encoder.width(vec.env(0)), critic_width = critic.width(vec.env(0));
-  // The continuous model: a squashed Gaussian over its command (C dimensions), else a softmax over the A actions.
-  const ActionSpec& spec = vec.env(0).mobility().actions();
-  const int C = spec.dims, A = C > 0 ? 0 : vec.env(0).actions();
   auto nets = make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed,
                                 cfg.run.threads, C > 0 ? 2 * C : A);
   nets->set_average_decay(m.average_decay);

@@ -37,10 +37,12 @@ WaysHome::WaysHome(const UavEnv& env) : env_(env) {
   if (env.mobility().continuous()) throw std::logic_error("WaysHome: ways home are planned on the lattice (grid or headings mobility)");
   // The search's scratch: three stamps per lattice point and slot left (at most T_max + 1 layers).
   const LatticeFrame f(env.starts()(0, 0), env.starts()(0, 1), env.area_x(), env.area_y(), env.d_fly());
-  require_memory(12.0 * (env.t_max() + 1.0) * f.cells(),
-                 "marl.reserve_slack's ways home over trajectory.t_max = " + std::to_string(env.t_max()) + " slots x " +
-                     std::to_string(f.cells()) + " lattice points",
-                 "allowed a smaller trajectory.t_max or a coarser lattice (trajectory.d_fly_m), or marl.reserve_slack = -1");
+  const double bytes = 12.0 * (env.t_max() + 1.0) * f.cells();
+  if (bytes > memory_limit_bytes())  // checked before the message is built: one of these per slot
+    require_memory(bytes,
+                   "marl.reserve_slack's ways home over trajectory.t_max = " + std::to_string(env.t_max()) + " slots x " +
+                       std::to_string(f.cells()) + " lattice points",
+                   "allowed a smaller trajectory.t_max or a coarser lattice (trajectory.d_fly_m), or marl.reserve_slack = -1");
 }
 
 WaysHome::WaysHome(const UavEnv& env, const WaysMemory& memory) : WaysHome(env) {

@@ -9,6 +9,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/memory.hpp"
 #include "skyloop/core/parallel.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/layouts.hpp"
@@ -63,18 +64,23 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
   spec_params_.users = users();
   spec_ = shared_env_spec(spec_params_);
   vel_ = Positions::Zero(n_, 2);
+  clearance_tables_ = cfg.marl.mask_clearance != "none";
+  require_table_memory(cfg, 1);
+  tables_ = std::make_shared<SharedTables>();
+  tables_->destinations.resize(static_cast<std::size_t>(n_));
+  tables_->made = std::make_unique<std::once_flag[]>(static_cast<std::size_t>(n_));
   if (!mobility_->is_grid() && !mobility_->continuous()) {
     // Each UAV's lattice through its start; its destination must lie on it (validate() checks).
     for (int n = 0; n < n_; ++n) {
-      Lattice l;
+      DistanceTable l;
       l.frame = LatticeFrame(start_(n, 0), start_(n, 1), area_x_, area_y_, d_fly_);
       l.slots = mobility_->slots_to(l.frame.nx, l.frame.ny, l.frame.cell(dest_(n, 0), dest_(n, 1)));
-      lattice_.push_back(std::move(l));
+      tables_->headings.push_back(std::move(l));
     }
   }
   for (int n = 0; n < n_; ++n) {
     if (!mobility_->is_grid() && !mobility_->continuous()) {
-      const Lattice& l = lattice_[static_cast<std::size_t>(n)];
+      const DistanceTable& l = tables_->headings[static_cast<std::size_t>(n)];
       if (l.slots[static_cast<std::size_t>(l.frame.cell(start_(n, 0), start_(n, 1)))] < 0)
         throw InputError("trajectory.destinations[" + std::to_string(n) + "] cannot be reached from trajectory.starts[" +
                          std::to_string(n) + "] with trajectory.speeds_mps = " + format_value(FieldValue(cfg.trajectory.speeds_mps)) +
@@ -90,6 +96,8 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
   }
   reset();
 }
+
+UavEnv::UavEnv(const UavEnv& like, std::shared_ptr<RateOracle> oracle) : UavEnv(like) { set_oracle(std::move(oracle)); }
 
 void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle) {
   const double r = oracle->sum_rate(start_);
@@ -114,8 +122,8 @@ void UavEnv::reset(double start_rate) {
   t_ = 1;
   arrived_.assign(static_cast<std::size_t>(n_), false);
   parked_ = 0;
-  clear_tables_[static_cast<int>(ClearOf::Parked)].assign(static_cast<std::size_t>(n_), ClearTable{});
-  clear_tables_[static_cast<int>(ClearOf::Destinations)].resize(static_cast<std::size_t>(n_));  // fixed destinations: kept
+  parked_tables_.resize(static_cast<std::size_t>(n_));
+  for (DistanceTable& table : parked_tables_) table.version = -1;  // made again as the UAVs arrive
   prev_action_.assign(static_cast<std::size_t>(n_), hover());
   energy_.assign(static_cast<std::size_t>(n_), 0.0);
   speed_.assign(static_cast<std::size_t>(n_), 0.0);
@@ -221,7 +229,7 @@ int UavEnv::min_moves(int n, double x, double y) const {
     const double dx = std::abs(dest_(n, 0) - x), dy = std::abs(dest_(n, 1) - y);
     return static_cast<int>(std::ceil(dx / d_fly_ - 1e-9)) + static_cast<int>(std::ceil(dy / d_fly_ - 1e-9));
   }
-  const Lattice& l = lattice_[static_cast<std::size_t>(n)];
+  const DistanceTable& l = tables_->headings[static_cast<std::size_t>(n)];
   const long ix = std::lround((x - l.frame.ox) / d_fly_), iy = std::lround((y - l.frame.oy) / d_fly_);
   const int far = t_max_ + 1;  // off the lattice or cut off: never reachable in time
   if (ix < 0 || iy < 0 || ix >= l.frame.nx || iy >= l.frame.ny) return far;
@@ -241,39 +249,81 @@ UavEnv::Landing UavEnv::current(int n) const {
   return l;
 }
 
+UavEnv::DistanceTable UavEnv::clear_table(int n, ClearOf what) const {
+  const bool parked = what == ClearOf::Parked;
+  DistanceTable table;
+  table.version = parked ? parked_ : 0;
+  table.frame = mobility_->is_grid() ? LatticeFrame(start_(n, 0), start_(n, 1), area_x_, area_y_, d_fly_)
+                                     : tables_->headings[static_cast<std::size_t>(n)].frame;
+  const LatticeFrame& f = table.frame;
+  std::vector<char> closed(static_cast<std::size_t>(f.cells()), 0);
+  // The lattice points strictly within D_min of the other UAVs' destinations or parked
+  // positions (collisions()' rule).
+  const int r = static_cast<int>(std::ceil(d_min_ / d_fly_)) + 1;
+  for (int m = 0; m < n_; ++m) {
+    if (m == n || (parked && !arrived(m))) continue;
+    const double px = parked ? pos_(m, 0) : dest_(m, 0), py = parked ? pos_(m, 1) : dest_(m, 1);
+    const long cx = std::lround((px - f.ox) / d_fly_), cy = std::lround((py - f.oy) / d_fly_);
+    for (long iy = std::max(0L, cy - r); iy <= std::min<long>(f.ny - 1, cy + r); ++iy)
+      for (long ix = std::max(0L, cx - r); ix <= std::min<long>(f.nx - 1, cx + r); ++ix)
+        if (std::hypot(f.ox + d_fly_ * static_cast<double>(ix) - px, f.oy + d_fly_ * static_cast<double>(iy) - py) < d_min_ - 1e-9)
+          closed[static_cast<std::size_t>(iy * f.nx + ix)] = 1;
+  }
+  const int to = f.cell(dest_(n, 0), dest_(n, 1));
+  closed[static_cast<std::size_t>(to)] = 0;
+  table.slots = mobility_->slots_to(f.nx, f.ny, to, &closed);
+  return table;
+}
+
 int UavEnv::min_moves_around(int n, const Landing& l, ClearOf what) const {
   const bool parked = what == ClearOf::Parked;
   if (mobility_->continuous() || n_ == 1 || (parked && (parked_ == 0 || (parked_ == 1 && arrived(n))))) return min_moves(n, l);
-  ClearTable& table = clear_tables_[static_cast<int>(what)][static_cast<std::size_t>(n)];
-  const int version = parked ? parked_ : 0;
-  if (table.version != version) {
-    table.version = version;
-    table.frame = mobility_->is_grid() ? LatticeFrame(start_(n, 0), start_(n, 1), area_x_, area_y_, d_fly_)
-                                       : lattice_[static_cast<std::size_t>(n)].frame;
-    const LatticeFrame& f = table.frame;
-    closed_.assign(static_cast<std::size_t>(f.cells()), 0);
-    // The lattice points strictly within D_min of the other UAVs' destinations or parked
-    // positions (collisions()' rule).
-    const int r = static_cast<int>(std::ceil(d_min_ / d_fly_)) + 1;
-    for (int m = 0; m < n_; ++m) {
-      if (m == n || (parked && !arrived(m))) continue;
-      const double px = parked ? pos_(m, 0) : dest_(m, 0), py = parked ? pos_(m, 1) : dest_(m, 1);
-      const long cx = std::lround((px - f.ox) / d_fly_), cy = std::lround((py - f.oy) / d_fly_);
-      for (long iy = std::max(0L, cy - r); iy <= std::min<long>(f.ny - 1, cy + r); ++iy)
-        for (long ix = std::max(0L, cx - r); ix <= std::min<long>(f.nx - 1, cx + r); ++ix)
-          if (std::hypot(f.ox + d_fly_ * static_cast<double>(ix) - px, f.oy + d_fly_ * static_cast<double>(iy) - py) < d_min_ - 1e-9)
-            closed_[static_cast<std::size_t>(iy * f.nx + ix)] = 1;
-    }
-    const int to = f.cell(dest_(n, 0), dest_(n, 1));
-    closed_[static_cast<std::size_t>(to)] = 0;
-    table.slots = mobility_->slots_to(f.nx, f.ny, to, &closed_);
+  const std::size_t i = static_cast<std::size_t>(n);
+  const DistanceTable* table = nullptr;
+  if (parked) {
+    if (parked_tables_[i].version != parked_) parked_tables_[i] = clear_table(n, what);
+    table = &parked_tables_[i];
+  } else {
+    // The destinations never change: the table is made once for every copy of this environment.
+    std::call_once(tables_->made[i], [&] { tables_->destinations[i] = clear_table(n, what); });
+    table = &tables_->destinations[i];
   }
-  const LatticeFrame& f = table.frame;
+  const LatticeFrame& f = table->frame;
   const long ix = std::lround((l.x - f.ox) / d_fly_), iy = std::lround((l.y - f.oy) / d_fly_);
   const int far = t_max_ + 1;
   if (ix < 0 || iy < 0 || ix >= f.nx || iy >= f.ny) return far;
-  const int d = table.slots[static_cast<std::size_t>(iy * f.nx + ix)];
+  const int d = table->slots[static_cast<std::size_t>(iy * f.nx + ix)];
   return d < 0 ? far : d;
+}
+
+void UavEnv::require_table_memory(const Config& cfg, int envs) {
+  const MobilityModel mobility(cfg);
+  const bool headings = !mobility.is_grid() && !mobility.continuous();
+  const bool clearance = cfg.marl.mask_clearance != "none" && !mobility.continuous();
+  if (!headings && !clearance) return;  // no lattice tables
+  const auto& t = cfg.trajectory;
+  double cells = 0, most = 0;  // every UAV's lattice points, and the largest lattice's
+  for (const Point2& s : t.starts) {
+    const double c = LatticeFrame(s.x, s.y, cfg.scenario.area_x_m, cfg.scenario.area_y_m, t.d_fly_m).cells();
+    cells += c, most = std::max(most, c);
+  }
+  const double table = sizeof(int);  // bytes a lattice point takes in one distance table
+  const double shared = ((headings ? 1 : 0) + (clearance ? 1 : 0)) * table * cells;
+  const double per_env = (clearance ? table * cells : 0) + (2 * table + 1) * most;  // Parked; the search's
+  const double bytes = shared + per_env * envs, limit = memory_limit_bytes();
+  if (limit <= 0 || bytes <= limit) return;  // the message only when it fails
+  const std::string tables = headings && clearance ? "trajectory.mobility = \"headings\" and marl.mask_clearance = \"" + cfg.marl.mask_clearance + "\""
+                             : headings            ? "trajectory.mobility = \"headings\""
+                                                   : "marl.mask_clearance = \"" + cfg.marl.mask_clearance + "\"";
+  const int uavs = static_cast<int>(t.starts.size());
+  require_memory(bytes,
+                 "the distance tables of " + tables + " over " + std::to_string(uavs) + " UAVs' lattices of " +
+                     format_double(std::round(cells / uavs)) + " points on average (trajectory.d_fly_m = " + format_double(t.d_fly_m) +
+                     ") x " + std::to_string(envs) + (envs == 1 ? " environment" : " environments"),
+                 envs > 1 && shared + per_env < limit
+                     ? "allowed marl.envs <= " + format_double(std::floor((limit - shared) / per_env)) +
+                           " for this scenario, or a coarser lattice (trajectory.d_fly_m)"
+                     : "allowed a coarser lattice (trajectory.d_fly_m), a smaller area or fewer UAVs");
 }
 
 bool UavEnv::feasible(int n, int a) const {
@@ -784,8 +834,14 @@ void UavEnv::write_obs(int n, float* out) const {
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed)
     : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(seed), episodes_(static_cast<std::size_t>(count), 0),
       settled_(static_cast<std::size_t>(count), 0), prepared_(static_cast<std::size_t>(count)) {
-  for (int i = 0; i < count; ++i)
-    envs_.push_back(std::make_unique<UavEnv>(cfg_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i), 0))));
+  if (count < 1) throw std::invalid_argument("VecEnv: count = " + std::to_string(count) + ", allowed at least 1");
+  // The first environment made from the configuration, the others copies of it (sharing its
+  // lattice tables) with their own users.
+  UavEnv::require_table_memory(cfg_, count);
+  for (int i = 0; i < count; ++i) {
+    auto oracle = std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i), 0));
+    envs_.push_back(i == 0 ? std::make_unique<UavEnv>(cfg_, std::move(oracle)) : std::make_unique<UavEnv>(*envs_[0], std::move(oracle)));
+  }
 }
 
 bool VecEnv::sampling() const { return !shared_ && cfg_.env.resample_users && cfg_.env.users_file.empty(); }
@@ -802,7 +858,10 @@ std::shared_ptr<RateOracle> VecEnv::next_oracle(std::size_t i) const {
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count)
     : cfg_(cfg), seed_(0), episodes_(static_cast<std::size_t>(count), 0), settled_(static_cast<std::size_t>(count), 0),
       prepared_(static_cast<std::size_t>(count)), shared_(true) {
-  for (int i = 0; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(cfg_, oracle));
+  if (count < 1) throw std::invalid_argument("VecEnv: count = " + std::to_string(count) + ", allowed at least 1");
+  UavEnv::require_table_memory(cfg_, count);
+  envs_.push_back(std::make_unique<UavEnv>(cfg_, oracle));
+  for (int i = 1; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(*envs_[0]));  // sharing its lattice tables
 }
 
 void VecEnv::reset_env(std::size_t i) {

@@ -171,9 +171,13 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   std::unique_ptr<Progress> bar;
   std::mutex mu;
   if (progress) bar = std::make_unique<Progress>(fmt::format("layouts ({})", to_string(opt.split)), static_cast<std::size_t>(opt.layouts), *progress);
+  // Each layout's environment is `like` over the layout's users (the lattice tables made once).
+  UavEnv::require_table_memory(cfg, threads);
+  auto seed_of = [&](std::size_t i) { return given ? opt.users_seeds[i] : layout_seed(opt.split, opt.first + i); };
+  const UavEnv like(cfg, std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, seed_of(0))));
   parallel_for(static_cast<std::size_t>(opt.layouts), threads, [&](std::size_t i) {
-    const std::uint64_t index = given ? i : opt.first + i, seed = given ? opt.users_seeds[i] : layout_seed(opt.split, index);
-    UavEnv env(cfg, std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, seed)));
+    const std::uint64_t index = given ? i : opt.first + i, seed = seed_of(i);
+    UavEnv env(like, std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, seed)));
     std::vector<LayoutRow> out;
     auto timed = [&](Planner& p, const std::string& label) {
       const auto t0 = std::chrono::steady_clock::now();

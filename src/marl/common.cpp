@@ -171,11 +171,6 @@ std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeSta
                      g(log.grad_norm), g(log.epsilon), f(e.objective), f(e.energy_j), f(e.bits_per_joule), format_double(sps));
 }
 
-EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner) {
-  UavEnv env(cfg, make_oracle(cfg, registry));
-  return run_episode(env, planner);
-}
-
 Run::Run(const Config& cfg, const MarlTrainOptions& opt, const std::function<void(const VecEnv&)>& check)
     : dir(opt.out_dir),
       last((dir / "last.pt").string()),
@@ -238,7 +233,8 @@ void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohman
   double complete = 0, objective = 0;
   const int V = cfg.marl.val_layouts;
   for (int i = 0; i < V; ++i) {
-    UavEnv env(cfg, std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, layout_seed(LayoutSplit::Validation, static_cast<std::uint64_t>(i)))));
+    // The training environments' configuration (sharing their lattice tables) over the layout's users.
+    UavEnv env(vec.env(0), std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, layout_seed(LayoutSplit::Validation, static_cast<std::uint64_t>(i)))));
     const auto r = run_episode(env, *policy);
     complete += (r.success && r.collisions == 0 && r.boundary == 0) ? 1.0 / V : 0.0;
     objective += r.objective / V;
@@ -265,7 +261,8 @@ MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, cons
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   result.steps_per_second = static_cast<double>(steps - start_steps) / std::max(result.seconds, 1e-9);
   auto policy = MarlPolicy::load(final_path);
-  result.evaluation = evaluate(cfg, *opt.registry, *policy);
+  UavEnv env(vec.env(0), make_oracle(cfg, *opt.registry));  // the evaluation users, the training's lattice tables
+  result.evaluation = run_episode(env, *policy);
   return result;
 }
 

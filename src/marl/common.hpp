@@ -133,9 +133,6 @@ struct LearnerLog {
 std::string metrics_header();
 std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, const LearnerLog& log, double steps_per_s);
 
-/// Evaluates `planner` on the training scenario (deterministic) and returns the record.
-EpisodeRecord evaluate(const Config& cfg, const BeamformerRegistry& registry, Planner& planner);
-
 torch::Device device_of(const Config& cfg);
 /// The network library a run of cfg trains with: marl.backend for the PPO learners, "torch" for
 /// the value-decomposition ones (recorded in the policy header as "backend").

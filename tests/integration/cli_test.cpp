@@ -125,7 +125,7 @@ TEST(Cli, FailedRunLeavesEarlierOutputIntact) {
 }
 
 // An input that asks for more memory than any machine has (a PPO rollout, a replay buffer, a
-// beamformer's data sets: terabytes here) is refused in one line naming the fields, before the run
+// beamformer's data sets, the safety mask's distance tables: terabytes here) is refused in one line naming the fields, before the run
 // directory is touched (--force removes an earlier run only once the checks pass).
 TEST(Cli, InputsBeyondMemoryAreRefusedBeforeTheRunDirectory) {
   const std::string dir = tmpdir("memory");
@@ -137,6 +137,11 @@ TEST(Cli, InputsBeyondMemoryAreRefusedBeforeTheRunDirectory) {
       {"train --set marl.envs=4096 --set marl.rollout=1000000", "marl.rollout = 1000000 steps x marl.envs = 4096"},
       {"train --algo vdn --set marl.buffer_episodes=10000000 --set trajectory.t_max=10000", "marl.buffer_episodes = 10000000"},
       {"beamform train --set scenario.users=4096 --set nn.train_samples=100000000", "nn.train_samples = 100000000"},
+      // 64 UAVs' clearance tables of 16e6 lattice points each, a set per environment: 16 TiB.
+      {"train --set marl.envs=4096 --set marl.mask_clearance=destinations --set scenario.uavs=64 "
+       "--set trajectory.layout=generated --set scenario.area_x_m=4000 --set scenario.area_y_m=4000 "
+       "--set trajectory.d_fly_m=1 --set trajectory.t_max=10000",
+       "the distance tables of marl.mask_clearance = \"destinations\" over 64 UAVs"},
   };
   for (const auto& [args, names] : cases) {
     const auto r = run(args + " --force --out " + dir);

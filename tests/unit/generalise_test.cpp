@@ -8,6 +8,8 @@
 
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/parallel.hpp"
+#include "skyloop/core/rng.hpp"
 #include "skyloop/env/layouts.hpp"
 #include "skyloop/planning/planners.hpp"
 #include "skyloop/planning/safety.hpp"
@@ -682,6 +684,63 @@ TEST(Safety, MovesAroundAParkedUavCountTheDetour) {
     }
   EXPECT_GT(collided[0], 0) << "without the clearance UAV 0 should sometimes meet the parked UAV with no slack left";
   EXPECT_EQ(collided[1], 0);
+}
+
+// Environments made like another (UavEnv(like, oracle): the VecEnv's copies, the validation and
+// evaluation layouts) share its lattice tables instead of making them again. They must mask, count
+// the moves around the other UAVs and step exactly as environments made afresh from the
+// configuration, under grid and headings mobility with both clearance tables in use, while copies
+// on two threads ask for the shared tables at once.
+TEST(Env, EnvironmentsMadeLikeAnotherStepAsFreshOnes) {
+  for (const std::string mobility : {"grid", "headings"}) {
+    Config cfg;
+    cfg.scenario.area_x_m = cfg.scenario.area_y_m = 100;
+    cfg.scenario.uavs = 4;
+    cfg.scenario.users = 6;
+    cfg.trajectory.layout = "generated";
+    cfg.trajectory.t_max = 12;
+    cfg.trajectory.layout_seed = 7;
+    cfg.trajectory.mobility = mobility;
+    if (mobility == "headings") cfg.trajectory.speeds_mps = {0, 10, 20};
+    cfg.marl.mask_clearance = "destinations";
+    finalise(cfg);
+    const SafetyOptions safety = safety_options(cfg);
+    const UavEnv like = make_env(cfg, layout_users(cfg, 1));
+    constexpr int kPairs = 4;
+    std::vector<int> differ(kPairs, 0), compared(kPairs, 0);
+    parallel_for(kPairs, 2, [&](std::size_t p) {
+      const Positions users = layout_users(cfg, 10 + p);
+      UavEnv fresh = make_env(cfg, users);
+      UavEnv copy(like, std::make_shared<RateOracle>(cfg, zf_bf(), users));
+      Rng rng(p);
+      auto check = [&](bool same) { differ[p] += same ? 0 : 1, ++compared[p]; };
+      for (int episode = 0; episode < 3; ++episode) {
+        fresh.reset(), copy.reset();
+        while (!fresh.done()) {
+          for (int n = 0; n < fresh.uavs(); ++n)
+            for (int a = 0; a < fresh.actions(); ++a)
+              for (const auto what : {UavEnv::ClearOf::Destinations, UavEnv::ClearOf::Parked}) {
+                check(fresh.min_moves_around(n, fresh.landing(n, a), what) == copy.min_moves_around(n, copy.landing(n, a), what));
+                check(fresh.min_moves(n, fresh.landing(n, a)) == copy.min_moves(n, copy.landing(n, a)));
+              }
+          std::vector<std::vector<float>> scores(static_cast<std::size_t>(fresh.uavs()),
+                                                 std::vector<float>(static_cast<std::size_t>(fresh.actions())));
+          for (auto& row : scores)
+            for (auto& x : row) x = static_cast<float>(rng.normal());
+          const auto a = shielded_argmax(fresh, safety, scores);
+          check(a == shielded_argmax(copy, safety, scores));
+          const StepInfo f = fresh.step(a), c = copy.step(a);
+          check(f.reward == c.reward && f.sum_rate == c.sum_rate && f.collisions == c.collisions && f.done == c.done);
+          check(fresh.positions() == copy.positions());
+        }
+        check(copy.done());
+      }
+    });
+    for (int p = 0; p < kPairs; ++p) {
+      EXPECT_EQ(differ[static_cast<std::size_t>(p)], 0) << mobility << ", layout " << 10 + p;
+      EXPECT_GT(compared[static_cast<std::size_t>(p)], 1000) << mobility;
+    }
+  }
 }
 
 // Ways home reserved in space and time (ways_home.hpp). Two UAVs whose straight ways cross at

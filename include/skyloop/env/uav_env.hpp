@@ -35,6 +35,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -75,6 +76,9 @@ class UavEnv {
  public:
   /// `oracle` holds the users; the environment takes the trajectory and reward settings of cfg.
   UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle);
+  /// An environment of `like`'s configuration over the users of `oracle`, reset: the same as one
+  /// made from that configuration, without making its lattice tables again (it shares like's).
+  UavEnv(const UavEnv& like, std::shared_ptr<RateOracle> oracle);
 
   void reset();
   StepInfo step(const std::vector<int>& actions);
@@ -141,6 +145,11 @@ class UavEnv {
   /// Breadth-first over UAV n's lattice: once per environment (Destinations) or once per arrival
   /// (Parked), made when first asked.
   int min_moves_around(int n, const Landing& l, ClearOf what) const;
+  /// Refuses (InputError, one line naming the fields) `envs` environments of `cfg` whose
+  /// distance tables would not fit in memory (skyloop/core/memory.hpp): the headings lattices and
+  /// the Destinations tables once (copies share them), a Parked table per UAV per environment where
+  /// marl.mask_clearance asks for them, and one breadth-first search's scratch per copy.
+  static void require_table_memory(const Config& cfg, int envs);
   /// True if `a` keeps UAV n in the area and its destination reachable in the moves left after
   /// it (T_max - (t + 1)). An arrived UAV may only hover (STAY).
   bool feasible(int n, int a) const;
@@ -297,12 +306,26 @@ class UavEnv {
 
   int n_, t_max_;
   double d_fly_, d_min_, area_x_, area_y_;
-  // Headings: UAV n's lattice (origin, size) and the fewest slots from each cell to its destination.
-  struct Lattice {
+  // A lattice (origin, size) and the fewest slots from each of its points to a UAV's destination:
+  // headings mobility's reachability (every point open), and min_moves_around's tables (the points
+  // of `what` closed) with the version they were made for (-1: none yet).
+  struct DistanceTable {
+    int version = -1;
     LatticeFrame frame;
     std::vector<int> slots;
   };
-  std::vector<Lattice> lattice_;
+  // The tables every copy of an environment shares, a pure function of its configuration (the
+  // VecEnv's environments are copies of its first): UAV n's headings lattice, and its Destinations
+  // table of min_moves_around, made when first asked (once, whichever thread asks).
+  struct SharedTables {
+    std::vector<DistanceTable> headings;
+    std::vector<DistanceTable> destinations;
+    std::unique_ptr<std::once_flag[]> made;  // destinations[n] made
+  };
+  std::shared_ptr<SharedTables> tables_;
+  bool clearance_tables_ = false;  // marl.mask_clearance is not "none": min_moves_around's tables are asked for
+  /// min_moves_around's table of UAV n around `what`, made afresh.
+  DistanceTable clear_table(int n, ClearOf what) const;
   std::vector<double> energy_, speed_, power_;
   Positions vel_;  // velocity in the last slot (m/s)
   double energy_total_ = 0;
@@ -321,15 +344,8 @@ class UavEnv {
   std::shared_ptr<RateOracle> oracle_;
   std::vector<bool> arrived_;
   int parked_ = 0;  // arrived UAVs so far this episode: the version of the Parked tables
-  // min_moves_around's tables, per UAV and ClearOf: the version they were made for (-1: none yet),
-  // the lattice and the slots from each point. A cache of a pure function of the state.
-  struct ClearTable {
-    int version = -1;
-    LatticeFrame frame;
-    std::vector<int> slots;
-  };
-  mutable std::vector<ClearTable> clear_tables_[2];
-  mutable std::vector<char> closed_;  // scratch for the tables
+  // min_moves_around's Parked tables, per UAV: a cache of a pure function of the state.
+  mutable std::vector<DistanceTable> parked_tables_;
   // The set observation's user kernels, one axis at a time (write_set_observation): for each UAV
   // coordinate seen since the users were set, every user's G factors along that axis (zeros where
   // the user is out of the kernel's reach) and the users within reach. A cache of a pure function

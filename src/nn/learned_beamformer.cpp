@@ -21,10 +21,10 @@ namespace {
 /// max_rows users (a cluster larger than that alone): what one pass holds stays bounded whatever
 /// the batch. A cluster's beams do not depend on the others in its pass.
 template <typename Pass>
-void in_pieces(const std::vector<Cluster>& clusters, std::size_t first, std::size_t last, int max_rows, Pass pass) {
+void in_pieces(const std::vector<const Cluster*>& clusters, std::size_t first, std::size_t last, int max_rows, Pass pass) {
   for (std::size_t begin = first; begin < last;) {
     std::size_t end = begin;
-    for (int rows = 0; end < last && (end == begin || rows + clusters[end].size() <= max_rows); ++end) rows += clusters[end].size();
+    for (int rows = 0; end < last && (end == begin || rows + clusters[end]->size() <= max_rows); ++end) rows += clusters[end]->size();
     pass(begin, end);
     begin = end;
   }
@@ -186,19 +186,21 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
     for (std::size_t j = 0; j < nets.size(); ++j) out[where[j]] = std::move(W[j].front());
     return out;
   }
-  std::vector<Cluster> nonempty;
+  std::vector<const Cluster*> nonempty;  // the batch's own clusters, not copies
   for (std::size_t i : where) {
     if (clusters[i].antennas() != impl_->info.antennas)
       throw std::invalid_argument("cluster has " + std::to_string(clusters[i].antennas()) + " antennas; the " +
                                   impl_->info.model + " model was trained for " + std::to_string(impl_->info.antennas));
-    nonempty.push_back(clusters[i]);
+    nonempty.push_back(&clusters[i]);
   }
   if (impl_->fast) return design_fast(nonempty, where, std::move(out), threads);
   c10::InferenceMode inference;  // no autograd bookkeeping at all (cheaper than NoGradGuard)
   // In batches of at most 65,536 users, so that a batch's tensors stay bounded.
   const int L = impl_->info.antennas;
   in_pieces(nonempty, 0, nonempty.size(), 65536, [&](std::size_t begin, std::size_t end) {
-    const std::vector<Cluster> part(nonempty.begin() + static_cast<std::ptrdiff_t>(begin), nonempty.begin() + static_cast<std::ptrdiff_t>(end));
+    std::vector<Cluster> part;
+    part.reserve(end - begin);
+    for (std::size_t i = begin; i < end; ++i) part.push_back(*nonempty[i]);
     const std::vector<int> owner(part.size(), 0);
     const nn::ClusterSet set = nn::make_cluster_set(part, owner, 1);
     const auto ids = torch::arange(static_cast<int64_t>(part.size()), torch::kInt64);
@@ -207,7 +209,7 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
     const auto acc = raw.accessor<double, 2>();
     int64_t row = 0;
     for (std::size_t i = begin; i < end; ++i) {
-      const Cluster& c = nonempty[i];
+      const Cluster& c = *nonempty[i];
       MatrixXcd W(L, c.size());
       for (int k = 0; k < c.size(); ++k, ++row)
         for (int l = 0; l < L; ++l) W(l, k) = cdouble(acc[row][l], acc[row][L + l]);
@@ -217,7 +219,7 @@ std::vector<MatrixXcd> LearnedBeamformer::design_batch(const std::vector<Cluster
   return out;
 }
 
-std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<Cluster>& nonempty,
+std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<const Cluster*>& nonempty,
                                                       const std::vector<std::size_t>& where, std::vector<MatrixXcd> out,
                                                       int threads) const {
   // One fused pass per slice of the batch; slices of at least kSlice clusters (a few hundred
@@ -230,10 +232,9 @@ std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<Cluster>
   parallel_for(slices, static_cast<int>(slices), [&](std::size_t i) {
     std::vector<const Cluster*> part;
     in_pieces(nonempty, nonempty.size() * i / slices, nonempty.size() * (i + 1) / slices, 16384, [&](std::size_t begin, std::size_t end) {
-      part.clear();
-      for (std::size_t j = begin; j < end; ++j) part.push_back(&nonempty[j]);
+      part.assign(nonempty.begin() + static_cast<std::ptrdiff_t>(begin), nonempty.begin() + static_cast<std::ptrdiff_t>(end));
       auto raw = impl_->fast->forward(part);
-      for (std::size_t j = begin; j < end; ++j) out[where[j]] = impl_->finish(nonempty[j], std::move(raw[j - begin]));
+      for (std::size_t j = begin; j < end; ++j) out[where[j]] = impl_->finish(*nonempty[j], std::move(raw[j - begin]));
     });
   });
   return out;

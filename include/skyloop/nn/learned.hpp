@@ -60,7 +60,7 @@ class LearnedBeamformer final : public Beamformer {
 
  private:
   explicit LearnedBeamformer(std::unique_ptr<Impl> impl);
-  std::vector<MatrixXcd> design_fast(const std::vector<Cluster>& nonempty, const std::vector<std::size_t>& where,
+  std::vector<MatrixXcd> design_fast(const std::vector<const Cluster*>& nonempty, const std::vector<std::size_t>& where,
                                      std::vector<MatrixXcd> out, int threads) const;
   std::unique_ptr<Impl> impl_;
 };

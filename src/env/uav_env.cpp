@@ -835,13 +835,13 @@ VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, 
     : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(seed), episodes_(static_cast<std::size_t>(count), 0),
       settled_(static_cast<std::size_t>(count), 0), prepared_(static_cast<std::size_t>(count)) {
   if (count < 1) throw std::invalid_argument("VecEnv: count = " + std::to_string(count) + ", allowed at least 1");
-  // The first environment made from the configuration, the others copies of it (sharing its
-  // lattice tables) with their own users.
+  // One environment made from the configuration (over environment 0's users), the others copies
+  // of it (sharing its lattice tables) with their own users.
   UavEnv::require_table_memory(cfg_, count);
-  for (int i = 0; i < count; ++i) {
-    auto oracle = std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i), 0));
-    envs_.push_back(i == 0 ? std::make_unique<UavEnv>(cfg_, std::move(oracle)) : std::make_unique<UavEnv>(*envs_[0], std::move(oracle)));
-  }
+  like_ = std::make_unique<const UavEnv>(cfg_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(0, 0)));
+  envs_.push_back(std::make_unique<UavEnv>(*like_));
+  for (int i = 1; i < count; ++i)
+    envs_.push_back(std::make_unique<UavEnv>(*like_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i), 0))));
 }
 
 bool VecEnv::sampling() const { return !shared_ && cfg_.env.resample_users && cfg_.env.users_file.empty(); }
@@ -860,8 +860,8 @@ VecEnv::VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count)
       prepared_(static_cast<std::size_t>(count)), shared_(true) {
   if (count < 1) throw std::invalid_argument("VecEnv: count = " + std::to_string(count) + ", allowed at least 1");
   UavEnv::require_table_memory(cfg_, count);
-  envs_.push_back(std::make_unique<UavEnv>(cfg_, oracle));
-  for (int i = 1; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(*envs_[0]));  // sharing its lattice tables
+  like_ = std::make_unique<const UavEnv>(cfg_, oracle);
+  for (int i = 0; i < count; ++i) envs_.push_back(std::make_unique<UavEnv>(*like_));  // sharing its lattice tables
 }
 
 void VecEnv::reset_env(std::size_t i) {

@@ -234,7 +234,7 @@ void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohman
   const int V = cfg.marl.val_layouts;
   for (int i = 0; i < V; ++i) {
     // The training environments' configuration (sharing their lattice tables) over the layout's users.
-    UavEnv env(vec.env(0), std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, layout_seed(LayoutSplit::Validation, static_cast<std::uint64_t>(i)))));
+    UavEnv env(vec.like(), std::make_shared<RateOracle>(cfg, bf, layout_users(cfg, layout_seed(LayoutSplit::Validation, static_cast<std::uint64_t>(i)))));
     const auto r = run_episode(env, *policy);
     complete += (r.success && r.collisions == 0 && r.boundary == 0) ? 1.0 / V : 0.0;
     objective += r.objective / V;
@@ -261,7 +261,7 @@ MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, cons
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   result.steps_per_second = static_cast<double>(steps - start_steps) / std::max(result.seconds, 1e-9);
   auto policy = MarlPolicy::load(final_path);
-  UavEnv env(vec.env(0), make_oracle(cfg, *opt.registry));  // the evaluation users, the training's lattice tables
+  UavEnv env(vec.like(), make_oracle(cfg, *opt.registry));  // the evaluation users, the training's lattice tables
   result.evaluation = run_episode(env, *policy);
   return result;
 }

@@ -390,6 +390,10 @@ class VecEnv {
   /// M environments on one scenario: they share `oracle` (its users and its cache).
   VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count);
   int size() const { return static_cast<int>(envs_.size()); }
+  /// The configuration's environment as made, never stepped: what the environments here are
+  /// copies of, and what a caller makes its own like (UavEnv(like(), oracle): validation and
+  /// evaluation layouts), sharing its lattice tables.
+  const UavEnv& like() const { return *like_; }
   UavEnv& env(int i) { return *envs_[static_cast<std::size_t>(i)]; }
   const UavEnv& env(int i) const { return *envs_[static_cast<std::size_t>(i)]; }
   /// Whether the environments share one rate oracle (the second constructor); otherwise each
@@ -435,6 +439,7 @@ class VecEnv {
   Config cfg_;
   std::shared_ptr<const Beamformer> beamformer_;
   std::uint64_t seed_;
+  std::unique_ptr<const UavEnv> like_;
   std::vector<std::unique_ptr<UavEnv>> envs_;
   std::vector<std::uint64_t> episodes_;
   std::vector<char> settled_;  // settle()d since begin, per environment

@@ -64,7 +64,6 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
   spec_params_.users = users();
   spec_ = shared_env_spec(spec_params_);
   vel_ = Positions::Zero(n_, 2);
-  clearance_tables_ = cfg.marl.mask_clearance != "none";
   require_table_memory(cfg, 1);
   tables_ = std::make_shared<SharedTables>();
   tables_->destinations.resize(static_cast<std::size_t>(n_));

@@ -323,7 +323,6 @@ class UavEnv {
     std::unique_ptr<std::once_flag[]> made;  // destinations[n] made
   };
   std::shared_ptr<SharedTables> tables_;
-  bool clearance_tables_ = false;  // marl.mask_clearance is not "none": min_moves_around's tables are asked for
   /// min_moves_around's table of UAV n around `what`, made afresh.
   DistanceTable clear_table(int n, ClearOf what) const;
   std::vector<double> energy_, speed_, power_;

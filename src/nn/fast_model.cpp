@@ -329,9 +329,12 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
       run(uav_msg[l], {{&B.a, false}}, C, s, B.ma, w);
       max_over_others(B.mu, s, B.mo, w.scratch);
       run(user_upd[l], {{&B.u, false}, {&B.ma, true}, {&B.mo, false}}, U, s, B.u2, w);
+      std::swap(B.u, B.u2);
+      // The readout reads the users' embeddings alone: the last layer's UAV update (and the mean
+      // of messages it reads) would feed nothing.
+      if (l + 1 == user_msg.size()) break;
       segment_mean(B.mu, s, B.mean);
       run(uav_upd[l], {{&B.a, false}, {&B.mean, false}}, C, s, B.a2, w);
-      std::swap(B.u, B.u2);
       std::swap(B.a, B.a2);
     }
     run(out, {{&B.u, false}}, U, s, y, w);

@@ -285,7 +285,7 @@ std::vector<double> RateOracle::sum_rates(const std::vector<Positions>& all) {
   return out;
 }
 
-std::optional<double> RateOracle::cached_sum_rate(const Positions& uavs) {
+std::optional<double> RateOracle::cached_sum_rate(const Positions& uavs, double* miss_cost) {
   // No allocation of the batch machinery: the common case once the memo is warm.
   if (joint()) {
     thread_local std::vector<double> key;
@@ -293,7 +293,10 @@ std::optional<double> RateOracle::cached_sum_rate(const Positions& uavs) {
     for (Eigen::Index n = 0; n < uavs.rows(); ++n)
       key[static_cast<std::size_t>(2 * n)] = uavs(n, 0), key[static_cast<std::size_t>(2 * n + 1)] = uavs(n, 1);
     const auto it = joint_cache_.find(key);
-    if (it == joint_cache_.end()) return std::nullopt;
+    if (it == joint_cache_.end()) {
+      if (miss_cost) *miss_cost = static_cast<double>(users_.rows() + uavs.rows());
+      return std::nullopt;
+    }
     ++stats_.hits;
     return total_of(it->second);
   }
@@ -301,11 +304,20 @@ std::optional<double> RateOracle::cached_sum_rate(const Positions& uavs) {
   thread_local std::vector<std::vector<int>> members;
   keys_of(uavs, keys, members);
   double total = 0.0;  // in UAV order, as batch_sum_rates sums a position set's clusters
+  double cost = 0.0;
   for (std::size_t i = 0; i < keys.size(); ++i) {
     if (members[i].empty()) continue;
     const auto it = cache_.find(keys[i]);
-    if (it == cache_.end()) return std::nullopt;
+    if (it == cache_.end()) {
+      if (!miss_cost) return std::nullopt;
+      cost += static_cast<double>(members[i].size() + 1);
+      continue;
+    }
     total += it->second;
+  }
+  if (cost > 0) {
+    *miss_cost = cost;
+    return std::nullopt;
   }
   for (std::size_t i = 0; i < keys.size(); ++i) stats_.hits += !members[i].empty();
   return total;

@@ -832,7 +832,8 @@ void UavEnv::write_obs(int n, float* out) const {
 
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed)
     : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(seed), episodes_(static_cast<std::size_t>(count), 0),
-      settled_(static_cast<std::size_t>(count), 0), prepared_(static_cast<std::size_t>(count)) {
+      settled_(static_cast<std::size_t>(count), 0), cost_(static_cast<std::size_t>(count), -1.0),
+      prepared_(static_cast<std::size_t>(count)) {
   if (count < 1) throw std::invalid_argument("VecEnv: count = " + std::to_string(count) + ", allowed at least 1");
   // One environment made from the configuration (over environment 0's users), the others copies
   // of it (sharing its lattice tables) with their own users.
@@ -856,7 +857,7 @@ std::shared_ptr<RateOracle> VecEnv::next_oracle(std::size_t i) const {
 
 VecEnv::VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count)
     : cfg_(cfg), seed_(0), episodes_(static_cast<std::size_t>(count), 0), settled_(static_cast<std::size_t>(count), 0),
-      prepared_(static_cast<std::size_t>(count)), shared_(true) {
+      cost_(static_cast<std::size_t>(count), -1.0), prepared_(static_cast<std::size_t>(count)), shared_(true) {
   if (count < 1) throw std::invalid_argument("VecEnv: count = " + std::to_string(count) + ", allowed at least 1");
   UavEnv::require_table_memory(cfg_, count);
   like_ = std::make_unique<const UavEnv>(cfg_, oracle);
@@ -886,18 +887,20 @@ void VecEnv::reset() {
 
 Positions VecEnv::begin(int i, const std::vector<int>& actions, StepInfo& info) {
   settled_[static_cast<std::size_t>(i)] = 0;
+  cost_[static_cast<std::size_t>(i)] = -1.0;
   return envs_[static_cast<std::size_t>(i)]->begin_step(actions, info);
 }
 
 Positions VecEnv::begin_velocities(int i, const Positions& velocities, StepInfo& info) {
   settled_[static_cast<std::size_t>(i)] = 0;
+  cost_[static_cast<std::size_t>(i)] = -1.0;
   return envs_[static_cast<std::size_t>(i)]->begin_step_velocities(velocities, info);
 }
 
 bool VecEnv::settle(int i, const Positions& next, StepInfo& info) {
   if (shared_) return false;
   const auto ii = static_cast<std::size_t>(i);
-  const auto rate = envs_[ii]->oracle().cached_sum_rate(next);
+  const auto rate = envs_[ii]->oracle().cached_sum_rate(next, &cost_[ii]);
   if (!rate) return false;
   envs_[ii]->end_step(next, *rate, info);
   if (info.done) reset_env(ii);
@@ -928,20 +931,50 @@ std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<S
   std::vector<std::size_t> open;  // the environments whose step is still to end
   for (std::size_t i = 0; i < m; ++i)
     if (!settled_[i]) open.push_back(i);
-  // Oracles of their own (no memo shared): the open environments in contiguous lanes, each lane's
-  // misses one batch on a thread of its own (a cluster's rate is designed per cluster, so the
-  // numbers do not depend on the lanes). A shared oracle: one batch, its misses split over the
-  // threads. The steps end once every rate is known.
+  // Oracles of their own (no memo shared): the open environments in lanes, one per thread (below).
+  // A shared oracle: one batch, its misses split over the threads. The steps end once every rate
+  // is known.
   int threads = 1;
   if (!shared_ && !in_parallel_for())
     for (std::size_t i : open) threads = std::max(threads, envs_[i]->oracle().threads());
   const std::size_t lanes = std::min(open.size(), static_cast<std::size_t>(threads));
+  // The environments whose episode this step ends: their next oracle's start in the same batch.
+  std::vector<char> ends(open.size(), 0);
+  for (std::size_t j = 0; j < open.size() && sampling(); ++j) ends[j] = envs_[open[j]]->ends_episode(next[open[j]]);
+  // The lanes: each open environment's place in `open`, in order. Where settle() weighed every
+  // open environment by its misses (and an ending one by its next start's, every cluster a miss),
+  // the heaviest first to the lighter lane; else contiguous runs of equal count.
+  std::vector<std::vector<std::size_t>> lane_of(lanes);
+  bool weighed = lanes > 1;
+  for (std::size_t i : open) weighed = weighed && cost_[i] >= 0;
+  if (weighed) {
+    std::vector<double> weight(open.size());
+    std::vector<std::size_t> heaviest(open.size());
+    for (std::size_t j = 0; j < open.size(); ++j) {
+      const UavEnv& e = *envs_[open[j]];
+      weight[j] = cost_[open[j]] + (ends[j] ? static_cast<double>(e.users() + e.uavs()) : 0.0);
+      heaviest[j] = j;
+    }
+    std::stable_sort(heaviest.begin(), heaviest.end(), [&](std::size_t a, std::size_t b) { return weight[a] > weight[b]; });
+    std::vector<double> load(lanes, 0.0);
+    for (std::size_t j : heaviest) {
+      const auto lane = static_cast<std::size_t>(std::min_element(load.begin(), load.end()) - load.begin());
+      load[lane] += weight[j];
+      lane_of[lane].push_back(j);
+    }
+    for (auto& l : lane_of) std::sort(l.begin(), l.end());
+  } else {
+    for (std::size_t lane = 0; lane < lanes; ++lane)
+      for (std::size_t j = open.size() * lane / lanes; j < open.size() * (lane + 1) / lanes; ++j) lane_of[lane].push_back(j);
+  }
+  // Each lane's misses one batch on a thread of its own: a cluster's rate is designed per cluster,
+  // so the rates do not depend on the lanes.
   std::vector<double> rates(open.size());
   parallel_for(lanes, static_cast<int>(lanes), [&](std::size_t lane) {
-    const std::size_t first = open.size() * lane / lanes, last = open.size() * (lane + 1) / lanes;
+    const auto& mine = lane_of[lane];
     std::vector<RateOracle*> oracles;
     std::vector<const Positions*> ptrs;
-    for (std::size_t j = first; j < last; ++j) {
+    for (std::size_t j : mine) {
       oracles.push_back(&envs_[open[j]]->oracle());
       ptrs.push_back(&next[open[j]]);
     }
@@ -949,18 +982,17 @@ std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<S
     // (kept for reset_env only once the batch has succeeded).
     std::vector<std::size_t> ending;
     std::vector<std::shared_ptr<RateOracle>> fresh;
-    for (std::size_t j = first; j < last && sampling(); ++j) {
+    for (std::size_t j : mine) {
+      if (!ends[j]) continue;
       const std::size_t i = open[j];
-      if (!envs_[i]->ends_episode(next[i])) continue;
       ending.push_back(i);
       fresh.push_back(next_oracle(i));
       oracles.push_back(fresh.back().get());
       ptrs.push_back(&envs_[i]->starts());
     }
     const auto r = batch_sum_rates(oracles, ptrs);
-    const std::size_t stepped = last - first;
-    std::copy(r.begin(), r.begin() + static_cast<std::ptrdiff_t>(stepped), rates.begin() + static_cast<std::ptrdiff_t>(first));
-    for (std::size_t k = 0; k < ending.size(); ++k) prepared_[ending[k]] = Prepared{std::move(fresh[k]), r[stepped + k]};
+    for (std::size_t k = 0; k < mine.size(); ++k) rates[mine[k]] = r[k];
+    for (std::size_t k = 0; k < ending.size(); ++k) prepared_[ending[k]] = Prepared{std::move(fresh[k]), r[mine.size() + k]};
   });
   for (std::size_t j = 0; j < open.size(); ++j) {
     const std::size_t i = open[j];

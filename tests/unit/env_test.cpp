@@ -356,8 +356,10 @@ TEST(Env, ResampledVectorEnvMatchesSingleEnvs) {
 
 TEST(Env, SettlingAStepEarlyChangesNothing) {
   // VecEnv::settle ends a step from the environment's own memo (the PPO learner's lanes); finish()
-  // ends the rest with their misses in one batch. Stepping through settle must give what finish
-  // alone gives: the same rewards, rates and ends, the same resets (new layouts), the same hits.
+  // ends the rest with their misses in one batch per thread, the environments shared out among
+  // the threads by the misses settle counted. Stepping through settle on three threads must give
+  // what finish alone gives on one: the same rewards, rates and ends, the same resets (new
+  // layouts), the same hits.
   struct Case {
     const char* name;
     std::function<void(Config&)> set;
@@ -371,7 +373,10 @@ TEST(Env, SettlingAStepEarlyChangesNothing) {
     SCOPED_TRACE(k.name);
     Config cfg;
     k.set(cfg);
-    VecEnv plain(cfg, zf_bf(), 4, 11), settled(cfg, zf_bf(), 4, 11);
+    cfg.run.threads = 1;
+    Config threaded = cfg;
+    threaded.run.threads = 3;
+    VecEnv plain(cfg, zf_bf(), 4, 11), settled(threaded, zf_bf(), 4, 11);
     Rng rng(2);
     int early = 0, late = 0, resets = 0;
     for (int step = 0; step < 80; ++step) {
@@ -404,6 +409,27 @@ TEST(Env, SettlingAStepEarlyChangesNothing) {
     EXPECT_GT(early, 0) << "steps whose rates the memo knew end at once";
     EXPECT_GT(late, 0) << "steps with a new position wait for finish's batch";
     EXPECT_GE(resets, 12) << "80 steps of T_max = 24: every environment ends three episodes";
+  }
+  // What a miss will take: per cluster not in the memo, its users plus one; nothing on a hit.
+  {
+    Config cfg;
+    RateOracle oracle(cfg, zf_bf(), make_users(cfg, 12, 5));
+    Positions uavs(3, 2);
+    uavs << 40, 40, 160, 60, 100, 170;
+    const Association a = oracle.model().associate(uavs, oracle.users());
+    double want = 0;
+    int clusters = 0;
+    for (const auto& members : a.users)
+      if (!members.empty()) want += static_cast<double>(members.size() + 1), ++clusters;
+    ASSERT_GE(clusters, 2);
+    double cost = -1;
+    EXPECT_FALSE(oracle.cached_sum_rate(uavs, &cost).has_value());
+    EXPECT_EQ(cost, want);
+    EXPECT_EQ(oracle.stats().hits + oracle.stats().misses, 0u) << "a miss counts nothing";
+    const double r = oracle.sum_rate(uavs);
+    cost = -1;
+    EXPECT_EQ(oracle.cached_sum_rate(uavs, &cost), std::optional<double>(r));
+    EXPECT_EQ(cost, -1) << "a hit leaves the cost alone";
   }
   // Environments that share one oracle never settle early (another's batch may be filling its memo).
   Config cfg;

@@ -35,8 +35,11 @@ class RateOracle {
   /// Network sum rate R for UAV positions [N x 2].
   double sum_rate(const Positions& uavs);
   /// R from the memo alone: the doubles sum_rate() returns when every rate it needs is memoised
-  /// (counted as hits); std::nullopt, with nothing counted or computed, when one is missing.
-  std::optional<double> cached_sum_rate(const Positions& uavs);
+  /// (counted as hits); std::nullopt, with nothing counted or computed, when one is missing. Then,
+  /// when `miss_cost` is given, it receives the work the misses will take: per cluster missing,
+  /// its users plus one (the learned beamformers' passes go over user rows and a row per cluster);
+  /// per position set missing, under a joint oracle, its users plus its UAVs.
+  std::optional<double> cached_sum_rate(const Positions& uavs, double* miss_cost = nullptr);
   /// R for many position sets; all cache misses go to the beamformer in one batched call.
   std::vector<double> sum_rates(const std::vector<Positions>& uavs);
   /// Per-UAV cluster sum rates for one position set (UAVs with no users get 0).

@@ -423,7 +423,8 @@ class VecEnv {
   /// rate the step needs, and resets it when its episode ends (no before_reset: a caller that
   /// needs one leaves it to finish). Touches no other environment, so calls for different i may
   /// run at once. Returns false, having changed nothing, when the environments share an oracle or
-  /// a rate is missing: finish() then ends the step with the others' misses in its batch. The
+  /// a rate is missing: finish() then ends the step with the others' misses in its batch (and
+  /// weighs the environment by its misses when it shares them out among the threads). The
   /// same numbers as finish() (a memoised rate is the same doubles; a reset's rate is designed
   /// per cluster, the same on any thread).
   bool settle(int i, const Positions& next, StepInfo& info);
@@ -442,6 +443,7 @@ class VecEnv {
   std::vector<std::unique_ptr<UavEnv>> envs_;
   std::vector<std::uint64_t> episodes_;
   std::vector<char> settled_;  // settle()d since begin, per environment
+  std::vector<double> cost_;   // per environment, what its misses will take (settle's count; -1 unknown)
   struct Prepared {
     std::shared_ptr<RateOracle> oracle;  // next_oracle(i), made by finish()
     double start_rate = 0;               // R at the start under it

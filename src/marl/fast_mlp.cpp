@@ -83,8 +83,11 @@ void Mlp::get_torch_layout(const std::array<float*, 6>& p) const {
   get(w3_, b3_, p[4], p[5], out_, hidden_, out_pad_);
 }
 
-void Mlp::forward(const float* x, int rows, float* out, Cache* cache) const {
+void Mlp::forward(const Rows& x, int rows, float* out, Cache* cache) const {
   if (rows <= 0) return;
+  const int tail = in_ - x.head_width;
+  if (x.head_width < 0 || tail < 0 || (x.head_width > 0 && !x.head) || (tail > 0 && !x.tail))
+    throw std::logic_error("fast::Mlp: the input's parts do not make its width");
   Cache local;
   Cache& c = cache ? *cache : local;
   const std::size_t hn = static_cast<std::size_t>(rows) * hidden_pad_;
@@ -93,7 +96,12 @@ void Mlp::forward(const float* x, int rows, float* out, Cache* cache) const {
   c.rows = rows;
   c.x = x;
   const float* p = params_.data();
-  gemm::matmul(x, in_, rows, p + w1_, in_, hidden_pad_, p + b1_, c.h1.data(), hidden_pad_, false);
+  // The first layer over the head's columns from the bias, then on over the tail's (the kernel
+  // carries each sum through C in float: the same floats as one pass over the whole row).
+  if (x.head_width > 0) gemm::matmul(x.head, x.head_stride, rows, p + w1_, x.head_width, hidden_pad_, p + b1_, c.h1.data(), hidden_pad_, false);
+  if (tail > 0)
+    gemm::matmul(x.tail, x.tail_stride, rows, p + w1_ + static_cast<std::size_t>(x.head_width) * hidden_pad_, tail, hidden_pad_,
+                 x.head_width > 0 ? nullptr : p + b1_, c.h1.data(), hidden_pad_, x.head_width > 0);
   gemm::tanh_inplace(c.h1.data(), static_cast<long>(hn));
   gemm::matmul(c.h1.data(), hidden_pad_, rows, p + w2_, hidden_, hidden_pad_, p + b2_, c.h2.data(), hidden_pad_, false);
   gemm::tanh_inplace(c.h2.data(), static_cast<long>(hn));
@@ -118,7 +126,10 @@ void Mlp::backward(Cache& c, const float* dout, float* grad) const {
   // dz1 = (dz2 W2) * (1 - h1^2) goes into h2's buffer (h2 is no longer needed).
   gemm::matmul_tanh_backward(c.dh.data(), hidden_pad_, rows, w2_rows_.data(), hidden_, hidden_pad_, c.h1.data(), c.h2.data(), hidden_pad_);
   // Layer 1.
-  gemm::matmul_at(c.x, in_, in_, c.h2.data(), rows, hidden_pad_, grad + w1_, hidden_pad_);
+  if (c.x.head_width > 0) gemm::matmul_at(c.x.head, c.x.head_stride, c.x.head_width, c.h2.data(), rows, hidden_pad_, grad + w1_, hidden_pad_);
+  if (in_ > c.x.head_width)
+    gemm::matmul_at(c.x.tail, c.x.tail_stride, in_ - c.x.head_width, c.h2.data(), rows, hidden_pad_,
+                    grad + w1_ + static_cast<std::size_t>(c.x.head_width) * hidden_pad_, hidden_pad_);
   gemm::column_sums(c.h2.data(), rows, hidden_pad_, hidden_pad_, grad + b1_);
 }
 

@@ -36,18 +36,33 @@ class Mlp {
   void set_torch_layout(const std::array<const float*, 6>& p);
   void get_torch_layout(const std::array<float*, 6>& p) const;
 
+  /// A batch's input rows, in up to two parts side by side: columns [0, head_width) of row r at
+  /// head + r head_stride, columns [head_width, in) at tail + r tail_stride (the critic's own
+  /// columns beside the actor's observation, which it reads where the actor's pass reads it). The
+  /// first layer sums the head's columns, then the tail's, in column order: the same floats as
+  /// one input row.
+  struct Rows {
+    const float* head = nullptr;
+    int head_width = 0, head_stride = 0;
+    const float* tail = nullptr;
+    int tail_stride = 0;
+  };
+  /// One part: x [rows x in], row-major of stride in.
+  Rows rows_of(const float* x) const { return Rows{x, in_, in_, nullptr, 0}; }
+
   /// The activations a backward pass needs; grows to the largest batch and is then reused.
-  /// Holds a pointer to forward's input, which must outlive the backward pass.
+  /// Holds pointers to forward's input, which must outlive the backward pass.
   struct Cache {
     int rows = 0;
-    const float* x = nullptr;
+    Rows x;
     std::vector<float> h1, h2, dh;
   };
 
   /// out [rows x out_stride()] = the network on x [rows x in] (row-major, stride in); only the
   /// first out() columns are defined (the narrow output layer computes one kernel vector, the
   /// rest of the padding is left as it was). With a cache, keeps what backward needs.
-  void forward(const float* x, int rows, float* out, Cache* cache) const;
+  void forward(const float* x, int rows, float* out, Cache* cache) const { forward(rows_of(x), rows, out, cache); }
+  void forward(const Rows& x, int rows, float* out, Cache* cache) const;
   /// grad (size() floats) += d loss / d params for the batch of the last forward into `cache`,
   /// given dout = d loss / d out [rows x out_stride()] (padding columns zero).
   void backward(Cache& cache, const float* dout, float* grad) const;

@@ -67,11 +67,17 @@ int CriticReader::width(const UavEnv& e) const {
   return e.observation_size();
 }
 
-void CriticReader::write(const UavEnv& e, int n, float* out, const float* observation) const {
+int CriticReader::observation_width(const UavEnv& e) const { return encoder.set ? encoder.width(e) : 0; }
+
+void CriticReader::write(const UavEnv& e, int n, float* out) const {
+  const int head = observation_width(e);
+  if (head > 0) encoder.write(e, n, out);
+  write_own(e, n, out + head);
+}
+
+void CriticReader::write_own(const UavEnv& e, int n, float* out) const {
   if (encoder.set) {
-    if (observation) std::copy_n(observation, encoder.width(e), out);
-    else encoder.write(e, n, out);
-    if (input != Input::LocalObservation) e.write_compact_state(out + encoder.width(e));
+    if (input != Input::LocalObservation) e.write_compact_state(out);
     return;
   }
   switch (input) {
@@ -84,12 +90,14 @@ void CriticReader::write(const UavEnv& e, int n, float* out, const float* observ
 
 // ---- storage -------------------------------------------------------------------------------------
 
-Rollout::Rollout(int steps, int envs, int agents, int obs, int critic, int action_count, int dims)
-    : T(steps), M(envs), N(agents), obs_width(obs), critic_width(critic), A(action_count), C(dims) {
+Rollout::Rollout(int steps, int envs, int agents, int obs, int critic, int action_count, int dims, int critic_obs)
+    : T(steps), M(envs), N(agents), obs_width(obs), critic_width(critic), A(action_count), C(dims), critic_observation(critic_obs) {
+  if (critic_obs != 0 && critic_obs != obs)
+    throw std::logic_error("Rollout: the critic reads the whole observation or none of it");
   const std::size_t S = samples();
   raw_actions.resize(S * static_cast<std::size_t>(C));
   observations.resize(S * static_cast<std::size_t>(obs));
-  critic_inputs.resize(S * static_cast<std::size_t>(critic));
+  critic_inputs.resize(S * static_cast<std::size_t>(critic_own()));
   actions.resize(S);
   logprobs.resize(S);
   values.resize(S);
@@ -103,7 +111,7 @@ Rollout::Rollout(int steps, int envs, int agents, int obs, int critic, int actio
 }
 
 double Rollout::bytes(int steps, int envs, int agents, int obs, int critic, int action_count, int dims, int minibatches) {
-  // Per sample: its floats above (observation, critic input, raw action, allowed moves, log-prob,
+  // Per sample: its floats above (observation, the critic's own columns, raw action, allowed moves, log-prob,
   // value, active, advantage, return) and the action; per environment step: reward and done.
   const double per_sample = 4.0 * (obs + critic + dims + action_count + 6) + 8.0;
   const double samples = static_cast<double>(steps) * envs * agents;
@@ -288,7 +296,8 @@ MlpNet actor_like(MlpNet& like) {
 /// The reference: LibTorch's autograd and Adam.
 class TorchPpo final : public PpoNetworks {
  public:
-  TorchPpo(Nets nets, double learning_rate, const torch::Device& device) : nets_(std::move(nets)), device_(device) {
+  TorchPpo(Nets nets, double learning_rate, const torch::Device& device, int critic_observation)
+      : critic_observation_(critic_observation), nets_(std::move(nets)), device_(device) {
     nets_.actor->to(device);
     nets_.critic->to(device);
     params_ = nets_.actor->parameters();
@@ -302,10 +311,14 @@ class TorchPpo final : public PpoNetworks {
   void set_average_decay(double decay) override { average_decay_ = decay; }
 
   void logits(const float* obs, int rows, float* out, int) override { forward(nets_.actor, obs, rows, actions(), out); }
-  void values(const float* in, int rows, float* out, int) override { forward(nets_.critic, in, rows, 1, out); }
+  void values(const float* observations, const float* in, int rows, float* out, int) override {
+    torch::NoGradGuard ng;
+    copy_rows(nets_.critic(critic_input(observations, in, rows)), rows, 1, out);
+  }
 
   UpdateStats step(Minibatch& b, const PpoSettings& s) override {
     b.ready(0, b.rows);
+    if (b.critic_observation != critic_observation_) throw std::logic_error("TorchPpo: the batch's critic input is not the network's");
     const int64_t R = b.rows;
     auto blob = [&](const std::vector<float>& v, std::vector<int64_t> shape) {
       return torch::from_blob(const_cast<float*>(v.data()), shape).to(device_);
@@ -332,7 +345,7 @@ class TorchPpo final : public PpoNetworks {
       entropy = masked_mean(-(logp_all.exp() * logp_all).sum(1), active);
     }
     const auto policy_loss = -masked_mean(clipped_surrogate(logp, logp_old, blob(b.advantages, {R}), s.clip), active);
-    const auto v = nets_.critic(blob(b.critic_inputs, {R, b.critic_width})).view({R});
+    const auto v = nets_.critic(critic_input(b.observations.data(), b.critic_inputs.data(), static_cast<int>(R))).view({R});
     const auto value_loss = clipped_value_loss(v, blob(b.values, {R}), blob(b.returns, {R}), s.clip);
     const auto loss = policy_loss + s.value_coef * value_loss - s.entropy_coef * entropy;  // eq:total_loss
     adam_->zero_grad();
@@ -395,12 +408,23 @@ class TorchPpo final : public PpoNetworks {
   int actions() const { return static_cast<int>(nets_.actor->l3->options.out_features()); }
   void forward(MlpNet& net, const float* in, int rows, int width, float* out) {
     torch::NoGradGuard ng;
-    const auto y = net(torch::from_blob(const_cast<float*>(in), {rows, net->l1->options.in_features()}).to(device_))
-                       .to(torch::kCPU)
-                       .contiguous();
-    std::copy(y.data_ptr<float>(), y.data_ptr<float>() + static_cast<std::size_t>(rows) * width, out);
+    copy_rows(net(torch::from_blob(const_cast<float*>(in), {rows, net->l1->options.in_features()}).to(device_)), rows, width, out);
+  }
+  static void copy_rows(const torch::Tensor& y, int rows, int width, float* out) {
+    const auto cpu = y.to(torch::kCPU).contiguous();
+    std::copy(cpu.data_ptr<float>(), cpu.data_ptr<float>() + static_cast<std::size_t>(rows) * width, out);
+  }
+  /// The critic's whole input rows: the observation's columns (when it reads them), then its own.
+  torch::Tensor critic_input(const float* observations, const float* own, int rows) const {
+    const int64_t width = nets_.critic->l1->options.in_features(), own_width = width - critic_observation_;
+    auto rest = torch::from_blob(const_cast<float*>(own), {rows, own_width}).to(device_);
+    if (critic_observation_ == 0) return rest;
+    const int64_t obs_width = nets_.actor->l1->options.in_features();
+    auto head = torch::from_blob(const_cast<float*>(observations), {rows, obs_width}).to(device_);
+    return torch::cat({head, rest}, 1);
   }
 
+  int critic_observation_;  // the critic's leading input columns that are the observation (0 or its width)
   Nets nets_;
   torch::Device device_;
   std::vector<torch::Tensor> params_;
@@ -412,8 +436,9 @@ class TorchPpo final : public PpoNetworks {
 /// The default: fused float32 passes (fast_mlp.hpp), the loss's gradient written out.
 class FastPpo final : public PpoNetworks {
  public:
-  FastPpo(Nets nets, double learning_rate, int threads)
-      : torch_(std::move(nets)),
+  FastPpo(Nets nets, double learning_rate, int threads, int critic_observation)
+      : critic_observation_(critic_observation),
+        torch_(std::move(nets)),
         actor_(static_cast<int>(torch_.actor->l1->options.in_features()), static_cast<int>(torch_.actor->l1->options.out_features()),
                static_cast<int>(torch_.actor->l3->options.out_features())),
         critic_(static_cast<int>(torch_.critic->l1->options.in_features()), static_cast<int>(torch_.critic->l1->options.out_features()), 1) {
@@ -428,10 +453,13 @@ class FastPpo final : public PpoNetworks {
   void logits(const float* obs, int rows, float* out, int lane) override {
     forward(actor_, obs, rows, static_cast<int>(torch_.actor->l3->options.out_features()), out, lane);
   }
-  void values(const float* in, int rows, float* out, int lane) override { forward(critic_, in, rows, 1, out, lane); }
+  void values(const float* observations, const float* in, int rows, float* out, int lane) override {
+    forward(critic_, critic_rows(observations, in), rows, 1, out, lane);
+  }
   int lanes() const override { return kLanes; }
 
   UpdateStats step(Minibatch& b, const PpoSettings& s) override {
+    if (b.critic_observation != critic_observation_) throw std::logic_error("FastPpo: the batch's critic input is not the network's");
     const int R = b.rows, as = actor_.out_stride(), vs = critic_.out_stride();
     const std::size_t na = actor_.size(), np = na + critic_.size();
     logits_.resize(static_cast<std::size_t>(R) * as);
@@ -459,7 +487,9 @@ class FastPpo final : public PpoNetworks {
         float* dv = dvalues_.data() + static_cast<std::size_t>(lo) * vs;
         b.ready(lo, hi);
         actor_.forward(b.observations.data() + static_cast<std::size_t>(lo) * b.obs_width, hi - lo, lg, &actor_cache_[c]);
-        critic_.forward(b.critic_inputs.data() + static_cast<std::size_t>(lo) * b.critic_width, hi - lo, vl, &critic_cache_[c]);
+        critic_.forward(critic_rows(b.observations.data() + static_cast<std::size_t>(lo) * b.obs_width,
+                                    b.critic_inputs.data() + static_cast<std::size_t>(lo) * b.critic_own()),
+                        hi - lo, vl, &critic_cache_[c]);
         parts[c].add(ppo_loss_rows(b, s, lo, hi, per_active, lg, as, vl, vs, dl, dv), 1.0);
         actor_.backward(actor_cache_[c], dl, g.data());
         critic_.backward(critic_cache_[c], dv, g.data() + na);
@@ -590,7 +620,16 @@ class FastPpo final : public PpoNetworks {
   }
   /// Each row's outputs are the same bits whatever the other rows (the kernels sum every element
   /// over its inputs in order), so lanes split a batch without changing a number.
+  /// The critic's input rows: the observation's rows (when it reads them), then its own.
+  fast::Mlp::Rows critic_rows(const float* observations, const float* own) const {
+    const int own_width = critic_.in() - critic_observation_;
+    if (critic_observation_ == 0) return critic_.rows_of(own);
+    return fast::Mlp::Rows{observations, critic_observation_, actor_.in(), own, own_width};
+  }
   void forward(const fast::Mlp& net, const float* in, int rows, int width, float* out, int lane) {
+    forward(net, net.rows_of(in), rows, width, out, lane);
+  }
+  void forward(const fast::Mlp& net, const fast::Mlp::Rows& in, int rows, int width, float* out, int lane) {
     if (lane < 0 || lane >= kLanes) throw std::logic_error("FastPpo: lane " + std::to_string(lane) + " outside 0.." + std::to_string(kLanes - 1));
     auto& scratch = scratch_[lane];
     scratch.resize(static_cast<std::size_t>(rows) * net.out_stride());
@@ -603,6 +642,7 @@ class FastPpo final : public PpoNetworks {
   static constexpr std::size_t kChunks = 2;
   static constexpr int kLanes = kCollectLanes;
   static constexpr int kPieceRows = 192;
+  int critic_observation_;  // the critic's leading input columns that are the observation (0 or its width)
   Nets torch_;  // the archive's form of the weights (written on save, read on load)
   fast::Mlp actor_, critic_;
   fast::Adam actor_adam_, critic_adam_;
@@ -618,13 +658,15 @@ class FastPpo final : public PpoNetworks {
 
 std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
                                                double learning_rate, const torch::Device& device, std::uint64_t seed,
-                                               int threads, int actions) {
+                                               int threads, int actions, int critic_observation) {
+  if (critic_observation != 0 && (critic_observation != obs_width || critic_width < obs_width))
+    throw std::logic_error("make_ppo_networks: the critic reads the whole observation or none of it");
   auto nets = initial_nets(obs_width, critic_width, hidden, actions, seed);
-  if (backend == "torch") return std::make_unique<TorchPpo>(std::move(nets), learning_rate, device);
+  if (backend == "torch") return std::make_unique<TorchPpo>(std::move(nets), learning_rate, device, critic_observation);
   if (backend != "fast") throw InputError("marl.backend = \"" + backend + "\" is not allowed: allowed one of fast, torch");
   if (device.is_cuda())
     throw InputError("marl.backend = \"fast\" runs on the CPU: with nn.device = \"cuda\" set marl.backend = \"torch\"");
-  return std::make_unique<FastPpo>(std::move(nets), learning_rate, threads);
+  return std::make_unique<FastPpo>(std::move(nets), learning_rate, threads, critic_observation);
 }
 
 // ---- the three phases ----------------------------------------------------------------------------
@@ -662,6 +704,8 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
              const RunningStats& value_norm, Rng& rng, Rollout& r, EpisodeStats& stats, int threads) {
   const int M = r.M, N = r.N, A = r.A, C = r.C;
   const int width = C > 0 ? 2 * C : A;  // the actor's output: logits, or mean and log std
+  if (r.critic_observation != critic.observation_width(vec.env(0)) || r.critic_width != critic.width(vec.env(0)))
+    throw std::logic_error("collect: the rollout's critic input is not the critic reader's");
   const std::size_t step_rows = static_cast<std::size_t>(M) * N;
   std::vector<float> logits(step_rows * static_cast<std::size_t>(width));
   std::vector<Rng> streams;  // environment e samples from streams[e] alone: the same draws on any thread count
@@ -688,14 +732,14 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
 
   for (int t = 0; t < r.T; ++t) {
     float* obs = r.observations.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.obs_width);
-    float* crit = r.critic_inputs.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.critic_width);
+    float* crit = r.critic_inputs.data() + r.at(t, 0, 0) * static_cast<std::size_t>(r.critic_own());
     float* values = r.values.data() + r.at(t, 0, 0);
     auto encode = [&](int e) {
       for (int n = 0; n < N; ++n) {
         const auto i = static_cast<std::size_t>(e * N + n);
         if (!sequential) {
           encoder.write(vec.env(e), n, obs + i * static_cast<std::size_t>(r.obs_width));
-          critic.write(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_width), obs + i * static_cast<std::size_t>(r.obs_width));
+          critic.write_own(vec.env(e), n, crit + i * static_cast<std::size_t>(r.critic_own()));
         }
         r.active[r.at(t, e, n)] = static_cast<float>(vec.env(e).mask(n));
         r.logprobs[r.at(t, e, n)] = 0.0f;  // agents that STAY without sampling (arrived) keep these
@@ -712,7 +756,8 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
       const std::size_t row = static_cast<std::size_t>(first) * N;
       const int rows = (last - first) * N;
       auto critic_values = [&] {
-        nets.values(crit + row * static_cast<std::size_t>(r.critic_width), rows, values + row, static_cast<int>(lane));
+        nets.values(obs + row * static_cast<std::size_t>(r.obs_width), crit + row * static_cast<std::size_t>(r.critic_own()), rows,
+                    values + row, static_cast<int>(lane));
         for (std::size_t i = row; i < row + static_cast<std::size_t>(rows); ++i)
           values[i] = static_cast<float>(value_norm.denormalise(values[i]));
       };
@@ -787,7 +832,7 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
           env.clear_decided();
           for (int n = 0; n < N; ++n) {
             const std::size_t i = static_cast<std::size_t>(e * N + n);
-            critic.write(env, n, crit + i * static_cast<std::size_t>(r.critic_width), obs + i * static_cast<std::size_t>(r.obs_width));
+            critic.write_own(env, n, crit + i * static_cast<std::size_t>(r.critic_own()));
           }
         }
         for (int n = 0; n < N; ++n) r.actions[r.at(t, e, n)] = actions[ee][static_cast<std::size_t>(n)];
@@ -805,10 +850,14 @@ void collect(VecEnv& vec, const Encoder& encoder, const CriticReader& critic, co
     }
   }
   // Bootstrap values of the states after the rollout.
-  std::vector<float> crit(step_rows * static_cast<std::size_t>(r.critic_width));
+  std::vector<float> last_obs(step_rows * static_cast<std::size_t>(r.critic_observation)), crit(step_rows * static_cast<std::size_t>(r.critic_own()));
   for (int e = 0; e < M; ++e)
-    for (int n = 0; n < N; ++n) critic.write(vec.env(e), n, crit.data() + static_cast<std::size_t>(e * N + n) * r.critic_width);
-  nets.values(crit.data(), static_cast<int>(step_rows), r.next_values.data());
+    for (int n = 0; n < N; ++n) {
+      const auto i = static_cast<std::size_t>(e * N + n);
+      if (r.critic_observation > 0) encoder.write(vec.env(e), n, last_obs.data() + i * static_cast<std::size_t>(r.critic_observation));
+      critic.write_own(vec.env(e), n, crit.data() + i * static_cast<std::size_t>(r.critic_own()));
+    }
+  nets.values(last_obs.data(), crit.data(), static_cast<int>(step_rows), r.next_values.data());
   for (auto& v : r.next_values) v = static_cast<float>(value_norm.denormalise(v));
 }
 
@@ -870,9 +919,11 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
   const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef * entropy_factor, m.grad_clip};
   const int rows = static_cast<int>(std::max<std::size_t>(1, S / static_cast<std::size_t>(m.minibatches)));
   b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width, b.action_count = r.A, b.dims = r.C;
+  b.critic_observation = r.critic_observation;
+  const int own = r.critic_own();
   b.raw_actions.resize(static_cast<std::size_t>(rows) * r.C);
   b.observations.resize(static_cast<std::size_t>(rows) * r.obs_width);
-  b.critic_inputs.resize(static_cast<std::size_t>(rows) * r.critic_width);
+  b.critic_inputs.resize(static_cast<std::size_t>(rows) * own);
   b.allowed.resize(static_cast<std::size_t>(rows) * r.A);
   for (auto* v : {&b.logprobs, &b.advantages, &b.returns, &b.values, &b.active}) v->resize(static_cast<std::size_t>(rows));
   b.actions.resize(static_cast<std::size_t>(rows));
@@ -890,11 +941,11 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
       if (k + kAhead < hi) {  // the rows are scattered over the rollout: ask for a later one's now
         const std::size_t ahead = order[first + static_cast<std::size_t>(k + kAhead)];
         prefetch_span(r.observations.data() + ahead * r.obs_width, r.obs_width);
-        prefetch_span(r.critic_inputs.data() + ahead * r.critic_width, r.critic_width);
+        prefetch_span(r.critic_inputs.data() + ahead * own, own);
         prefetch_span(r.allowed.data() + ahead * r.A, r.A);
       }
       std::copy_n(r.observations.data() + i * r.obs_width, r.obs_width, b.observations.data() + kk * r.obs_width);
-      std::copy_n(r.critic_inputs.data() + i * r.critic_width, r.critic_width, b.critic_inputs.data() + kk * r.critic_width);
+      std::copy_n(r.critic_inputs.data() + i * own, own, b.critic_inputs.data() + kk * own);
       std::copy_n(r.allowed.data() + i * r.A, r.A, b.allowed.data() + kk * r.A);
       std::copy_n(r.raw_actions.data() + i * r.C, r.C, b.raw_actions.data() + kk * r.C);
       b.actions[kk] = r.actions[i];
@@ -933,21 +984,22 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   // The sizes, read from the environments before the run directory is touched (the rollout's
   // memory is checked there). The continuous model: a squashed Gaussian over its command (C
   // dimensions), else a softmax over the A actions.
-  int N = 0, M = 0, obs_width = 0, critic_width = 0, C = 0, A = 0;
+  int N = 0, M = 0, obs_width = 0, critic_width = 0, critic_observation = 0, C = 0, A = 0;
   Run run(cfg, opt, [&](const VecEnv& v) {
     N = v.env(0).uavs(), M = v.size(), obs_width = encoder.width(v.env(0)), critic_width = critic.width(v.env(0));
+    critic_observation = critic.observation_width(v.env(0));
     C = v.env(0).mobility().actions().dims, A = C > 0 ? 0 : v.env(0).actions();
-    const double bytes = Rollout::bytes(m.rollout, M, N, obs_width, critic_width, A, C, m.minibatches);
+    const double bytes = Rollout::bytes(m.rollout, M, N, obs_width, critic_width - critic_observation, A, C, m.minibatches);
     require_memory(bytes,
                    fmt::format("the PPO rollout of marl.rollout = {} steps x marl.envs = {} environments x {} UAVs ({} + {} "
-                               "floats an agent step)", m.rollout, M, N, obs_width, critic_width),
+                               "floats an agent step)", m.rollout, M, N, obs_width, critic_width - critic_observation),
                    fmt::format("allowed marl.rollout x marl.envs <= {:.0f} for this scenario",
                                std::floor(memory_limit_bytes() / (bytes / (static_cast<double>(m.rollout) * M)))));
   });
   VecEnv& vec = run.vec;
   const SafetyOptions safety = training_safety_options(cfg);
   auto nets = make_ppo_networks(m.backend, obs_width, critic_width, m.hidden, m.learning_rate, run.device, cfg.run.seed,
-                                cfg.run.threads, C > 0 ? 2 * C : A);
+                                cfg.run.threads, C > 0 ? 2 * C : A, critic_observation);
   nets->set_average_decay(m.average_decay);
   RunningStats value_norm;
 
@@ -980,7 +1032,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   if (opt.progress)
     bar = std::make_unique<Progress>(fmt::format("{} {} steps", m.algo, m.total_steps),
                                      static_cast<std::size_t>((m.total_steps - steps + per_update - 1) / per_update), *opt.progress, 10.0, 2.0);
-  Rollout rollout(m.rollout, M, N, obs_width, critic_width, A, C);
+  Rollout rollout(m.rollout, M, N, obs_width, critic_width, A, C, critic_observation);
   Minibatch scratch;
   EpisodeStats stats;
   const Schedule lr_schedule = Schedule::of(m.lr_schedule), entropy_schedule = Schedule::of(m.entropy_schedule);

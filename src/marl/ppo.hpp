@@ -31,21 +31,32 @@ struct CriticReader {
   static CriticReader of(const Config& cfg, const Encoder& encoder);
   const char* name() const;  // global | agent | local (the policy header's critic_input)
   int width(const UavEnv& env) const;
-  /// `observation`, when given, is agent n's row of the actor's input (the same encoder) just
-  /// written: the set observation is copied from it rather than computed again.
-  void write(const UavEnv& env, int n, float* out, const float* observation = nullptr) const;
+  /// The critic's first input columns that are the actor's own input row (its observation), read
+  /// from there rather than stored twice: the whole set observation under the set encoder, else 0.
+  int observation_width(const UavEnv& env) const;
+  /// The critic's input: agent n's observation (observation_width() columns, as the actor reads
+  /// it), then its own columns (write_own).
+  void write(const UavEnv& env, int n, float* out) const;
+  /// The critic's columns past observation_width(): the compact state under the set encoder
+  /// (nothing for IPPO), else the whole input.
+  void write_own(const UavEnv& env, int n, float* out) const;
 };
 
 /// One rollout: T steps of M environments with N agents. Per-agent arrays are [T, M, N, ...]
 /// row-major (index at(t, e, n)), per-environment ones [T, M].
 struct Rollout {
   /// `dims` > 0: continuous actions of that size (the squashed Gaussian policy), `actions` = 0.
-  Rollout(int steps, int envs, int agents, int obs_width, int critic_width, int actions = kGridActions, int dims = 0);
+  /// The critic reads critic_width columns: the first critic_observation of them (0 or obs_width)
+  /// are the row's observation, the rest its critic_inputs.
+  Rollout(int steps, int envs, int agents, int obs_width, int critic_width, int actions = kGridActions, int dims = 0,
+          int critic_observation = 0);
   int T, M, N, obs_width, critic_width, A;  // A: the mobility model's actions (0 when continuous)
   int C = 0;                           // continuous: the command's size
+  int critic_observation = 0;          // the critic's leading columns read from observations
+  int critic_own() const { return critic_width - critic_observation; }
   std::vector<float> raw_actions;      // [T, M, N, C]: the Gaussian sample z before tanh (continuous)
   std::vector<float> observations;     // [T, M, N, obs_width]: what the actor read
-  std::vector<float> critic_inputs;    // [T, M, N, critic_width]
+  std::vector<float> critic_inputs;    // [T, M, N, critic_own()]: the critic's own columns
   std::vector<std::int64_t> actions;   // [T, M, N]
   std::vector<float> logprobs;         // [T, M, N]: log pi_old(a | o) among the allowed moves
   std::vector<float> values;           // [T, M, N]: V_old (denormalised)
@@ -59,8 +70,9 @@ struct Rollout {
     return (static_cast<std::size_t>(t) * M + static_cast<std::size_t>(e)) * N + static_cast<std::size_t>(n);
   }
   std::size_t samples() const { return static_cast<std::size_t>(T) * M * N; }
-  /// The bytes a rollout of these sizes holds, with one minibatch of it gathered (update's scratch).
-  static double bytes(int steps, int envs, int agents, int obs_width, int critic_width, int actions, int dims, int minibatches);
+  /// The bytes a rollout of these sizes holds, with one minibatch of it gathered (update's scratch);
+  /// critic_own: the critic's columns stored besides the observation.
+  static double bytes(int steps, int envs, int agents, int obs_width, int critic_own, int actions, int dims, int minibatches);
 };
 
 /// Minibatch rows gathered contiguously from a rollout (advantages normalised, returns and old
@@ -68,6 +80,10 @@ struct Rollout {
 struct Minibatch {
   int rows = 0, obs_width = 0, critic_width = 0, action_count = kGridActions;
   int dims = 0;  // continuous: the command's size; the actor's output is then [mean (dims), log std (dims)]
+  /// The critic's input row: its first critic_observation columns (0 or obs_width) are the row's
+  /// observation, the rest the row of critic_inputs [rows x critic_own()].
+  int critic_observation = 0;
+  int critic_own() const { return critic_width - critic_observation; }
   std::vector<float> observations, critic_inputs, logprobs, advantages, returns, values, active, allowed, raw_actions;
   std::vector<std::int64_t> actions;
   /// Rows written on demand (update() sets it): fill(first, last) writes rows [first, last) of
@@ -127,8 +143,10 @@ class PpoNetworks : public Learned {
   /// logits [rows x actions] of the actor on observations [rows x obs_width]. `lane` in
   /// [0, lanes()): calls on different lanes may run at once (each lane has its own scratch).
   virtual void logits(const float* observations, int rows, float* out, int lane = 0) = 0;
-  /// The critic's values [rows] in its normalised units (lanes as logits).
-  virtual void values(const float* critic_inputs, int rows, float* out, int lane = 0) = 0;
+  /// The critic's values [rows] in its normalised units (lanes as logits), on the rows whose
+  /// input is their observation's first critic_observation columns (make_ppo_networks; unread
+  /// when 0), then their row of critic_inputs [rows x the rest].
+  virtual void values(const float* observations, const float* critic_inputs, int rows, float* out, int lane = 0) = 0;
   /// How many logits / values calls may run at once, on lanes 0 .. lanes() - 1.
   virtual int lanes() const { return 1; }
   /// One step on the loss of eq:total_loss over the minibatch: the clipped surrogate (masked
@@ -153,9 +171,11 @@ class PpoNetworks : public Learned {
 /// backend computes each minibatch in two fixed halves, on up to two threads, with the same
 /// numbers for any thread count; LibTorch's threads are set by the run.
 /// `actions` is the actor's output width: the discrete actions, or 2 x the continuous command's size.
+/// `critic_observation` (0 or obs_width): the critic's first input columns are the observation
+/// (Minibatch::critic_observation, which each step's batch must match).
 std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
                                                double learning_rate, const torch::Device& device, std::uint64_t seed,
-                                               int threads = 1, int actions = kGridActions);
+                                               int threads = 1, int actions = kGridActions, int critic_observation = 0);
 
 /// Fills the rollout with T steps of every environment: each active UAV samples from its policy
 /// among the moves its safety settings allow (sequential_safe_actions); arrived UAVs STAY.

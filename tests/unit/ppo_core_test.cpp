@@ -213,6 +213,51 @@ TEST(PpoCore, BackendsTakeTheSameSteps) {
   EXPECT_THROW(make_ppo_networks("jax", 11, 37, 64, 3e-4, torch::kCPU, 9), InputError);
 }
 
+// The critic's first input columns may be the actor's observation (the set encoder's MAPPO: the
+// observation, then the compact state), read from the minibatch's observations rather than stored
+// twice. The fast backend gives the same bits as on whole critic rows (its first layer sums the
+// same columns in the same order, the observation's then the rest), LibTorch's autograd the same
+// numbers within float32 rounding; a batch laid out otherwise than the networks is refused.
+TEST(PpoCore, TheCriticReadsTheActorsObservationInPlace) {
+  const PpoSettings s{0.2, 0.5, 0.03, 0.1};
+  const int rows = 512, obs = 11, own = 26, width = obs + own;
+  Minibatch split = random_minibatch(rows, obs, own, 5);  // critic_inputs: the critic's own columns
+  split.critic_width = width;
+  split.critic_observation = obs;
+  Minibatch whole = split;
+  whole.critic_observation = 0;
+  whole.critic_inputs.clear();
+  for (int r = 0; r < rows; ++r) {
+    const auto o = split.observations.begin() + static_cast<std::ptrdiff_t>(r) * obs;
+    const auto c = split.critic_inputs.begin() + static_cast<std::ptrdiff_t>(r) * own;
+    whole.critic_inputs.insert(whole.critic_inputs.end(), o, o + obs);
+    whole.critic_inputs.insert(whole.critic_inputs.end(), c, c + own);
+  }
+  auto in_place = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
+  auto copied = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 2);
+  auto ref = make_ppo_networks("torch", obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
+  std::vector<float> vi(rows), vc(rows), vr(rows);
+  for (int step = 0; step < 6; ++step) {
+    in_place->values(split.observations.data(), split.critic_inputs.data(), rows, vi.data());
+    copied->values(nullptr, whole.critic_inputs.data(), rows, vc.data());
+    ref->values(split.observations.data(), split.critic_inputs.data(), rows, vr.data());
+    ASSERT_EQ(vi, vc) << "step " << step;
+    for (int r = 0; r < rows; ++r) ASSERT_NEAR(vi[static_cast<std::size_t>(r)], vr[static_cast<std::size_t>(r)], step == 0 ? 1e-5 : 1e-3);
+    const auto ui = in_place->step(split, s), uc = copied->step(whole, s), ur = ref->step(split, s);
+    EXPECT_EQ(ui.policy_loss, uc.policy_loss) << "step " << step;
+    EXPECT_EQ(ui.value_loss, uc.value_loss) << "step " << step;
+    EXPECT_EQ(ui.entropy, uc.entropy) << "step " << step;
+    EXPECT_EQ(ui.approx_kl, uc.approx_kl) << "step " << step;
+    EXPECT_EQ(ui.grad_norm, uc.grad_norm) << "step " << step;
+    const double tol = step == 0 ? 1e-5 : 1e-3;
+    EXPECT_NEAR(ui.value_loss, ur.value_loss, tol * (1 + std::abs(ur.value_loss))) << "step " << step;
+    EXPECT_NEAR(ui.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
+  }
+  EXPECT_THROW(in_place->step(whole, s), std::logic_error);
+  EXPECT_THROW(copied->step(split, s), std::logic_error);
+  EXPECT_THROW(ref->step(whole, s), std::logic_error);
+}
+
 // marl.lr_schedule sets the optimiser's rate between updates, on both backends: at rate 0 a step
 // leaves the actor exactly as it was; Adam's first step is the rate times g / (|g| + eps), so at
 // half the rate the logits move half as far (to first order in the step: within 2%).
@@ -466,9 +511,10 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
       VecEnv vec = cfg.env.resample_users ? VecEnv(cfg, beamformer, 5, 7)
                                           : VecEnv(cfg, std::make_shared<RateOracle>(cfg, beamformer, make_users(cfg, 6, 3)), 5);
       const int dims = vec.env(0).mobility().actions().dims;
-      Rollout r(30, 5, 2, enc.width(vec.env(0)), critic.width(vec.env(0)), dims > 0 ? 0 : vec.env(0).actions(), dims);
+      Rollout r(30, 5, 2, enc.width(vec.env(0)), critic.width(vec.env(0)), dims > 0 ? 0 : vec.env(0).actions(), dims,
+                critic.observation_width(vec.env(0)));
       auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1,
-                                    dims > 0 ? 2 * dims : r.A);
+                                    dims > 0 ? 2 * dims : r.A, r.critic_observation);
       EXPECT_EQ(nets->lanes(), kCollectLanes);
       Rng rng(11);
       EpisodeStats stats;
@@ -531,8 +577,9 @@ TEST(PpoCore, SequentialAgentsReadTheLandingsChosenBeforeThem) {
   VecEnv vec(cfg, oracle, 1);
   UavEnv replay = vec.env(0);
   const int N = 3, D = enc.width(replay);
-  Rollout r(30, 1, N, D, critic.width(replay));
-  auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1, r.A);
+  Rollout r(30, 1, N, D, critic.width(replay), kGridActions, 0, critic.observation_width(replay));
+  ASSERT_EQ(r.critic_observation, D) << "the critic reads the actor's observation row";
+  auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1, r.A, r.critic_observation);
   Rng rng(5);
   EpisodeStats stats;
   collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats, 1);
@@ -540,6 +587,8 @@ TEST(PpoCore, SequentialAgentsReadTheLandingsChosenBeforeThem) {
   int shown = 0, differs = 0;
   for (int t = 0; t < r.T; ++t) {
     const auto order = shield_order(replay);
+    std::vector<float> state(static_cast<std::size_t>(UavEnv::compact_state_size()));
+    replay.write_compact_state(state.data());
     std::vector<int> act(N, replay.hover());
     for (int n = 0; n < N; ++n) act[static_cast<std::size_t>(n)] = static_cast<int>(r.actions[r.at(t, 0, n)]);
     std::vector<float> want(static_cast<std::size_t>(D)), plain(static_cast<std::size_t>(D));
@@ -547,8 +596,8 @@ TEST(PpoCore, SequentialAgentsReadTheLandingsChosenBeforeThem) {
       replay.write_set_observation(n, want.data());
       const float* got = r.observations.data() + r.at(t, 0, n) * static_cast<std::size_t>(D);
       ASSERT_EQ(std::vector<float>(got, got + D), want) << "t = " << t << ", UAV " << n;
-      const float* in_critic = r.critic_inputs.data() + r.at(t, 0, n) * static_cast<std::size_t>(r.critic_width);  // the observation, then the state
-      ASSERT_EQ(std::vector<float>(in_critic, in_critic + D), want) << "t = " << t << ", UAV " << n;
+      const float* own = r.critic_inputs.data() + r.at(t, 0, n) * static_cast<std::size_t>(r.critic_own());  // after the observation
+      ASSERT_EQ(std::vector<float>(own, own + r.critic_own()), state) << "t = " << t << ", UAV " << n;
       if (shown > 0) {
         UavEnv fresh = replay;
         fresh.clear_decided();

@@ -69,12 +69,6 @@ int CriticReader::width(const UavEnv& e) const {
 
 int CriticReader::observation_width(const UavEnv& e) const { return encoder.set ? encoder.width(e) : 0; }
 
-void CriticReader::write(const UavEnv& e, int n, float* out) const {
-  const int head = observation_width(e);
-  if (head > 0) encoder.write(e, n, out);
-  write_own(e, n, out + head);
-}
-
 void CriticReader::write_own(const UavEnv& e, int n, float* out) const {
   if (encoder.set) {
     if (input != Input::LocalObservation) e.write_compact_state(out);

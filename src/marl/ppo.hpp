@@ -34,11 +34,9 @@ struct CriticReader {
   /// The critic's first input columns that are the actor's own input row (its observation), read
   /// from there rather than stored twice: the whole set observation under the set encoder, else 0.
   int observation_width(const UavEnv& env) const;
-  /// The critic's input: agent n's observation (observation_width() columns, as the actor reads
-  /// it), then its own columns (write_own).
-  void write(const UavEnv& env, int n, float* out) const;
-  /// The critic's columns past observation_width(): the compact state under the set encoder
-  /// (nothing for IPPO), else the whole input.
+  /// The critic's columns past observation_width() (its input is agent n's observation, as the
+  /// actor reads it, then these): the compact state under the set encoder (nothing for IPPO),
+  /// else the whole input.
   void write_own(const UavEnv& env, int n, float* out) const;
 };
 

@@ -324,6 +324,12 @@ std::vector<Field> make_fields() {
   f.push_back(real("marl.entropy_coef", "entropy coefficient c2", 0, 1e3, [](Config& c) -> double& { return c.marl.entropy_coef; }));
   f.push_back(integer("marl.rollout", "steps per environment between PPO updates", 1, 1e6, [](Config& c) -> int& { return c.marl.rollout; }));
   f.push_back(integer("marl.minibatches", "PPO mini-batches per epoch", 1, 4096, [](Config& c) -> int& { return c.marl.minibatches; }));
+  f.push_back(text("marl.minibatch",
+                   "what PPO's minibatches are drawn in: samples = agent samples shuffled one by one (the paper's and the "
+                   "MAPPO reference's); steps = whole steps, every agent of a step in the same minibatch (TorchRL's layout), "
+                   "so that the critic's state columns the agents of a step share (the set encoder's compact state) are "
+                   "multiplied once per step, forward and backward (the fast backend)",
+                   {"samples", "steps"}, [](Config& c) -> std::string& { return c.marl.minibatch; }));
   f.push_back(integer("marl.epochs", "PPO epochs per update", 1, 1000, [](Config& c) -> int& { return c.marl.epochs; }));
   f.push_back(text("marl.critic_state", "MAPPO critic input: global state or agent-specific state", {"global", "agent"},
                    [](Config& c) -> std::string& { return c.marl.critic_state; }));

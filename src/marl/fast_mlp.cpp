@@ -88,6 +88,9 @@ void Mlp::forward(const Rows& x, int rows, float* out, Cache* cache) const {
   const int tail = in_ - x.head_width;
   if (x.head_width < 0 || tail < 0 || (x.head_width > 0 && !x.head) || (tail > 0 && !x.tail))
     throw std::logic_error("fast::Mlp: the input's parts do not make its width");
+  const int share = x.tail_share;
+  if (share < 1 || (share > 1 && (x.head_width <= 0 || tail <= 0 || rows % share != 0)))
+    throw std::logic_error("fast::Mlp: a shared tail needs a head, a tail and whole runs of rows");
   Cache local;
   Cache& c = cache ? *cache : local;
   const std::size_t hn = static_cast<std::size_t>(rows) * hidden_pad_;
@@ -99,9 +102,20 @@ void Mlp::forward(const Rows& x, int rows, float* out, Cache* cache) const {
   // The first layer over the head's columns from the bias, then on over the tail's (the kernel
   // carries each sum through C in float: the same floats as one pass over the whole row).
   if (x.head_width > 0) gemm::matmul(x.head, x.head_stride, rows, p + w1_, x.head_width, hidden_pad_, p + b1_, c.h1.data(), hidden_pad_, false);
-  if (tail > 0)
-    gemm::matmul(x.tail, x.tail_stride, rows, p + w1_ + static_cast<std::size_t>(x.head_width) * hidden_pad_, tail, hidden_pad_,
-                 x.head_width > 0 ? nullptr : p + b1_, c.h1.data(), hidden_pad_, x.head_width > 0);
+  const float* w_tail = p + w1_ + static_cast<std::size_t>(x.head_width) * hidden_pad_;
+  if (tail > 0 && share == 1)
+    gemm::matmul(x.tail, x.tail_stride, rows, w_tail, tail, hidden_pad_, x.head_width > 0 ? nullptr : p + b1_, c.h1.data(), hidden_pad_,
+                 x.head_width > 0);
+  if (share > 1) {  // the runs' tail product once each (from the runs' first rows), added to their rows
+    const int runs = rows / share;
+    grow(c.shared, static_cast<std::size_t>(runs) * hidden_pad_);
+    gemm::matmul(x.tail, x.tail_stride * share, runs, w_tail, tail, hidden_pad_, nullptr, c.shared.data(), hidden_pad_, false);
+    for (int r = 0; r < rows; ++r) {
+      float* __restrict h = c.h1.data() + static_cast<std::size_t>(r) * hidden_pad_;
+      const float* __restrict t = c.shared.data() + static_cast<std::size_t>(r / share) * hidden_pad_;
+      for (int j = 0; j < hidden_pad_; ++j) h[j] += t[j];
+    }
+  }
   gemm::tanh_inplace(c.h1.data(), static_cast<long>(hn));
   gemm::matmul(c.h1.data(), hidden_pad_, rows, p + w2_, hidden_, hidden_pad_, p + b2_, c.h2.data(), hidden_pad_, false);
   gemm::tanh_inplace(c.h2.data(), static_cast<long>(hn));
@@ -127,9 +141,21 @@ void Mlp::backward(Cache& c, const float* dout, float* grad) const {
   gemm::matmul_tanh_backward(c.dh.data(), hidden_pad_, rows, w2_rows_.data(), hidden_, hidden_pad_, c.h1.data(), c.h2.data(), hidden_pad_);
   // Layer 1.
   if (c.x.head_width > 0) gemm::matmul_at(c.x.head, c.x.head_stride, c.x.head_width, c.h2.data(), rows, hidden_pad_, grad + w1_, hidden_pad_);
-  if (in_ > c.x.head_width)
-    gemm::matmul_at(c.x.tail, c.x.tail_stride, in_ - c.x.head_width, c.h2.data(), rows, hidden_pad_,
-                    grad + w1_ + static_cast<std::size_t>(c.x.head_width) * hidden_pad_, hidden_pad_);
+  float* g_tail = grad + w1_ + static_cast<std::size_t>(c.x.head_width) * hidden_pad_;
+  const int share = c.x.tail_share;
+  if (in_ > c.x.head_width && share == 1)
+    gemm::matmul_at(c.x.tail, c.x.tail_stride, in_ - c.x.head_width, c.h2.data(), rows, hidden_pad_, g_tail, hidden_pad_);
+  if (share > 1) {  // each run's output gradients summed (in row order), then X_tail^T over the runs
+    const int runs = rows / share;
+    for (int g = 0; g < runs; ++g) {
+      float* __restrict s = c.shared.data() + static_cast<std::size_t>(g) * hidden_pad_;
+      const float* __restrict d = c.h2.data() + static_cast<std::size_t>(g) * share * hidden_pad_;
+      std::copy(d, d + hidden_pad_, s);
+      for (int n = 1; n < share; ++n)
+        for (int j = 0; j < hidden_pad_; ++j) s[j] += d[static_cast<std::size_t>(n) * hidden_pad_ + j];
+    }
+    gemm::matmul_at(c.x.tail, c.x.tail_stride * share, in_ - c.x.head_width, c.shared.data(), runs, hidden_pad_, g_tail, hidden_pad_);
+  }
   gemm::column_sums(c.h2.data(), rows, hidden_pad_, hidden_pad_, grad + b1_);
 }
 

@@ -41,11 +41,18 @@ class Mlp {
   /// columns beside the actor's observation, which it reads where the actor's pass reads it). The
   /// first layer sums the head's columns, then the tail's, in column order: the same floats as
   /// one input row.
+  /// tail_share = s > 1 (with a head; rows a multiple of s): the tail comes in runs of s equal
+  /// rows (the state the agents of a step share), read from each run's first row. The first layer
+  /// then multiplies it once per run and adds it to the run's rows after the bias and the head
+  /// (other floats than one pass over the whole row, within float32 rounding of them), and the
+  /// weight gradient sums the run's output gradients first: s times fewer multiply-adds for the
+  /// tail's columns, forward and backward.
   struct Rows {
     const float* head = nullptr;
     int head_width = 0, head_stride = 0;
     const float* tail = nullptr;
     int tail_stride = 0;
+    int tail_share = 1;
   };
   /// One part: x [rows x in], row-major of stride in.
   Rows rows_of(const float* x) const { return Rows{x, in_, in_, nullptr, 0}; }
@@ -55,7 +62,7 @@ class Mlp {
   struct Cache {
     int rows = 0;
     Rows x;
-    std::vector<float> h1, h2, dh;
+    std::vector<float> h1, h2, dh, shared;  // shared: the tail's product per run (tail_share)
   };
 
   /// out [rows x out_stride()] = the network on x [rows x in] (row-major, stride in); only the

@@ -69,6 +69,8 @@ int CriticReader::width(const UavEnv& e) const {
 
 int CriticReader::observation_width(const UavEnv& e) const { return encoder.set ? encoder.width(e) : 0; }
 
+bool CriticReader::shared_by_step() const { return encoder.set && input != Input::LocalObservation; }
+
 void CriticReader::write_own(const UavEnv& e, int n, float* out) const {
   if (encoder.set) {
     if (input != Input::LocalObservation) e.write_compact_state(out);
@@ -461,29 +463,36 @@ class FastPpo final : public PpoNetworks {
     dlogits_.assign(logits_.size(), 0.0f);
     dvalues_.assign(values_.size(), 0.0f);
     const double per_active = inverse_active(b);
+    // Runs of rows sharing their critic columns (Minibatch::share): the critic's first layer takes
+    // them once per run (fast::Mlp::Rows::tail_share), so chunks and pieces hold whole runs.
+    const int share = b.share > 1 && critic_observation_ > 0 ? b.share : 1;
+    if (R % share != 0) throw std::logic_error("FastPpo: a minibatch of shared rows holds a part of a run");
+    const int piece_rows = std::max(share, kPieceRows / share * share);
     // The minibatch in kChunks fixed halves, each forward, loss and backward into its own gradient
     // (on its own thread when run.threads allows), summed in chunk order: the same numbers for
     // any thread count.
     UpdateStats parts[kChunks];
     parallel_for(kChunks, threads_, [&](std::size_t c) {
-      const int first = static_cast<int>(static_cast<long>(R) * static_cast<long>(c) / kChunks);
-      const int last = static_cast<int>(static_cast<long>(R) * static_cast<long>(c + 1) / kChunks);
+      const long runs = R / share;
+      const int first = static_cast<int>(runs * static_cast<long>(c) / kChunks) * share;
+      const int last = static_cast<int>(runs * static_cast<long>(c + 1) / kChunks) * share;
       auto& g = chunk_grad_[c];
       g.assign(np, 0.0f);
       // In pieces of kPieceRows rows, whose activations stay in the core's L2 cache from the
       // forward pass to the backward; each weight's gradient still sums its rows in order, so the
       // pieces change no bit of it.
-      for (int lo = first; lo < last; lo += kPieceRows) {
-        const int hi = std::min(last, lo + kPieceRows);
+      for (int lo = first; lo < last; lo += piece_rows) {
+        const int hi = std::min(last, lo + piece_rows);
         float* lg = logits_.data() + static_cast<std::size_t>(lo) * as;
         float* vl = values_.data() + static_cast<std::size_t>(lo) * vs;
         float* dl = dlogits_.data() + static_cast<std::size_t>(lo) * as;
         float* dv = dvalues_.data() + static_cast<std::size_t>(lo) * vs;
         b.ready(lo, hi);
         actor_.forward(b.observations.data() + static_cast<std::size_t>(lo) * b.obs_width, hi - lo, lg, &actor_cache_[c]);
-        critic_.forward(critic_rows(b.observations.data() + static_cast<std::size_t>(lo) * b.obs_width,
-                                    b.critic_inputs.data() + static_cast<std::size_t>(lo) * b.critic_own()),
-                        hi - lo, vl, &critic_cache_[c]);
+        fast::Mlp::Rows critic_in = critic_rows(b.observations.data() + static_cast<std::size_t>(lo) * b.obs_width,
+                                                b.critic_inputs.data() + static_cast<std::size_t>(lo) * b.critic_own());
+        critic_in.tail_share = share;
+        critic_.forward(critic_in, hi - lo, vl, &critic_cache_[c]);
         parts[c].add(ppo_loss_rows(b, s, lo, hi, per_active, lg, as, vl, vs, dl, dv), 1.0);
         actor_.backward(actor_cache_[c], dl, g.data());
         critic_.backward(critic_cache_[c], dv, g.data() + na);
@@ -911,7 +920,11 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
   auto norm = [&](float x) { return static_cast<float>(m.value_norm ? value_norm.normalise(x) : x); };
 
   const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef * entropy_factor, m.grad_clip};
-  const int rows = static_cast<int>(std::max<std::size_t>(1, S / static_cast<std::size_t>(m.minibatches)));
+  // marl.minibatch = steps: minibatches of whole steps, a step's N agents in consecutive rows.
+  const int group = m.minibatch == "steps" ? r.N : 1;
+  const std::size_t units = S / static_cast<std::size_t>(group);  // agent samples or steps
+  const int rows = group * static_cast<int>(std::max<std::size_t>(1, units / static_cast<std::size_t>(m.minibatches)));
+  b.share = group > 1 && r.critic_shared ? group : 1;
   b.rows = rows, b.obs_width = r.obs_width, b.critic_width = r.critic_width, b.action_count = r.A, b.dims = r.C;
   b.critic_observation = r.critic_observation;
   const int own = r.critic_own();
@@ -925,7 +938,7 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
   UpdateStats mean_stats;
   int steps = 0;
   constexpr int kAhead = 8;  // rows the gather prefetches ahead
-  std::vector<std::size_t> order(S);
+  std::vector<std::size_t> order(S), unit_order(group > 1 ? units : 0);
   std::vector<UpdateStats> all;
   std::size_t first = 0;  // the minibatch's first index into `order`
   // The networks' step gathers each range of rows as it reaches it (Minibatch::fill).
@@ -955,8 +968,15 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
     ~Unset() { b.fill = nullptr; }
   } unset{b};
   for (int epoch = 0; epoch < m.epochs; ++epoch) {
-    std::iota(order.begin(), order.end(), std::size_t{0});
-    shuffle(order, rng);
+    if (group == 1) {
+      std::iota(order.begin(), order.end(), std::size_t{0});
+      shuffle(order, rng);
+    } else {  // the steps shuffled, each step's agents kept together in order (index = step * N + n)
+      std::iota(unit_order.begin(), unit_order.end(), std::size_t{0});
+      shuffle(unit_order, rng);
+      for (std::size_t u = 0; u < units; ++u)
+        for (int n = 0; n < group; ++n) order[u * group + static_cast<std::size_t>(n)] = unit_order[u] * group + static_cast<std::size_t>(n);
+    }
     for (first = 0; first + static_cast<std::size_t>(rows) <= S; first += static_cast<std::size_t>(rows)) {
       double active = 0;  // in row order, as a gathered batch's sum
       for (int k = 0; k < rows; ++k) active += r.active[order[first + static_cast<std::size_t>(k)]];
@@ -1027,6 +1047,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
     bar = std::make_unique<Progress>(fmt::format("{} {} steps", m.algo, m.total_steps),
                                      static_cast<std::size_t>((m.total_steps - steps + per_update - 1) / per_update), *opt.progress, 10.0, 2.0);
   Rollout rollout(m.rollout, M, N, obs_width, critic_width, A, C, critic_observation);
+  rollout.critic_shared = critic.shared_by_step();
   Minibatch scratch;
   EpisodeStats stats;
   const Schedule lr_schedule = Schedule::of(m.lr_schedule), entropy_schedule = Schedule::of(m.entropy_schedule);

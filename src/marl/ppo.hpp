@@ -38,6 +38,9 @@ struct CriticReader {
   /// actor reads it, then these): the compact state under the set encoder (nothing for IPPO),
   /// else the whole input.
   void write_own(const UavEnv& env, int n, float* out) const;
+  /// Whether write_own writes the same columns for every agent of a step (the compact state
+  /// under the set encoder), which marl.minibatch = steps lets a learner compute once per step.
+  bool shared_by_step() const;
 };
 
 /// One rollout: T steps of M environments with N agents. Per-agent arrays are [T, M, N, ...]
@@ -52,6 +55,7 @@ struct Rollout {
   int C = 0;                           // continuous: the command's size
   int critic_observation = 0;          // the critic's leading columns read from observations
   int critic_own() const { return critic_width - critic_observation; }
+  bool critic_shared = false;          // critic_inputs are the same for every agent of a step (CriticReader::shared_by_step)
   std::vector<float> raw_actions;      // [T, M, N, C]: the Gaussian sample z before tanh (continuous)
   std::vector<float> observations;     // [T, M, N, obs_width]: what the actor read
   std::vector<float> critic_inputs;    // [T, M, N, critic_own()]: the critic's own columns
@@ -82,6 +86,10 @@ struct Minibatch {
   /// observation, the rest the row of critic_inputs [rows x critic_own()].
   int critic_observation = 0;
   int critic_own() const { return critic_width - critic_observation; }
+  /// share = s > 1: the rows come in runs of s, the agents of one step, whose critic_inputs rows
+  /// are equal (the state they share; marl.minibatch = steps): a backend may compute that part
+  /// of the critic once per run. 1: rows independent.
+  int share = 1;
   std::vector<float> observations, critic_inputs, logprobs, advantages, returns, values, active, allowed, raw_actions;
   std::vector<std::int64_t> actions;
   /// Rows written on demand (update() sets it): fill(first, last) writes rows [first, last) of
@@ -200,7 +208,8 @@ void compute_advantages(Rollout& rollout, double gamma, double lambda);
 double explained_variance(const Rollout& rollout);
 
 /// marl.epochs passes over the rollout in marl.minibatches shuffled minibatches (order from
-/// `rng`); normalises the advantages over active agents and (marl.value_norm) updates
+/// `rng`): of agent samples, or (marl.minibatch = steps) of whole steps, the agents of a step in
+/// consecutive rows (Minibatch::share when the rollout's critic_inputs are shared); normalises the advantages over active agents and (marl.value_norm) updates
 /// `value_norm` with the returns first. Returns the mean statistics over all steps. Each
 /// minibatch's rows are gathered by the networks' step as it reaches them (Minibatch::fill), on
 /// its threads (the same numbers on any thread count).

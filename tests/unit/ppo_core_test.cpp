@@ -258,6 +258,116 @@ TEST(PpoCore, TheCriticReadsTheActorsObservationInPlace) {
   EXPECT_THROW(ref->step(whole, s), std::logic_error);
 }
 
+// marl.minibatch = steps: the agents of a step share the critic's state columns (the compact
+// state), and the fast backend multiplies them once per step (Minibatch::share), summing the
+// step's output gradients before the weight gradient. The same loss to float32 rounding as
+// LibTorch's autograd on every row and as the fast path row by row, over 6 steps; the same bits
+// on one thread and two; a minibatch that splits a step is refused.
+TEST(PpoCore, AgentsOfAStepShareTheCriticsStateColumns) {
+  const PpoSettings s{0.2, 0.5, 0.03, 0.1};
+  const int agents = 3, rows = agents * 171, obs = 11, own = 26, width = obs + own;
+  Minibatch shared = random_minibatch(rows, obs, own, 7);
+  shared.critic_width = width;
+  shared.critic_observation = obs;
+  for (int r = 0; r < rows; ++r)  // each step's state: its first agent's row
+    std::copy_n(shared.critic_inputs.begin() + static_cast<std::ptrdiff_t>(r - r % agents) * own, own,
+                shared.critic_inputs.begin() + static_cast<std::ptrdiff_t>(r) * own);
+  shared.share = agents;
+  Minibatch by_row = shared;
+  by_row.share = 1;
+  auto two = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
+  auto one = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
+  auto rows_apart = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
+  auto ref = make_ppo_networks("torch", obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
+  for (int step = 0; step < 6; ++step) {
+    const auto u2 = two->step(shared, s), u1 = one->step(shared, s), ua = rows_apart->step(by_row, s), ur = ref->step(shared, s);
+    EXPECT_EQ(u2.policy_loss, u1.policy_loss) << "step " << step;
+    EXPECT_EQ(u2.value_loss, u1.value_loss) << "step " << step;
+    EXPECT_EQ(u2.grad_norm, u1.grad_norm) << "step " << step;
+    const double tol = step == 0 ? 1e-5 : 1e-3;
+    for (const auto* other : {&ua, &ur}) {
+      EXPECT_NEAR(u2.policy_loss, other->policy_loss, tol * (1 + std::abs(other->policy_loss))) << "step " << step;
+      EXPECT_NEAR(u2.value_loss, other->value_loss, tol * (1 + std::abs(other->value_loss))) << "step " << step;
+      EXPECT_NEAR(u2.grad_norm, other->grad_norm, tol * other->grad_norm) << "step " << step;
+    }
+    if (step == 0) EXPECT_GT(ur.grad_norm, s.grad_clip) << "the clip should act";
+  }
+  std::vector<float> v2(rows), vr(rows);
+  two->values(shared.observations.data(), shared.critic_inputs.data(), rows, v2.data());
+  ref->values(shared.observations.data(), shared.critic_inputs.data(), rows, vr.data());
+  for (int r = 0; r < rows; ++r) ASSERT_NEAR(v2[static_cast<std::size_t>(r)], vr[static_cast<std::size_t>(r)], 1e-3) << "row " << r;
+  Minibatch split = shared;
+  split.share = 4;  // 513 rows are not whole runs of 4
+  EXPECT_THROW(two->step(split, s), std::logic_error);
+}
+
+// update() with marl.minibatch = steps: every minibatch holds whole steps, each step's agents in
+// consecutive rows in agent order, every step once per epoch; Minibatch::share is the agent
+// count where the rollout's critic columns are shared and 1 where they are not.
+TEST(PpoCore, MinibatchesOfWholeSteps) {
+  class Probe final : public PpoNetworks {
+   public:
+    int agents = 0;
+    std::vector<std::vector<int>> seen;  // per step call: the steps in the minibatch's runs
+    std::vector<int> shares;
+    void logits(const float*, int, float*, int) override {}
+    void values(const float*, const float*, int, float*, int) override {}
+    UpdateStats step(Minibatch& b, const PpoSettings&) override {
+      b.ready(0, b.rows);
+      shares.push_back(b.share);
+      std::vector<int> steps;
+      EXPECT_EQ(b.rows % agents, 0);
+      for (int k = 0; k < b.rows; ++k) {
+        const float* o = b.observations.data() + static_cast<std::size_t>(k) * 2;
+        EXPECT_EQ(static_cast<int>(o[1]), k % agents) << "row " << k;
+        if (k % agents == 0) steps.push_back(static_cast<int>(o[0]));
+        else EXPECT_EQ(static_cast<int>(o[0]), steps.back()) << "row " << k;
+      }
+      seen.push_back(steps);
+      return {};
+    }
+    void set_learning_rate(double) override {}
+    void set_average_decay(double) override {}
+    void save(const std::string&, const nlohmann::json&, bool) override {}
+    void load(const std::string&, bool) override {}
+  };
+  const int T = 10, M = 3, N = 3;
+  Rollout r(T, M, N, 2, 3);
+  for (int t = 0; t < T; ++t)
+    for (int e = 0; e < M; ++e)
+      for (int n = 0; n < N; ++n) {
+        const std::size_t i = r.at(t, e, n);
+        r.observations[i * 2] = static_cast<float>(t * M + e);
+        r.observations[i * 2 + 1] = static_cast<float>(n);
+        r.active[i] = 1.0f;
+        r.advantages[i] = static_cast<float>(i % 7);
+      }
+  MarlConfig m;
+  m.minibatch = "steps";
+  m.minibatches = 4, m.epochs = 2;
+  for (const bool shared : {false, true}) {
+    r.critic_shared = shared;
+    Probe probe;
+    probe.agents = N;
+    RunningStats norm;
+    Rng rng(3);
+    Minibatch scratch;
+    update(r, probe, norm, m, rng, scratch);
+    ASSERT_EQ(probe.seen.size(), 8u);  // 30 steps in 4 minibatches of 7, twice
+    for (int epoch = 0; epoch < 2; ++epoch) {
+      std::vector<int> all;
+      for (int k = 0; k < 4; ++k) {
+        const auto& steps = probe.seen[static_cast<std::size_t>(epoch * 4 + k)];
+        EXPECT_EQ(steps.size(), 7u);
+        all.insert(all.end(), steps.begin(), steps.end());
+      }
+      std::sort(all.begin(), all.end());
+      EXPECT_TRUE(std::adjacent_find(all.begin(), all.end()) == all.end()) << "a step twice in an epoch";
+    }
+    for (int share : probe.shares) EXPECT_EQ(share, shared ? N : 1);
+  }
+}
+
 // marl.lr_schedule sets the optimiser's rate between updates, on both backends: at rate 0 a step
 // leaves the actor exactly as it was; Adam's first step is the rate times g / (|g| + eps), so at
 // half the rate the logits move half as far (to first order in the step: within 2%).

@@ -170,6 +170,7 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   double entropy_coef = 0.03;       // c2 (the paper uses 0.01; see README "Multi-agent trajectory learning")
   int rollout = 256;                // steps per environment between updates
   int minibatches = 4;
+  std::string minibatch = "samples";  // PPO: samples (agent samples shuffled apart) | steps (whole steps: every agent of a step together)
   int epochs = 10;
   std::string critic_state = "agent";  // mappo critic input: global (s[t]) | agent (s[t] + id + o_n)
   bool value_norm = true;           // normalise value targets with running statistics

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <exception>
@@ -53,19 +54,37 @@ void run_spawned(std::size_t n, std::size_t workers, const std::function<void(st
   if (error) std::rethrow_exception(error);
 }
 
+/// Waits for `done()` without sleeping for a while: spinning on the CPU's pause instruction for
+/// the first kSpinPause, then giving the core away (sched_yield, so that another thread or
+/// process sharing it runs) between looks until kSpinYield. True when done() came within that
+/// time; false (the caller then sleeps on its condition variable) otherwise. The learners'
+/// parallel sections follow one another within microseconds, and a thread woken from sleep comes
+/// back tens of microseconds later (BENCHMARKS.md, "Waiting without sleeping").
+constexpr auto kSpinPause = std::chrono::microseconds(50);
+constexpr auto kSpinYield = std::chrono::microseconds(1000);
+template <typename Done>
+bool spin_until(Done done) {
+  using clock = std::chrono::steady_clock;
+  const auto start = clock::now();
+  for (;;) {
+    for (int i = 0; i < 32; ++i) {
+      if (done()) return true;
+#if defined(__x86_64__) || defined(__i386__)
+      __builtin_ia32_pause();
+#endif
+    }
+    const auto waited = clock::now() - start;
+    if (waited >= kSpinYield) return done();
+    if (waited >= kSpinPause) std::this_thread::yield();
+  }
+}
+
 /// Worker threads kept for the life of the process, so that the learners' many short parallel
 /// sections (two halves of every minibatch) do not pay for starting threads each time: about 3 us
 /// per call instead of 30. One job at a time; a call that finds the pool busy (nested inside a
-/// job, or from another thread) starts its own threads instead. Helpers spin briefly after a job
-/// before they sleep, since the next one usually follows within microseconds.
+/// job, or from another thread) starts its own threads instead. Helpers wait for the next job,
+/// and the caller for its helpers, in spin_until before they sleep.
 class Pool {
-  static constexpr int kSpin = 2000;  // pauses (tens of microseconds) before a thread sleeps
-  static void pause() {
-#if defined(__x86_64__) || defined(__i386__)
-    __builtin_ia32_pause();
-#endif
-  }
-
  public:
   /// The process's pool; a child after fork() gets a new one (the parent's threads are not there).
   static Pool& instance() {
@@ -105,7 +124,7 @@ class Pool {
     }
     start_.notify_all();
     drain(n, next_, fn, error_, error_mutex_);
-    for (int spin = 0; spin < kSpin && running_.load(std::memory_order_acquire) != 0; ++spin) pause();
+    spin_until([this] { return running_.load(std::memory_order_acquire) == 0; });
     {
       std::unique_lock<std::mutex> lock(m_);
       done_.wait(lock, [this] { return running_.load(std::memory_order_acquire) == 0; });
@@ -120,7 +139,7 @@ class Pool {
 
   void loop(std::size_t index, std::uint64_t seen) {
     for (;;) {
-      for (int spin = 0; spin < kSpin && generation_.load(std::memory_order_acquire) == seen; ++spin) pause();
+      spin_until([&] { return generation_.load(std::memory_order_acquire) != seen; });
       std::unique_lock<std::mutex> lock(m_);
       start_.wait(lock, [&] { return generation_.load(std::memory_order_relaxed) != seen; });
       seen = generation_.load(std::memory_order_relaxed);

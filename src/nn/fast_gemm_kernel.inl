@@ -82,13 +82,22 @@ SKYLOOP_GEMM_TARGET __attribute__((always_inline)) static inline void row_block(
   }
 }
 
-/// Every row of C over the columns [0, width), in blocks of 6 rows.
+/// Every row of C over the columns [0, width), in blocks of 6 rows; a width of one vector (the
+/// learners' narrow output layers) in blocks of 12 first. A block's sums are chains of dependent
+/// multiply-adds, one per register: 6 chains of one vector would wait on the multiply-add's
+/// latency at every k, 12 keep both of its units busy.
 template <bool TA>
 SKYLOOP_GEMM_TARGET static void gemm_rows(const float* A, int lda, int rows, const float* wt, int in, int out_pad, bool panels,
                                           int width, const float* bias, float* C, int ldc, bool accumulate, const float* gate) {
   auto a_at = [&](int i) { return A + (TA ? static_cast<long>(i) : static_cast<long>(i) * lda); };
   auto g_at = [&](int i) { return gate ? gate + static_cast<long>(i) * ldc : nullptr; };
   int i = 0;
+  if (width == V) {
+    const long vstep = panels && V >= kColBlock ? static_cast<long>(in) * kColBlock : V;
+    for (; i + 12 <= rows; i += 12)
+      block<12, 1, TA>(a_at(i), lda, wt, in, panels ? kColBlock : out_pad, vstep, bias, C + static_cast<long>(i) * ldc, ldc, accumulate,
+                       g_at(i));
+  }
   for (; i + 6 <= rows; i += 6)
     row_block<6, TA>(a_at(i), lda, wt, in, out_pad, panels, width, bias, C + static_cast<long>(i) * ldc, accumulate, ldc,
                      g_at(i));

@@ -300,6 +300,56 @@ TEST(NnInternal, FastTanhIsWithinFloat32RoundingOfTanh) {
   for (float v : nan) EXPECT_TRUE(std::isnan(v));
 }
 
+// Every element the GEMM kernels write is its sum over the inner dimension in order, from the bias
+// (or zero, or what C held), one multiply-add at a time: fused (one rounding) on the AVX2 and
+// AVX-512 variants, a product then a sum on the default one. The learners' pieces, chunks and
+// lanes rely on it (a row's floats do not depend on the rows beside it, nor a weight gradient's on
+// where the batch is cut). Checked against a scalar loop bit for bit: row counts on and off the
+// kernel's 6-row blocks and the 12-row blocks of one-vector outputs (the actor's 5 logits, the
+// critic's value), inner widths off the vector width, A^T B (the weight gradients) as well.
+TEST(NnInternal, KernelsSumEachElementInOrder) {
+  namespace fast = skyloop::nn::fast;
+  const bool fused = fast::kernel_isa() != "default";
+  auto madd = [&](float a, float b, float s) { return fused ? std::fmaf(a, b, s) : s + a * b; };
+  std::mt19937 g(19);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (const int rows : {1, 5, 12, 13, 25, 192})
+    for (const int inner : {1, 11, 64})
+      for (const int cols : {1, 5, 8, 16, 64}) {
+        const int pad = fast::pad_cols(cols), ldc = pad + 16;
+        std::vector<float> A(static_cast<std::size_t>(rows) * inner), B(static_cast<std::size_t>(inner) * pad, 0.0f), bias(pad, 0.0f);
+        for (auto& x : A) x = u(g);
+        for (int k = 0; k < inner; ++k)
+          for (int c = 0; c < cols; ++c) B[static_cast<std::size_t>(k) * pad + c] = u(g);
+        for (int c = 0; c < cols; ++c) bias[static_cast<std::size_t>(c)] = u(g);
+        std::vector<float> C(static_cast<std::size_t>(rows) * ldc, 0.0f);
+        fast::matmul(A.data(), inner, rows, B.data(), inner, pad, bias.data(), C.data(), ldc, false, cols);
+        for (int r = 0; r < rows; ++r)
+          for (int c = 0; c < cols; ++c) {
+            float want = bias[static_cast<std::size_t>(c)];
+            for (int k = 0; k < inner; ++k)
+              want = madd(A[static_cast<std::size_t>(r) * inner + k], B[static_cast<std::size_t>(k) * pad + c], want);
+            const float got = C[static_cast<std::size_t>(r) * ldc + c];
+            ASSERT_EQ(std::memcmp(&got, &want, sizeof(float)), 0) << "A B: rows " << rows << " inner " << inner << " cols " << cols << " at " << r << ", " << c;
+          }
+        // A^T B: A [rows x inner] read as the batch (rows) of an input of width inner; C [inner x pad] accumulated.
+        std::vector<float> D(static_cast<std::size_t>(rows) * pad, 0.0f), W(static_cast<std::size_t>(inner) * ldc);
+        for (int k = 0; k < rows; ++k)
+          for (int c = 0; c < cols; ++c) D[static_cast<std::size_t>(k) * pad + c] = u(g);
+        for (auto& x : W) x = u(g);
+        const std::vector<float> start = W;
+        fast::matmul_at(A.data(), inner, inner, D.data(), rows, pad, W.data(), ldc, cols);
+        for (int i = 0; i < inner; ++i)
+          for (int c = 0; c < cols; ++c) {
+            float want = start[static_cast<std::size_t>(i) * ldc + c];
+            for (int k = 0; k < rows; ++k)
+              want = madd(A[static_cast<std::size_t>(k) * inner + i], D[static_cast<std::size_t>(k) * pad + c], want);
+            const float got = W[static_cast<std::size_t>(i) * ldc + c];
+            ASSERT_EQ(std::memcmp(&got, &want, sizeof(float)), 0) << "A^T B: batch " << rows << " width " << inner << " cols " << cols << " at " << i << ", " << c;
+          }
+      }
+}
+
 // The weight gradient of a layer of one output (the critic's value) by its own kernel
 // (matmul_at_column) is matmul_at's column 0 bit for bit, on every kernel variant: batches off the
 // kernel's blocks and past its 128-row chunks, column counts off the vector width (the tail

@@ -240,6 +240,32 @@ def smooth(ys, w):
     return out
 
 
+def home_text(r):
+    """'3/3': the UAVs home of a run's evaluation (the fleet's size from the row, or 3)."""
+    return f"{r['arrivals']}/{r.get('uavs') or 3}"
+
+
+def failed(r):
+    """A run's evaluation is a failed mission: a UAV not home, a collision or a boundary event."""
+    n = int(r.get("uavs") or 3)
+    return int(r["arrivals"]) < n or int(r["collisions"]) > 0 or int(r["boundary_events"]) > 0
+
+
+def mission_text(rs):
+    """'complete', or 'FAILED on seed 2 (1/3 home)' naming every failed seed: never left to a reader."""
+    bad = [r for r in rs if failed(r)]
+    if not bad:
+        return "complete" if len(rs) == 1 else f"complete on all {len(rs)}"
+    what = [f"seed {r.get('train_seed', '-')} ({home_text(r)} home, {r['collisions']} collisions)" for r in bad]
+    return "FAILED on " + "; ".join(what)
+
+
+def trained_text(rs):
+    """How a learner row was trained: its environment steps (the same for every seed of a row)."""
+    steps = sorted({int(r["train_steps"]) for r in rs if r.get("train_steps")})
+    return ", ".join(f"{s:.0e} steps".replace("e+0", "e") for s in steps) or "(unknown)"
+
+
 def marl_training(run, exp):
     rows = read_csv(os.path.join(run, exp["name"], "curves.csv"))
     finals = read_csv(os.path.join(run, exp["files"][0]))
@@ -273,18 +299,18 @@ def marl_training(run, exp):
     by = defaultdict(list)
     for r in finals:
         by[r["algo"]].append(r)
-    head = ["learner", "seeds", "avg sum rate (mean)", "per seed", "UAVs home", "collisions", "boundary events",
-            "train time per run (s)", "steps/s"]
+    head = ["learner", "trained", "seeds", "avg sum rate (mean)", "per seed", "UAVs home", "mission", "collisions",
+            "boundary events", "train time per run (s)", "steps/s"]
     body = []
     for algo, rs in by.items():
         obj = [float(r["objective"]) for r in rs]
-        body.append([style(algo)[0], str(len(rs)), fnum(mean(obj), 3), ", ".join(fnum(o, 3) for o in obj),
-                     ", ".join(f"{r['arrivals']}/3" for r in rs), ", ".join(r["collisions"] for r in rs),
+        body.append([style(algo)[0], trained_text(rs), str(len(rs)), fnum(mean(obj), 3), ", ".join(fnum(o, 3) for o in obj),
+                     ", ".join(home_text(r) for r in rs), mission_text(rs), ", ".join(r["collisions"] for r in rs),
                      ", ".join(r["boundary_events"] for r in rs), fnum(mean([float(r["train_seconds"]) for r in rs]), 0),
                      fnum(mean([float(r["steps_per_second"]) for r in rs]), 0)])
     for r in refs:
-        body.append([style(r["planner"])[0], "-", fnum(r["objective"], 3), "", f"{r['arrivals']}/3", r["collisions"],
-                     r["boundary_events"], fnum(r["seconds"], 1), ""])
+        body.append([style(r["planner"])[0], "not trained", "-", fnum(r["objective"], 3), "", home_text(r), mission_text([r]),
+                     r["collisions"], r["boundary_events"], fnum(r["seconds"], 1), ""])
     cap = "deterministic policies after training, on the training users (K = 12); references on the same users"
     return figs, [(cap, head, body)]
 
@@ -520,7 +546,9 @@ def reported(run, exp):
                 if item["metric"] == "objective":
                     rs = [r for r in read_csv(os.path.join(run, exp["files"][0])) if r["algo"] == item["algo"]]
                     value = ", ".join(fnum(r["objective"], 3) for r in rs) + " (per seed; "
-                    value += ", ".join(f"{r['arrivals']}/3" for r in rs) + " UAVs home)"
+                    value += ", ".join(home_text(r) for r in rs) + " UAVs home; trained " + trained_text(rs) + ")"
+                    if any(failed(r) for r in rs):
+                        value += " MISSION " + mission_text(rs)
                 else:
                     cs = curves(read_csv(os.path.join(run, exp["name"], "curves.csv")), "charts/episode_reward")
                     if item["algo"] in cs:

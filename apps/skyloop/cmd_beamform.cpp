@@ -136,6 +136,7 @@ int run_train(const TrainCliOptions& o) {
   opt.resume = o.resume;
   opt.force = o.force;
   opt.progress = &std::cerr;
+  set_interrupt_hint(kTrainInterruptHint);
   const TrainResult r = train_beamformer(cfg, opt);
   std::cout << fmt::format("{}: best validation sum rate {:.3f} bit/s/Hz (epoch {}), test sum rate {:.3f} bit/s/Hz, "
                            "{} parameters, {:.0f} clusters/s, {:.1f} s\nwrote {}/model.pt, last.pt, metrics.csv, "

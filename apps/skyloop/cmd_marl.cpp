@@ -54,13 +54,16 @@ void add_marl_commands(CLI::App& app, Action& action) {
       opt.force = t->force;
       opt.progress = &std::cerr;
       opt.registry = &builtin_beamformers();
+      set_interrupt_hint(kTrainInterruptHint);
       const auto r = train_marl(cfg, opt);
       const auto& e = r.evaluation;
       std::cout << fmt::format("{} (seed {}): {} environment steps in {:.1f} s ({:.0f} steps/s)\n"
                                "evaluation (deterministic policy, users seed {}): objective {:.3f}, T = {}, arrived {}/{}, "
-                               "collisions {}, boundary events {}\nwrote {}/policy.pt, last.pt, metrics.csv, config.toml\n",
+                               "collisions {}, boundary events {}{}\nwrote {}/policy.pt, last.pt, metrics.csv, config.toml\n",
                                cfg.marl.algo, cfg.run.seed, r.env_steps, r.seconds, r.steps_per_second, cfg.marl.users_seed,
-                               e.objective, e.T, e.arrivals, e.positions.front().rows(), e.collisions, e.boundary, t->out);
+                               e.objective, e.T, e.arrivals, e.positions.front().rows(), e.collisions, e.boundary,
+                               e.over_budget > 0 ? fmt::format(", mission failed: {} UAVs over energy.budget_j", e.over_budget) : "",
+                               t->out);
       return 0;
     };
   });
@@ -121,12 +124,15 @@ void add_marl_commands(CLI::App& app, Action& action) {
         opt.unsafe = v->unsafe;
         opt.rollout = v->rollout;
         opt.cache_dir = !v->cache.empty() ? v->cache : !v->out.empty() ? v->out + "/optimum" : "";
+        RunDirLock lock;  // one run at a time into --out (a single layout: run_planners takes it)
+        if (!v->out.empty()) lock = RunDirLock(v->out);
         const auto rows = evaluate_layouts(cfg, opt, builtin_beamformers(), &std::cerr);
         const auto sum = summarise_layouts(rows);
         if (!v->out.empty()) {
-          write_file_atomic(v->out + "/config.toml", to_toml(cfg));
-          write_file_atomic(v->out + "/layouts.csv", layout_rows_csv(rows, cfg.run.seed, opt.split));
-          write_file_atomic(v->out + "/summary.csv", layout_summary_csv(sum, cfg.run.seed, opt.split));
+          // The directory's config changes with its results or not at all.
+          write_files_atomic({{v->out + "/config.toml", to_toml(cfg)},
+                              {v->out + "/layouts.csv", layout_rows_csv(rows, cfg.run.seed, opt.split)},
+                              {v->out + "/summary.csv", layout_summary_csv(sum, cfg.run.seed, opt.split)}});
         }
         std::cout << fmt::format("eval: {} {} layouts from {} ({} UAVs, K = {}), oracle {}\n", opt.layouts, to_string(opt.split),
                                  opt.first, cfg.trajectory.starts.size(),

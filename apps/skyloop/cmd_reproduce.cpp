@@ -58,6 +58,7 @@ void add_reproduce_command(CLI::App& app, Action& action) {
   cmd->add_option("--python", o->r.python, "python interpreter with matplotlib")->capture_default_str();
   cmd->final_callback([&action, o] {
     action = [o] {
+      set_interrupt_hint(kReproduceInterruptHint);
       if (!o->only.empty()) o->r.only = split_methods(o->only, "--only");
       if (!o->shard.empty()) parse_shard(o->shard, o->r.shard_index, o->r.shard_count);
       const auto transport = open_transport(o->mpi);

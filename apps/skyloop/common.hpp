@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "skyloop/core/config_io.hpp"
+#include "skyloop/core/process.hpp"
 #include "skyloop/experiments/farm.hpp"
 
 namespace skyloop::cli {
@@ -18,6 +19,13 @@ struct ConfigOptions {
 };
 
 void add_config_options(CLI::App* cmd, ConfigOptions& o);
+
+/// What the interruption line tells the user of each kind of command (set_interrupt_hint): a
+/// train command's rerun needs --resume (without it the run directory is refused); reproduce's
+/// rerun resumes by itself. Every other command leaves no half-written file and reruns as is.
+inline constexpr const char* kTrainInterruptHint =
+    "stopped; the last checkpoint is kept: rerun the same command with --resume to continue";
+inline constexpr const char* kReproduceInterruptHint = "stopped; finished work is kept: rerun the same command to resume";
 
 /// Runs `body` on this rank of an MPI job (`transport` null: one process). Every rank reads the
 /// same input, so a bad input fails alike everywhere: rank 0 says it in one line, the others

@@ -31,31 +31,16 @@ if _os.path.isdir(_os.path.join(_here, "data", "models")) and not _os.environ.ge
     _skyloop.set_data_dir(_os.path.join(_here, "data"))
 
 Config = _skyloop.Config
+# A Config pickles as its TOML text (multiprocessing, vector-env wrappers that pickle their makers).
+Config.__reduce__ = lambda self: (_skyloop.config_from_toml, (self.toml(),))
 
 
 # ---- input checks: every bad argument raises InputError with one line --------------------------
 
-def _as_int(v, name: str, lo: int | None = None, hi: int | None = None) -> int:
-    """An integer argument: ints and integral numpy scalars; not bools, not 2.7, not "3"."""
-    import numbers
-    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
-        if isinstance(v, numbers.Real) and not isinstance(v, bool) and float(v).is_integer():
-            v = int(v)
-        else:
-            raise InputError(f"{name} = {v!r} has the wrong type: allowed an integer"
-                             + (f" in [{lo}, {hi}]" if lo is not None and hi is not None else ""))
-    v = int(v)
-    if (lo is not None and v < lo) or (hi is not None and v > hi):
-        raise InputError(f"{name} = {v} is out of range: allowed an integer in [{lo}, {hi}]")
-    return v
-
-
-def _as_str(v, name: str) -> str:
-    if isinstance(v, _os.PathLike):
-        v = _os.fspath(v)
-    if not isinstance(v, str):
-        raise InputError(f"{name} = {v!r} has the wrong type: allowed a string")
-    return v
+# The one shared validator (skyloop/_check.py): every entry point and adapter checks with it
+# before it converts anything.
+from ._check import MAX_SEED, as_actions as _as_actions, as_array as _as_array, as_bool as _as_bool  # noqa: E402,F401
+from ._check import as_int as _as_int, as_real as _as_real, as_seed as _as_seed, as_str as _as_str  # noqa: E402,F401
 
 
 def _as_names(v, name: str) -> list:
@@ -133,14 +118,15 @@ _skyloop.Cluster.__init__ = _checked_cluster_init
 
 
 def _as_w(W):
-    """A beamformer from numpy, a torch tensor (any device, detached) or a nested list: complex128."""
+    """A beamformer from numpy, a torch tensor (any device, detached) or a nested list: finite complex128."""
     if hasattr(W, "detach"):  # torch
         W = W.detach().cpu().resolve_conj().numpy() if hasattr(W, "resolve_conj") else W.detach().cpu().numpy()
     import numpy as np
     try:
-        return np.asarray(W, dtype=np.complex128)
+        np.asarray(W, dtype=np.complex128)
     except (TypeError, ValueError):
         raise InputError(f"W = {W!r} is not a numeric array: allowed a complex [L, K_n] array") from None
+    return _as_array(W, "W", "a finite complex [L, K_n] array", dtype=np.complex128)
 
 
 def sum_rate(cluster: Cluster, W) -> float:
@@ -253,8 +239,8 @@ def plan(cfg=None, planner: str = "optimal", users_seed: int = 3, users=None, pl
         raise InputError(f"users = {users!r} is not numeric: allowed a [K, 2] array of (x, y) in metres") from None
     if u is not None and (u.ndim != 2 or u.shape[1:] != (2,) or not np.all(np.isfinite(u))):
         raise InputError(f"users has shape {list(u.shape)}: allowed a finite [K, 2] array of (x, y) in metres")
-    return _skyloop.plan(_as_config(cfg), _as_str(planner, "planner"), _as_int(users_seed, "users_seed", 0, 2**64 - 1), u,
-                         None if planner_seed is None else _as_int(planner_seed, "planner_seed", 0, 2**64 - 1))
+    return _skyloop.plan(_as_config(cfg), _as_str(planner, "planner"), _as_seed(users_seed, "users_seed"), u,
+                         None if planner_seed is None else _as_seed(planner_seed, "planner_seed"))
 
 
 def evaluate_layouts(cfg=None, policies=(), planners=("greedy", "random"), layouts: int = 100, split: str = "test",
@@ -269,13 +255,9 @@ def evaluate_layouts(cfg=None, policies=(), planners=("greedy", "random"), layou
     the base of a multiagent rollout ("<algo>+rollout", as ``skyloop eval --rollout``)."""
     policies = _as_names(policies, "policies")
     planners = _as_names(planners, "planners")
-    if cfg is None and policies:  # the training run's resolved config.toml
-        p = policies[0]
-        cfg = config(_os.path.join(p if _os.path.isdir(p) else _os.path.dirname(p), "config.toml"))
-    if not isinstance(unsafe, bool):
-        raise InputError(f"unsafe = {unsafe!r} has the wrong type: allowed True or False")
-    if not isinstance(rollout, bool):
-        raise InputError(f"rollout = {rollout!r} has the wrong type: allowed True or False")
+    unsafe, rollout = _as_bool(unsafe, "unsafe"), _as_bool(rollout, "rollout")
+    if cfg is None and policies:  # the configuration stored inside the policy, as `skyloop eval` reads it
+        cfg = _skyloop.policy_config(policies[0])
     return _skyloop.evaluate_layouts(_as_config(cfg), policies, planners, _as_int(layouts, "layouts", 1, 1_000_000),
                                      _as_str(split, "split"), _as_int(first, "first", 0, 2**62 - 1), unsafe,
                                      rollout, _as_str(cache, "cache"), _as_int(threads, "threads", 0, 1024))

@@ -33,6 +33,7 @@ from typing import Optional
 import numpy as np
 
 from . import InputError
+from ._check import as_actions, as_commands, as_int, as_seed
 from .env import VecEnv
 
 # ---- spaces -----------------------------------------------------------------------------------
@@ -168,7 +169,7 @@ class ParallelEnv(_ParallelBase):
     metadata = {"name": "skyloop_uav_v0", "render_modes": [], "is_parallelizable": True}
 
     def __init__(self, config=None, seed: int = 0, oracle: str = ""):
-        self._config, self._oracle, self._seed = config, oracle, int(seed)
+        self._config, self._oracle, self._seed = config, oracle, as_seed(seed, "seed")
         self._vec = VecEnv(config, 1, self._seed, oracle)
         n = self._vec.num_agents
         self.possible_agents = [f"uav_{i}" for i in range(n)]
@@ -218,9 +219,10 @@ class ParallelEnv(_ParallelBase):
             allowed = (f"a command in [-1, 1]^{self._dims}" if self._dims else f"one action in 0..{self._act_space.n - 1}")
             raise InputError(f"actions are missing for {missing}: allowed {allowed} per live agent")
         if self._dims:
-            joint = np.array([[np.asarray(actions[a], dtype=np.float64).reshape(-1) for a in self.possible_agents]])
+            joint = np.stack([as_commands(actions[a], f"actions[{a!r}]", (self._dims,)) for a in self.possible_agents])[None]
         else:
-            joint = np.array([[int(actions[a]) for a in self.possible_agents]], dtype=np.int64)
+            joint = np.array([[as_actions(actions[a], f"actions[{a!r}]", (1,), self._act_space.n)[0]
+                               for a in self.possible_agents]], dtype=np.int64)
         r = self._vec.step(joint)
         done = bool(r.terminated[0] or r.truncated[0])
         obs = r.info["final_obs"] if done else r.obs
@@ -284,9 +286,11 @@ class MappoEnv:
         return None if self.env.action_dims else mask
 
     def step(self, actions):
-        a = np.asarray(actions)
-        if a.ndim == 3 and a.shape[-1] == 1:  # the runner passes [M, N, 1]
-            a = a[..., 0]
+        M, N = self.num_envs, self.num_agents
+        if self.env.action_dims:
+            a = as_commands(actions, "actions", (M, N, self.env.action_dims))
+        else:  # the runner passes [M, N, 1]
+            a = as_actions(actions, "actions", (M, N), self.env.num_actions)
         r = self.env.step(a)
         M, N = self.num_envs, self.num_agents
         done = r.terminated | r.truncated
@@ -345,7 +349,7 @@ class SmacEnv:
         return self.get_obs(), {}
 
     def step(self, actions):
-        a = np.asarray(actions.cpu() if hasattr(actions, "cpu") else actions).astype(np.int64).reshape(1, -1)
+        a = as_actions(actions.cpu() if hasattr(actions, "cpu") else actions, "actions", (1, self.n_agents), self.n_actions)
         r = self.env.step(a)
         terminated, truncated = bool(r.terminated[0]), bool(r.truncated[0])
         info = {k: v[0].item() for k, v in r.info.items() if v.ndim == 1}
@@ -369,7 +373,7 @@ class SmacEnv:
         return [self._view[0][i].copy() for i in range(self.n_agents)]
 
     def get_obs_agent(self, agent_id):
-        return self._view[0][agent_id].copy()
+        return self._view[0][as_int(agent_id, "agent_id", 0, self.n_agents - 1)].copy()
 
     def get_obs_size(self):
         return self.env.obs_size
@@ -384,7 +388,7 @@ class SmacEnv:
         return [self._view[2][i].astype(np.int64).tolist() for i in range(self.n_agents)]
 
     def get_avail_agent_actions(self, agent_id):
-        return self._view[2][agent_id].astype(np.int64).tolist()
+        return self._view[2][as_int(agent_id, "agent_id", 0, self.n_agents - 1)].astype(np.int64).tolist()
 
     def get_total_actions(self):
         return self.n_actions
@@ -464,16 +468,25 @@ class GymVectorEnv:
 
     def reset(self, seed: Optional[int] = None, options: Optional[dict] = None):
         import time
+        self._open("reset")
         o = self.env.reset(seed)
         self._return[:] = 0
         self._length[:] = 0
         self._start[:] = time.perf_counter()
         return o.obs.reshape(self.num_envs, -1), {"action_mask": o.action_mask, "state": o.state}
 
+    def _open(self, what):
+        if self.closed:
+            raise InputError(f"GymVectorEnv.{what}() after close(): allowed calls before close(), or a new GymVectorEnv")
+
     def step(self, actions):
         import time
+        self._open("step")
+        M, N = self.num_envs, self.env.num_agents
         if self._dims:  # [M, N * dims] flattened commands -> [M, N, dims]
-            actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, self.env.num_agents, self._dims)
+            actions = as_commands(actions, "actions", (M, N * self._dims)).reshape(M, N, self._dims)
+        else:
+            actions = as_actions(actions, "actions", (M, N), self.env.num_actions)
         r = self.env.step(actions)
         M = self.num_envs
         done = r.terminated | r.truncated
@@ -502,4 +515,6 @@ class GymVectorEnv:
         return r.obs.reshape(M, -1), r.reward, r.terminated, r.truncated, infos
 
     def close(self):
+        if not self.closed:
+            self.env.close()
         self.closed = True

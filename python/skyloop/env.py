@@ -68,9 +68,9 @@ class VecEnv:
     the GIL released), so sharing one is safe but not parallel; use one VecEnv per thread for that."""
 
     def __init__(self, config=None, num_envs: int = 1, seed: int = 0, oracle: str = ""):
-        from . import _as_config, _as_int, _as_str
-        self._env = _skyloop.VecEnv(_as_config(config), _as_int(num_envs, "num_envs", 1, 65536),
-                                    _as_int(seed, "seed", 0, 2**64 - 1), _as_str(oracle, "oracle"))
+        from . import _as_config, _as_int, _as_seed, _as_str
+        self._args = (_as_int(num_envs, "num_envs", 1, 65536), _as_seed(seed, "seed"), _as_str(oracle, "oracle"))
+        self._env = _skyloop.VecEnv(_as_config(config), *self._args)
         self.spec = self._env.spec
         self.num_envs = self._env.num_envs
         self.num_agents = self._env.agents
@@ -81,12 +81,24 @@ class VecEnv:
         self.action_dims = self.spec["dims"]  # continuous commands' size (0: discrete)
         self.config = self._env.config
 
+    def __reduce__(self):
+        # Pickled as its arguments: it unpickles as a VecEnv made afresh with the same
+        # configuration, size, seed and oracle, at the start of its first episode.
+        return (VecEnv, (self.config, *self._args))
+
+    def close(self):
+        """Releases the environments; any later call raises InputError. Closing twice is allowed."""
+        self._env = _Closed()
+
     def field(self, array: np.ndarray, array_name: str, field: str) -> np.ndarray:
         """The named field of ``array`` (an array of kind ``array_name``: "obs", "state", ...), the
         last axis sliced by the spec: ``env.field(o.obs, "obs", "own_position")`` -> [M, N, 2]."""
-        from . import InputError
+        from . import InputError, _as_array, _as_str
+        kinds = ", ".join(k for k, v in self.spec.items() if isinstance(v, dict) and "fields" in v)
+        array_name, field = _as_str(array_name, "array_name"), _as_str(field, "field")
+        array = _as_array(array, "array", f"a numeric array of kind {array_name!r}", dtype=None)
         if array_name not in self.spec or not isinstance(self.spec[array_name], dict):
-            raise InputError(f"array {array_name!r} is unknown: allowed obs, state, agent_context, agent_state, action_mask")
+            raise InputError(f"array {array_name!r} is unknown: allowed {kinds}")
         for f in self.spec[array_name]["fields"]:
             if f["name"] == field:
                 return np.asarray(array)[..., f["offset"]:f["offset"] + f["size"]]
@@ -96,8 +108,8 @@ class VecEnv:
     def reset(self, seed: Optional[int] = None) -> Observation:
         """Starts a new episode in every environment; ``seed`` redraws every environment's users
         from it (None: the same users, or new ones with env.resample_users)."""
-        from . import _as_int
-        d = self._env.reset(None if seed is None else _as_int(seed, "seed", 0, 2**64 - 1))
+        from . import _as_seed
+        d = self._env.reset(None if seed is None else _as_seed(seed, "seed"))
         return Observation(d["obs"], d["state"], d["agent_state"], d["action_mask"])
 
     def step(self, actions) -> StepResult:
@@ -106,12 +118,12 @@ class VecEnv:
         commands in [-1, 1] (a velocity, a change of velocity or a speed and a turn, as
         ``trajectory.command`` says; projected onto what each UAV can fly, then through the safety
         layer of marl.action_mask and marl.shield)."""
-        from . import InputError
-        try:
-            a = np.asarray(actions)
-        except (ValueError, TypeError) as e:
-            raise InputError(f"actions {actions!r} are not an array: allowed an integer array of shape "
-                             f"[{self.num_envs}, {self.num_agents}]") from None
+        from ._check import as_actions, as_commands
+        M, N = self.num_envs, self.num_agents
+        if self.action_dims and np.ndim(actions) == 3:
+            a = as_commands(actions, "actions", (M, N, self.action_dims))
+        else:
+            a = as_actions(actions, "actions", (M, N), self.num_actions)
         d = self._env.step(a)
         return StepResult(d["obs"], d["state"], d["agent_state"], d["action_mask"], d["reward"], d["terminated"],
                           d["truncated"], d["info"])
@@ -145,12 +157,8 @@ class VecEnv:
     def take_turn(self, actions) -> Turn:
         """``actions``: integer array [M], each environment's move for the agent whose turn it is (one
         its ``action_mask`` allows; ignored where ``agent`` is -1). Returns the next turn."""
-        from . import InputError
-        try:
-            a = np.asarray(actions)
-        except (ValueError, TypeError):
-            raise InputError(f"actions {actions!r} are not an array: allowed an integer array of shape [{self.num_envs}]") from None
-        d = self._env.take_turn(a)
+        from ._check import as_actions
+        d = self._env.take_turn(as_actions(actions, "actions", (self.num_envs,), None))
         return Turn(d["agent"], d["obs"], d["action_mask"], d["last"])
 
     def step_turns(self) -> StepResult:
@@ -167,3 +175,11 @@ class VecEnv:
         """The users [K, 2] (metres) of environment ``env``."""
         from . import _as_int
         return self._env.users(_as_int(env, "env", 0, self.num_envs - 1))
+
+
+class _Closed:
+    """What a closed VecEnv holds instead of its environments: every use says so in one line."""
+
+    def __getattr__(self, name):
+        from . import InputError
+        raise InputError(f"VecEnv.{name}: the VecEnv is closed: allowed calls before close(), or a new VecEnv")

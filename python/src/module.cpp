@@ -255,9 +255,10 @@ class PyVecEnv {
       reward.mutable_at(i) = static_cast<float>(s.reward);
       sum_rate.mutable_at(i) = s.sum_rate;
       objective.mutable_at(i) = s.objective;
-      // terminated: every UAV home (the MDP's end); truncated: T_max reached first.
-      terminated.mutable_at(i) = s.done && s.success;
-      truncated.mutable_at(i) = s.done && !s.success;
+      // terminated: every UAV home (the MDP's end, whether or not the mission met its energy
+      // budget: success says that); truncated: T_max reached first.
+      terminated.mutable_at(i) = s.done && s.home == N;
+      truncated.mutable_at(i) = s.done && s.home < N;
       collisions.mutable_at(i) = s.collisions;
       boundary.mutable_at(i) = s.boundary;
       arrivals.mutable_at(i) = s.arrivals;
@@ -830,7 +831,14 @@ PYBIND11_MODULE(_skyloop, m) {
       .def("channel", &SystemModel::channel, py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"), py::arg("slot") = 0,
            "h of the link from a UAV at (ux, uy) to the user at (x, y) in fast slot `slot` (0 <= slot < fast_slots)")
       .def_property_readonly("fast_slots", &SystemModel::fast_slots)
-      .def("link", [](const SystemModel& self, double ux, double uy, double x, double y) { return link_dict(self.channel_model(), ux, uy, x, y); },
+      .def("link", [](const SystemModel& self, double ux, double uy, double x, double y) {
+             const char* names[4] = {"ux", "uy", "x", "y"};
+             const double v[4] = {ux, uy, x, y};
+             for (int i = 0; i < 4; ++i)
+               if (!std::isfinite(v[i]))
+                 throw InputError(std::string(names[i]) + " = " + format_double(v[i]) + " is not finite: allowed a finite position (m)");
+             return link_dict(self.channel_model(), ux, uy, x, y);
+           },
            py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"),
            "the link's large-scale state: p_los, los, path_loss_db, shadowing_db, k_factor_db, gain, distance_m, elevation_deg");
 
@@ -918,6 +926,20 @@ PYBIND11_MODULE(_skyloop, m) {
   });
 
 #ifdef SKYLOOP_HAS_TORCH
+  m.def("config_from_toml", [](const std::string& text) {
+          Config cfg;
+          apply_toml(cfg, text, "configuration");
+          finalise(cfg);
+          return cfg;
+        }, py::arg("text"), "a configuration from its TOML text (Config.toml()); how a Config unpickles");
+  m.def("policy_config", [](const std::string& path) {
+          // The configuration stored inside policy.pt, as `skyloop eval --policy` reads it.
+          const auto policy = MarlPolicy::load(path);
+          Config cfg;
+          apply_toml(cfg, policy->config_toml(), path + " (training config)");
+          finalise(cfg);
+          return cfg;
+        }, py::arg("path"), "the training configuration a policy (a run directory or its policy.pt) holds");
   m.def("evaluate_layouts", &evaluate_layouts_py, py::arg("config"), py::arg("policies"), py::arg("planners"),
         py::arg("layouts"), py::arg("split"), py::arg("first"), py::arg("unsafe"), py::arg("rollout"), py::arg("cache"),
         py::arg("threads"));

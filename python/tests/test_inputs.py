@@ -81,6 +81,29 @@ CASES = [
     ("layouts rollout type", lambda: sl.evaluate_layouts(CFG, planners=["random"], layouts=1, rollout=1)),
     ("layouts split", lambda: sl.evaluate_layouts(CFG, planners=["random"], layouts=1, split="nope")),
     ("derive_seed negative", lambda: sl.derive_seed(-1, 0)),
+    # sizes bounded before anything is allocated; every number finite (each case once took 42 s and
+    # 15.8 GB, returned a broken snapshot, or returned NaN)
+    ("random snapshot users huge", lambda: sl.SystemModel(sl.config()).random_snapshot(3, 10**9, seed=1)),
+    ("random snapshot users negative", lambda: sl.SystemModel(sl.config()).random_snapshot(3, -1, seed=1)),
+    ("random snapshot uavs zero", lambda: sl.SystemModel(sl.config()).random_snapshot(0, 10, seed=1)),
+    ("random snapshot uavs 65", lambda: sl.SystemModel(sl.config()).random_snapshot(65, 10, seed=1)),
+    ("link nan", lambda: sl.SystemModel(sl.config()).link(np.nan, 0.0, 10.0, 10.0)),
+    ("link inf", lambda: sl.SystemModel(sl.config()).link(0.0, 0.0, np.inf, 10.0)),
+    ("sum_rate W inf", lambda: sl.sum_rate(cluster(), np.full((4, 3), np.inf))),
+    ("sum_rate W nan", lambda: sl.sum_rate(cluster(), np.full((4, 3), np.nan, complex))),
+    ("plan users beyond the bound", lambda: sl.plan(CFG, planner="random", users=np.full((5000, 2), 10.0))),
+    ("seed beyond the CLI's range", lambda: sl.VecEnv(CFG, 1, 2**62)),
+    ("plan seed beyond the CLI's range", lambda: sl.plan(CFG, planner="random", users_seed=2**64 - 1)),
+    ("config user 1 mm below the UAV", lambda: sl.config(overrides={"scenario.user_height_m": 99.999})),
+    ("config rician K min above max", lambda: sl.config(overrides={"channel.rician_k_min_db": 20, "channel.rician_k_max_db": 10})),
+    ("config energy objective without energy", lambda: sl.config(overrides={"env.objective": "energy-efficiency",
+                                                                             "energy.model": "none"})),
+    # the field: validated before it is used
+    ("field array name None", lambda: env().field(np.zeros((2, 3, 11)), None, "x")),
+    ("field array text", lambda: env().field("obs", "obs", "own_position")),
+    ("step nan action", lambda: env().step(np.full((2, 3), np.nan))),
+    ("step 4.9", lambda: env().step(np.full((2, 3), 4.9))),
+    ("step None", lambda: env().step(None)),
 ]
 
 
@@ -143,3 +166,84 @@ def test_cli_header_and_config_state_the_users_files_k(skyloop_bin, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "K = 2 users" in r.stdout
     assert "users = 2 " in (tmp_path / "p" / "config.toml").read_text()
+
+
+def test_nan_and_fractional_actions_are_named_as_given():
+    """A NaN action used to be reported as -9223372036854775808 and 4.9 stepped as 4."""
+    for bad, shown in ((np.nan, "nan"), (4.9, "4.9")):
+        a = np.zeros((2, 3))
+        a[1, 2] = bad
+        with pytest.raises(sl.InputError) as e:
+            env().step(a)
+        assert "actions[1, 2]" in str(e.value) and shown in str(e.value), str(e.value)
+
+
+def test_adapters_validate_before_converting():
+    """Each adapter call below used to raise a raw TypeError / ValueError / IndexError, or to
+    truncate (seed 2.7 -> 2, action 4.9 -> 4)."""
+    from skyloop.adapters import GymVectorEnv, ParallelEnv, SmacEnv
+    bad = [
+        lambda: ParallelEnv(CFG, seed=None),
+        lambda: ParallelEnv(CFG, seed="abc"),
+        lambda: ParallelEnv(CFG, seed=2.7),
+    ]
+    p = ParallelEnv(CFG, seed=1)
+    p.reset()
+    for v in ("abc", None, np.nan, 4.9, 7):
+        bad.append(lambda v=v: p.step({a: v for a in p.possible_agents}))
+    smac = SmacEnv(CFG, seed=1)
+    bad += [lambda: smac.step(["a", "b", "c"]), lambda: smac.get_obs_agent(7), lambda: smac.get_obs_agent("0"),
+            lambda: smac.step([0.5, 1, 2])]
+    cont = {**CFG, "trajectory.mobility": "continuous"}
+    g = GymVectorEnv(cont, num_envs=2, seed=1)
+    g.reset()
+    bad += [lambda: g.step(np.zeros((2, 5))), lambda: g.step(np.full((2, 6), np.nan))]
+    for call in bad:
+        with pytest.raises(sl.InputError) as e:
+            call()
+        assert "\n" not in str(e.value)
+    # the same checks let good values through unchanged
+    assert p.step({a: np.int64(4) for a in p.possible_agents})[0]
+    assert g.step(np.zeros((2, 6)))[0].shape[0] == 2
+
+
+def test_closed_environments_refuse_every_call():
+    from skyloop.adapters import GymVectorEnv
+    g = GymVectorEnv(CFG, num_envs=2, seed=1)
+    g.reset()
+    g.close()
+    for call in (lambda: g.step(np.zeros((2, 3), np.int64)), lambda: g.reset()):
+        with pytest.raises(sl.InputError):
+            call()
+    e = env()
+    e.close()
+    e.close()  # closing twice is allowed
+    with pytest.raises(sl.InputError) as err:
+        e.reset()
+    assert "closed" in str(err.value)
+
+
+def test_vecenv_and_config_pickle_as_their_arguments():
+    import pickle
+    cfg = sl.config(overrides=CFG)
+    assert pickle.loads(pickle.dumps(cfg)).toml() == cfg.toml()
+    e = sl.VecEnv(cfg, 2, 5)
+    first = e.reset().obs
+    e.step(np.full((2, 3), sl.ACTIONS.index("UP")))
+    again = pickle.loads(pickle.dumps(e))
+    assert again.num_envs == 2 and again.config.toml() == cfg.toml()
+    np.testing.assert_array_equal(again.reset().obs, first)  # made afresh: its first episode's start
+
+
+def test_a_fleet_home_over_its_budget_terminates_and_is_not_truncated():
+    """Every UAV home early but over energy.budget_j: the episode ended because the UAVs arrived
+    (terminated), not at T_max (truncated); success says the mission failed."""
+    cfg = {**CFG, "energy.budget_j": 1000, "trajectory.t_max": 24}
+    e = sl.VecEnv(cfg, 1, 0)
+    e.reset()
+    plan = sl.plan(cfg, planner="greedy")
+    assert plan["T"] < 24 and plan["arrivals"] == 3
+    for a in plan["actions"]:
+        r = e.step(np.asarray(a, np.int64)[None])
+    assert bool(r.terminated[0]) and not bool(r.truncated[0])
+    assert not bool(r.info["success"][0])

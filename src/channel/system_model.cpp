@@ -1,6 +1,8 @@
 #include <algorithm>
 #include "skyloop/channel/system_model.hpp"
 
+#include "skyloop/core/error.hpp"
+
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -232,6 +234,11 @@ Positions draw_users(const ScenarioConfig& s, int users, Rng& rng) {
 }
 
 Snapshot SystemModel::random_snapshot(int uavs, int users, std::uint64_t seed) const {
+  // The bounds of scenario.uavs and scenario.users, checked before anything is allocated.
+  if (uavs < 1 || uavs > kMaxUavs)
+    throw InputError("uavs = " + std::to_string(uavs) + " is out of range: allowed 1 .. " + std::to_string(kMaxUavs));
+  if (users < 1 || users > kMaxUsers)
+    throw InputError("users = " + std::to_string(users) + " is out of range: allowed 1 .. " + std::to_string(kMaxUsers));
   Rng rng(seed);
   Snapshot s;
   s.uavs.resize(uavs, 2);

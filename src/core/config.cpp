@@ -113,9 +113,9 @@ std::vector<Field> make_fields() {
                    [](Config& c) -> double& { return c.scenario.area_y_m; }));
   f.push_back(real("scenario.altitude_m", "UAV altitude H (m)", 1, 1e4,
                    [](Config& c) -> double& { return c.scenario.altitude_m; }));
-  f.push_back(integer("scenario.uavs", "number of UAVs N in random snapshots", 1, 64,
+  f.push_back(integer("scenario.uavs", "number of UAVs N in random snapshots", 1, kMaxUavs,
                       [](Config& c) -> int& { return c.scenario.uavs; }));
-  f.push_back(integer("scenario.users", "number of users K in random snapshots", 1, 4096,
+  f.push_back(integer("scenario.users", "number of users K in random snapshots", 1, kMaxUsers,
                       [](Config& c) -> int& { return c.scenario.users; }));
   f.push_back(text("scenario.user_layout", "where users stand: uniform in the area (the paper), in hotspots, or mixed (each layout one of the two, even odds)",
                    {"uniform", "hotspot", "mixed"}, [](Config& c) -> std::string& { return c.scenario.user_layout; }));
@@ -744,6 +744,17 @@ void validate(const Config& c) {
   if (!(c.scenario.user_height_m < c.scenario.altitude_m))
     throw InputError("scenario.user_height_m = " + format_double(c.scenario.user_height_m) + " is not below scenario.altitude_m = " +
                      format_double(c.scenario.altitude_m) + ": allowed user_height_m < altitude_m");
+  // Every link at least the reference distance long: the path-loss models hold from d0 on (the
+  // free-space law beta0 (d0 / d)^2 would exceed beta0 below it).
+  if (c.scenario.altitude_m - c.scenario.user_height_m < c.channel.d0_m)
+    throw InputError("scenario.user_height_m = " + format_double(c.scenario.user_height_m) + " is " +
+                     format_double(c.scenario.altitude_m - c.scenario.user_height_m) + " m below scenario.altitude_m = " +
+                     format_double(c.scenario.altitude_m) + ", less than channel.d0_m = " + format_double(c.channel.d0_m) +
+                     ": allowed user_height_m <= altitude_m - d0_m (the path loss holds from the reference distance on)");
+  if (c.channel.rician_k_min_db > c.channel.rician_k_max_db)
+    throw InputError("channel.rician_k_min_db = " + format_double(c.channel.rician_k_min_db) + " is above channel.rician_k_max_db = " +
+                     format_double(c.channel.rician_k_max_db) + ": allowed rician_k_min_db <= rician_k_max_db (K grows with "
+                     "elevation from its value at 0 to its value at 90 deg)");
   if (const PathLossInfo* pl = find_path_loss(c.channel.pathloss)) {
     const double h = c.scenario.altitude_m;
     if (!(h > pl->min_height_m && h <= pl->max_height_m))
@@ -781,6 +792,25 @@ void validate(const Config& c) {
   if (c.marl.average_decay > 0 && find_learner(c.marl.algo).core != LearnerInfo::Core::Ppo)
     throw InputError("marl.average_decay = " + format_double(c.marl.average_decay) + " with marl.algo = \"" + c.marl.algo +
                      "\": allowed with the PPO learners (the value-decomposition learners publish their Q-networks as trained)");
+  {
+    // An objective that scores propulsion energy needs a power model that is not identically 0
+    // (eq. (12) of Zeng et al. with P0 = Pi = 0 and no parasite term is 0 at every speed).
+    const auto& e = c.energy;
+    const bool kinetic = e.acceleration == "kinetic" && e.mass_kg > 0;
+    const bool zero = e.model == "none" || (e.p0_w == 0 && e.pi_w == 0 && e.d0 * e.rho_kgm3 * e.solidity * e.rotor_area_m2 == 0 && !kinetic);
+    const std::string why = e.model == "none" ? "energy.model = \"none\"" : "energy.p0_w = 0, energy.pi_w = 0 and no parasite or kinetic term";
+    if (zero && (c.env.objective == "energy-efficiency" || c.env.objective == "energy"))
+      throw InputError("env.objective = \"" + c.env.objective + "\" with " + why +
+                       ": no move costs energy, so every mission scores the same; allowed energy.model = \"rotary-wing\" "
+                       "with a power above 0, or env.objective = \"sum-rate\"");
+    if (zero && c.env.objective == "weighted" && e.weight > 0)
+      throw InputError("env.objective = \"weighted\" with energy.weight = " + format_double(e.weight) + " and " + why +
+                       ": the energy term is 0 whatever the UAVs do; allowed energy.model = \"rotary-wing\" with a power above 0, "
+                       "or env.objective = \"sum-rate\"");
+    if (zero && e.budget_j > 0)
+      throw InputError("energy.budget_j = " + format_double(e.budget_j) + " with " + why +
+                       ": no mission spends energy, so the budget never binds; allowed energy.budget_j = 0 (none) or a power model");
+  }
   if (c.channel.coverage_radius_m < c.scenario.altitude_m)
     throw InputError("channel.coverage_radius_m = " + format_double(c.channel.coverage_radius_m) +
                      " is below scenario.altitude_m = " + format_double(c.scenario.altitude_m) +

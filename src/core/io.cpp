@@ -10,6 +10,8 @@
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
+#include <fcntl.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -64,10 +66,42 @@ void check_output_dir(const std::string& dir, const std::string& flag) {
       throw InputError(flag + " '" + dir + "' lies under '" + p.string() + "', which is not a directory: allowed a directory path");
 }
 
-void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force) {
-  check_output_dir(dir);
+RunDirLock::RunDirLock(const std::string& dir, const std::string& flag) {
+  check_output_dir(dir, flag);
   std::error_code ec;
-  if (resume) return;
+  fs::create_directories(dir, ec);
+  if (ec) throw std::runtime_error("cannot create directory " + dir + ": " + ec.message());
+  const fs::path path = fs::path(dir) / ".skyloop.lock";
+  fd_ = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd_ < 0) throw std::runtime_error("cannot open the lock file " + path.string() + ": " + std::strerror(errno));
+  if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+    ::close(fd_);
+    fd_ = -1;
+    throw InputError(flag + " '" + dir + "' is in use by another skyloop run: allowed one run at a time per directory "
+                     "(wait for it to finish, or choose another directory)");
+  }
+}
+
+RunDirLock& RunDirLock::operator=(RunDirLock&& o) noexcept {
+  if (this != &o) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = o.fd_;
+    o.fd_ = -1;
+  }
+  return *this;
+}
+
+RunDirLock::~RunDirLock() {
+  if (fd_ >= 0) ::close(fd_);  // closing releases the lock
+}
+
+RunDirLock check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force) {
+  if (resume && force)
+    throw InputError("--resume and --force together: allowed one of them (--resume continues the run in --out, --force replaces it)");
+  check_output_dir(dir);
+  RunDirLock lock(dir);
+  std::error_code ec;
+  if (resume) return lock;
   for (const auto& f : results) {
     const fs::path p = fs::path(dir) / f;
     if (!fs::exists(p, ec)) continue;
@@ -77,6 +111,7 @@ void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>&
   }
   if (force)
     for (const auto& f : results) fs::remove(fs::path(dir) / f, ec);
+  return lock;
 }
 
 namespace {

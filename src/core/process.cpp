@@ -15,6 +15,9 @@ namespace skyloop {
 
 namespace {
 
+// What the interruption line tells the user to do next (set_interrupt_hint); a static string.
+std::atomic<const char*> g_hint{"stopped; every file written is whole; rerun the same command to run it again"};
+
 // Children being waited on; read by the signal handler, so lock-free slots instead of a container.
 std::array<std::atomic<pid_t>, 256> g_children{};
 
@@ -51,12 +54,16 @@ extern "C" void on_interrupt(int sig) {
   const char* name = sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "SIGHUP";
   write_all("skyloop: interrupted by ");
   write_all(name);
-  write_all(": stopped; finished work is kept, rerun the same command to resume\n");
+  write_all(": ");
+  write_all(g_hint.load());
+  write_all("\n");
   ::signal(sig, SIG_DFL);
   ::raise(sig);
 }
 
 }  // namespace
+
+void set_interrupt_hint(const char* hint) { g_hint.store(hint); }
 
 void install_interrupt_handlers() {
   for (int sig : {SIGINT, SIGTERM, SIGHUP}) {

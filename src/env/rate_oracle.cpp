@@ -30,7 +30,11 @@ RateOracle::RateOracle(const Config& cfg, std::shared_ptr<const Beamformer> beam
       beamformer_(std::move(beamformer)),
       users_(std::move(users)),
       threads_(resolve_threads(cfg.run.threads)),
-      id_(next_oracle_id.fetch_add(1)) {}
+      id_(next_oracle_id.fetch_add(1)) {
+  if (users_.rows() > kMaxUsers)
+    throw InputError("users: " + std::to_string(users_.rows()) + " users given: allowed at most " + std::to_string(kMaxUsers) +
+                     " (scenario.users' bound)");
+}
 
 void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const {
   const auto n = static_cast<std::size_t>(uavs.rows());

@@ -87,11 +87,7 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
                          "speeds that include trajectory.d_fly_m / trajectory.slot_s = " +
                          format_double(d_fly_ / mobility_->slot_s()) + " m/s");
     }
-    if (min_moves(n, start_(n, 0), start_(n, 1)) > t_max_ - 1)
-      throw InputError("trajectory: UAV " + std::to_string(n) + " needs " +
-                       std::to_string(min_moves(n, start_(n, 0), start_(n, 1))) + " moves from its start to its destination "
-                       "but trajectory.t_max = " + std::to_string(t_max_) + " allows " + std::to_string(t_max_ - 1) +
-                       ": allowed t_max >= moves + 1");
+    if (min_moves(n, start_(n, 0), start_(n, 1)) > t_max_ - 1) throw InputError(unreachable_message(n, cfg));
   }
   reset();
 }
@@ -220,6 +216,41 @@ int UavEnv::home_slots(int n, double x, double y, double vx, double vy) const {
     x = l.x, y = l.y, vx = l.vx, vy = l.vy;
   }
   return t_max_ + 1;
+}
+
+std::string UavEnv::unreachable_message(int n, const Config& cfg) const {
+  const std::string who = "trajectory: UAV " + std::to_string(n);
+  const std::string allows = "trajectory.t_max = " + std::to_string(t_max_) + " allows " + std::to_string(t_max_ - 1);
+  const auto& t = cfg.trajectory;
+  if (mobility_->continuous()) {
+    // The HOME flight from a standstill, slot by slot, without t_max's cap (bounded: a flight
+    // that takes more than kLongest slots is reported as such).
+    constexpr int kLongest = 10000000;
+    double x = start_(n, 0), y = start_(n, 1), vx = 0, vy = 0;
+    const double dx = dest_(n, 0), dy = dest_(n, 1);
+    const std::string cause = "(trajectory.v_max_mps = " + format_double(t.v_max_mps) + ", a_max_mps2 = " + format_double(t.a_max_mps2) +
+                              ", slot_s = " + format_double(t.slot_s) + ")";
+    for (int k = 0; k < kLongest; ++k) {
+      if (std::hypot(x - dx, y - dy) <= 1e-9)
+        return who + " needs " + std::to_string(k) + " slots to fly home from its start at its speed and acceleration " + cause +
+               " but " + allows + ": allowed trajectory.t_max >= " + std::to_string(k + 1) + ", or a faster UAV";
+      double cx, cy;
+      mobility_->home_command(dx - x, dy - y, cx, cy);
+      const Landing l = fly(*mobility_, x, y, vx, vy, cx, cy, area_x_, area_y_, dx, dy);
+      if (!l.inside)
+        return who + " cannot fly home from its start within the area at its speed and acceleration " + cause +
+               ": allowed a start and destination it can fly between without meeting the boundary";
+      x = l.x, y = l.y, vx = l.vx, vy = l.vy;
+    }
+    return who + " needs more than " + std::to_string(kLongest) + " slots to fly home from its start " + cause + " but " + allows +
+           ": allowed a faster UAV (trajectory.v_max_mps, a_max_mps2) or longer slots (trajectory.slot_s)";
+  }
+  const int moves = min_moves(n, start_(n, 0), start_(n, 1));
+  const std::string cause = mobility_->is_grid() ? "moves of trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m"
+                                                 : "trajectory.speeds_mps = " + format_value(FieldValue(t.speeds_mps)) +
+                                                       " on the lattice of trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m";
+  return who + " needs " + std::to_string(moves) + " moves from its start to its destination with " + cause + " but " + allows +
+         ": allowed trajectory.t_max >= " + std::to_string(moves + 1) + ", or longer moves";
 }
 
 int UavEnv::min_moves(int n, double x, double y) const {

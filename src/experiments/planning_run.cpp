@@ -29,7 +29,8 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
     planners.push_back(builtin_planners().create(p, args));  // InputError naming the known planners
   }
   planners.insert(planners.end(), opt.extra.begin(), opt.extra.end());
-  if (!opt.out_dir.empty()) check_output_dir(opt.out_dir);  // before the work, not after it
+  RunDirLock lock;  // before the work, not after it: one run at a time into --out
+  if (!opt.out_dir.empty()) lock = RunDirLock(opt.out_dir);
   std::shared_ptr<const Beamformer> bf;
   try {
     bf = registry.create(cfg.env.oracle, cfg);
@@ -48,15 +49,16 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
   if (!opt.out_dir.empty()) {
     const std::filesystem::path dir(opt.out_dir);
     std::vector<double> secs = seconds ? *seconds : std::vector<double>(out.size(), 0.0);
-    write_file_atomic((dir / "config.toml").string(), to_toml(cfg));
-    write_file_atomic((dir / "trajectory.csv").string(), trajectory_csv(out, opt.seed));
-    write_file_atomic((dir / "rates.csv").string(), rates_csv(out, opt.seed));
     std::string users_csv = "seed,user,x,y\n";
     for (Eigen::Index k = 0; k < oracle->users().rows(); ++k)
       users_csv += fmt::format("{},{},{},{}\n", opt.seed, k, format_double(oracle->users()(k, 0)), format_double(oracle->users()(k, 1)));
-    write_file_atomic((dir / "users.csv").string(), users_csv);
-    write_file_atomic((dir / "summary.csv").string(), summary_csv(out, opt.seed, secs));
-    write_file_atomic((dir / "energy.csv").string(), energy_csv(out, opt.seed));
+    // The run directory changes whole or not at all: its config beside its own results only.
+    write_files_atomic({{(dir / "config.toml").string(), to_toml(cfg)},
+                        {(dir / "trajectory.csv").string(), trajectory_csv(out, opt.seed)},
+                        {(dir / "rates.csv").string(), rates_csv(out, opt.seed)},
+                        {(dir / "users.csv").string(), users_csv},
+                        {(dir / "summary.csv").string(), summary_csv(out, opt.seed, secs)},
+                        {(dir / "energy.csv").string(), energy_csv(out, opt.seed)}});
   }
   return out;
 }
@@ -120,13 +122,17 @@ std::string format_plan_summary(const std::vector<EpisodeRecord>& recs, const st
   for (const auto& r : recs) w = std::max(w, r.planner.size());
   std::string s = fmt::format("{:<{}} {:>10} {:>4} {:>9} {:>9} {:>11} {:>9} {:>10} {:>10} {:>10}\n", "planner", w, "objective",
                               "T", "arrived", "collided", "boundary", "reward", "time (s)", "energy kJ", "kbit/J");
+  std::string notes;
   for (std::size_t i = 0; i < recs.size(); ++i) {
     const auto& r = recs[i];
     s += fmt::format("{:<{}} {:>10.3f} {:>4} {:>9} {:>9} {:>11} {:>9.2f} {:>10.2f} {:>10.3f} {:>10.3f}\n", r.planner, w,
                      r.objective, r.T, fmt::format("{}/{}", r.arrivals, r.positions.front().rows()), r.collisions, r.boundary,
                      r.reward, i < seconds.size() ? seconds[i] : 0.0, r.energy_j / 1e3, r.bits_per_joule / 1e3);
+    // A fleet home over its energy budget is a failed mission (success = 0 in summary.csv): said, not left to the CSV.
+    if (r.over_budget > 0)
+      notes += fmt::format("{}: mission failed: {} UAV{} over energy.budget_j\n", r.planner, r.over_budget, r.over_budget > 1 ? "s" : "");
   }
-  return s;
+  return s + notes;
 }
 
 }  // namespace skyloop

@@ -181,7 +181,7 @@ Run::Run(const Config& cfg, const MarlTrainOptions& opt, const std::function<voi
   set_torch_threads(cfg.run.threads);
   if (opt.resume && !std::filesystem::exists(last))
     throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");
-  check_fresh_run_dir(opt.out_dir, {"policy.pt", "last.pt", "metrics.csv"}, opt.resume, opt.force);
+  lock = check_fresh_run_dir(opt.out_dir, {"policy.pt", "last.pt", "metrics.csv"}, opt.resume, opt.force);
   remove_stale_temporaries(opt.out_dir);
 }
 
@@ -194,8 +194,24 @@ nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int s
   if (old.value("backend", std::string("torch")) != learner_backend(cfg))
     throw InputError("--resume: '" + last + "' was trained with marl.backend = \"" + old.value("backend", std::string("torch")) +
                      "\": allowed the same backend as the run it continues");
+  const std::int64_t done = old.value("env_steps", std::int64_t{0});
+  if (done >= cfg.marl.total_steps)
+    throw InputError("--resume: '" + last + "' has already run " + std::to_string(done) + " environment steps, marl.total_steps = " +
+                     std::to_string(cfg.marl.total_steps) + ": allowed marl.total_steps (--steps) above " + std::to_string(done) +
+                     " to continue it");
   learned.load(last, true);
-  if (std::filesystem::exists(dir / "metrics.csv")) metrics = read_file((dir / "metrics.csv").string());
+  if (std::filesystem::exists(dir / "metrics.csv")) {
+    metrics = read_file((dir / "metrics.csv").string());
+    // Written with last.pt at every checkpoint: its last row is last.pt's step count, unless the
+    // file was cut or edited since (a resumed run would append to a broken log).
+    const auto table = CsvTable::parse(metrics, (dir / "metrics.csv").string());
+    const bool whole = metrics.empty() || metrics.back() == '\n';
+    const std::int64_t logged = table.size() ? static_cast<std::int64_t>(table.number(table.size() - 1, "env_steps")) : 0;
+    if (!whole || logged != done)
+      throw InputError("--resume: '" + (dir / "metrics.csv").string() + "' ends at " + std::to_string(logged) +
+                       " environment steps but '" + last + "' at " + std::to_string(done) +
+                       " (the file was changed since the checkpoint): allowed --force to start the run again");
+  }
   restore_validation(cfg, old.value("env_steps", std::int64_t{0}));
   return old;
 }

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "nets.hpp"
+#include "skyloop/core/io.hpp"
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/planning/safety.hpp"
 
@@ -148,6 +149,7 @@ struct Run {
   std::string last, final_path;
   torch::Device device{torch::kCPU};
   VecEnv vec;
+  RunDirLock lock;  // the run directory's, for the whole run
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
   // Model selection on validation layouts (marl.val_layouts > 0).
   double best_complete = -1, best_objective = -1;

@@ -64,10 +64,13 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   impl->config = meta.value("config", "");
   // Safety as trained (marl.action_mask, marl.shield; both on unless the run turned them off).
   Config trained;
+  // All of it or nothing: a configuration this version cannot read (a field it lacks, a value it
+  // no longer allows) would leave the policy half as trained and half as defaults.
   try {
     apply_toml(trained, impl->config, path + " (training config)");
-  } catch (const InputError&) {
-    // A policy written by another version may name fields this one lacks: defaults.
+  } catch (const InputError& e) {
+    throw InputError("policy '" + path + "' holds a training configuration this version cannot read (" + e.what() +
+                     "): allowed a policy trained by this version of skyloop");
   }
   impl->safety = safety_options(trained);
   impl->enc.sequential = trained.marl.sequential;  // the UAVs choose one after another, as trained
@@ -110,14 +113,33 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
 }
 
 namespace {
+std::string joined(const std::vector<std::string>& v) {
+  std::string out;
+  for (const auto& x : v) out += (out.empty() ? "" : ",") + x;
+  return out;
+}
+
 /// The width of the policy's input on this environment, once the environment's action space and
 /// observation are the ones it was trained on (refused in one line otherwise).
 int checked_input(const MarlPolicy::Impl& impl, const UavEnv& env) {
-  if (!(env.mobility().actions() == impl.actions))
-    throw InputError("policy " + impl.algo + " was trained with trajectory.mobility = \"" + impl.mobility + "\" (" +
-                     std::to_string(impl.actions.count()) + " actions) but the environment has trajectory.mobility = \"" +
-                     env.mobility().name() + "\" (" + std::to_string(env.actions()) + " actions): allowed the mobility settings "
-                     "it was trained with");
+  // The actions it chooses among: the mobility model's (the Q-learners, and any discrete chooser
+  // under continuous mobility, choose among its primitives; a continuous policy commands its dims).
+  const ActionSpec& mine = impl.actions;
+  const ActionSpec& theirs = env.mobility().actions();
+  const bool same_dims = mine.dims == theirs.dims || (mine.dims == 0 && impl.q_based);
+  if (mine.names != theirs.names || mine.hover != theirs.hover || !same_dims) {
+    std::string what;
+    if (impl.mobility != env.mobility().name()) what = "trajectory.mobility = \"" + impl.mobility + "\" but the environment has \"" +
+                                                       env.mobility().name() + "\"";
+    else if (mine.names != theirs.names)
+      what = "the actions " + joined(mine.names) + " but the environment's are " + joined(theirs.names) +
+             " (trajectory.speeds_mps, trajectory.v_max_mps)";
+    else if (!same_dims)
+      what = std::to_string(mine.dims) + "-dimensional commands but the environment takes " + std::to_string(theirs.dims);
+    else
+      what = "hover action " + std::to_string(mine.hover) + " but the environment's is " + std::to_string(theirs.hover);
+    throw InputError("policy " + impl.algo + " was trained with " + what + ": allowed the mobility settings it was trained with");
+  }
   const int D = impl.enc.width(env);
   if (D != impl.input)
     throw InputError("policy " + impl.algo + " reads " + std::to_string(impl.input) + " reals per agent but the environment writes " +

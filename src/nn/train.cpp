@@ -101,7 +101,7 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
                                                                                     per_snapshot(true)) /
                                                         per_snapshot(network)))));
   }
-  check_fresh_run_dir(opt.out_dir, {"model.pt", "last.pt", "test.json", "metrics.csv"}, opt.resume, opt.force);
+  const RunDirLock lock = check_fresh_run_dir(opt.out_dir, {"model.pt", "last.pt", "test.json", "metrics.csv"}, opt.resume, opt.force);
   remove_stale_temporaries(opt.out_dir);
 
   // Data: snapshots of N UAVs and K users; their clusters are the graph instances.

@@ -11,6 +11,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 #include <sys/stat.h>
@@ -300,6 +301,146 @@ TEST(Probe, MalformedInputsGiveOneLineAndExitTwo) {
   EXPECT_FALSE(fs::exists(d / "rep"));
   EXPECT_FALSE(fs::exists(d / "adir.config.toml"));
   EXPECT_TRUE(fs::is_empty(d / "adir"));
+}
+
+// Settings that make a run meaningless, and the causes the errors name. Each case below once ran
+// (every planner scoring 0 kbit/J, a reward identically 0) or named the wrong cause (a move count
+// capped at t_max + 1 whatever the true need).
+TEST(Probe, MeaninglessSettingsAreRefusedNamingTheirCause) {
+  const std::string base = "plan --planner random --set env.oracle=zf ";
+  const std::vector<std::pair<std::string, std::vector<std::string>>> corpus = {
+      {base + "--set env.objective=energy-efficiency --set energy.model=none", {"env.objective", "energy.model = \"none\""}},
+      {base + "--set env.objective=energy --set energy.p0_w=0 --set energy.pi_w=0 --set energy.d0=0", {"env.objective", "energy.p0_w = 0"}},
+      {base + "--set env.objective=weighted --set energy.weight=1 --set energy.model=none", {"energy.weight"}},
+      {base + "--set energy.budget_j=1000 --set energy.model=none", {"energy.budget_j"}},
+      {base + "--set channel.rician_k_min_db=20 --set channel.rician_k_max_db=10", {"rician_k_min_db"}},
+      {base + "--set scenario.user_height_m=99.999", {"channel.d0_m", "user_height_m"}},
+      // the true need of a slow UAV (about 1,130 slots), and the settings that decide it
+      {base + "--set trajectory.mobility=continuous --set trajectory.v_max_mps=0.1", {"v_max_mps = 0.1", "a_max_mps2", "slot_s"}},
+      {base + "--set trajectory.mobility=continuous --set trajectory.v_max_mps=0.1 --set trajectory.t_max=26", {"v_max_mps = 0.1"}},
+      {base + "--set trajectory.t_max=10", {"needs 12 moves", "trajectory.d_fly_m = 20", "t_max >= 13"}},
+      {"train --resume --force --out /tmp/skyloop_never_made", {"--resume and --force together"}},
+  };
+  for (const auto& [args, wants] : corpus) {
+    const auto r = run(args);
+    EXPECT_EQ(r.code, 2) << args << "\n" << r.err;
+    EXPECT_EQ(lines(r.err), 1) << args << "\n" << r.err;
+    for (const auto& want : wants) EXPECT_NE(r.err.find(want), std::string::npos) << args << "\nwanted '" << want << "' in: " << r.err;
+  }
+  // The slow UAV's count is the HOME flight's own, not t_max + 1.
+  const auto slow = run(base + "--set trajectory.mobility=continuous --set trajectory.v_max_mps=0.1");
+  const auto at = slow.err.find(" needs ");
+  ASSERT_NE(at, std::string::npos) << slow.err;
+  EXPECT_GT(std::stol(slow.err.substr(at + 7)), 1000) << slow.err;
+}
+
+// A VDN or QMIX policy trained under continuous mobility (it chooses among the model's discrete
+// primitives) is evaluated by its own run, by `eval --policy` and on layouts; it used to be refused
+// with "trained with continuous (18 actions) but the environment has continuous (18 actions)".
+TEST(Probe, QLearnersTrainedOnContinuousMobilityCanBeEvaluated) {
+  const fs::path d = tmpdir("q_continuous");
+  for (const char* algo : {"vdn", "qmix"}) {
+    const fs::path out = d / algo;
+    const auto t = run(std::string("train --seed 1 --steps 2000 --set env.oracle=zf --set marl.envs=2 --set marl.rollout=64 ") +
+                       "--set marl.algo=" + algo + " --set trajectory.mobility=continuous --out " + out.string());
+    ASSERT_EQ(t.code, 0) << algo << "\n" << t.err;
+    EXPECT_TRUE(fs::exists(out / "policy.pt"));
+    const auto e = run("eval --policy " + out.string());
+    EXPECT_EQ(e.code, 0) << algo << "\n" << e.err;
+    EXPECT_NE(e.out.find(algo), std::string::npos) << e.out;
+  }
+  // A policy on another action set is refused naming what differs.
+  const auto other = run("eval --policy " + (d / "vdn").string() + " --set trajectory.v_max_mps=12");
+  EXPECT_EQ(other.code, 2) << other.err;
+  EXPECT_NE(other.err.find("actions"), std::string::npos) << other.err;
+}
+
+// Two runs into one --out at once: the second is refused in one line (it used to overwrite the
+// first's policy.pt silently, both exiting 0); the first finishes. A run killed with SIGKILL leaves
+// no lock behind.
+TEST(Probe, OneRunAtATimePerRunDirectory) {
+  const fs::path d = tmpdir("concurrent");
+  const fs::path out = d / "run";
+  const std::string args = " --algo mappo --set env.oracle=zf --set marl.envs=2 --set marl.rollout=64 --set run.threads=1 --out " +
+                           out.string();
+  const pid_t first = spawn("train --steps 40000" + args, d);
+  ASSERT_TRUE(eventually([&] { return fs::exists(out / ".skyloop.lock") && fs::exists(out / "config.toml"); }, 120)) << slurp(d / "err");
+  for (const std::string& second : {"train --steps 512" + args, "train --steps 512 --force" + args,
+                                    "beamform train --model gnn" + kTinyNn + " --out " + out.string(),
+                                    "plan --planner random --set env.oracle=zf --out " + out.string()}) {
+    const auto r = run(second);
+    EXPECT_EQ(r.code, 2) << second << "\n" << r.err;
+    EXPECT_NE(r.err.find("is in use by another skyloop run"), std::string::npos) << r.err;
+    EXPECT_EQ(lines(r.err), 1) << r.err;
+  }
+  ::kill(first, SIGKILL);
+  ASSERT_NE(wait_for(first, 30), -1);
+  const auto after = run("train --steps 512 --force" + args);
+  EXPECT_EQ(after.code, 0) << after.err;
+}
+
+// SIGTERM in the middle of a train command says how to go on (--resume), and that works; the line
+// used to say "rerun the same command", which is refused for a run directory holding a run.
+TEST(Probe, InterruptedTrainingSaysHowToResume) {
+  const fs::path d = tmpdir("sigterm_train");
+  const fs::path out = d / "run";
+  const std::string args = " --model gnn" + kTinyNn + " --set nn.train_samples=400 --set nn.epochs=40 --out " + out.string();
+  const pid_t pid = spawn("beamform train" + args, d);
+  ASSERT_TRUE(eventually([&] { return fs::exists(out / "last.pt"); }, 120)) << slurp(d / "err");
+  ::kill(pid, SIGTERM);
+  const int status = wait_for(pid, 30);
+  ASSERT_TRUE(status != -1 && WIFSIGNALED(status)) << slurp(d / "err");
+  const std::string err = slurp(d / "err");
+  EXPECT_NE(err.find("interrupted by SIGTERM"), std::string::npos) << err;
+  EXPECT_NE(err.find("--resume"), std::string::npos) << err;
+  EXPECT_EQ(run("beamform train" + args).code, 2);  // as the line says: not without --resume
+  const auto resumed = run("beamform train --resume" + args);
+  EXPECT_EQ(resumed.code, 0) << resumed.err;
+}
+
+// A run that fails half-way through writing (here: past a file-size limit, as on a full disk)
+// leaves the directory's earlier run whole: its config.toml beside its own CSVs. `plan` used to
+// have replaced config.toml already.
+TEST(Probe, AFailedWriteLeavesTheEarlierRunWhole) {
+  const fs::path d = tmpdir("full_disk");
+  const fs::path out = d / "plan";
+  ASSERT_EQ(run("plan --planner random,greedy --seed 3 --set env.oracle=zf --out " + out.string()).code, 0);
+  std::map<std::string, std::string> before;
+  std::uintmax_t config_size = 0, largest = 0;
+  for (const auto& e : fs::directory_iterator(out)) {
+    if (e.path().filename() == ".skyloop.lock") continue;
+    before[e.path().filename().string()] = slurp(e.path());
+    if (e.path().filename() == "config.toml") config_size = fs::file_size(e.path());
+    largest = std::max(largest, fs::file_size(e.path()));
+  }
+  ASSERT_GT(largest, config_size + 2048);  // a limit that config.toml fits under and the largest CSV does not
+  const std::uintmax_t kb = (config_size + 1023) / 1024 + 1;
+  const int status = std::system(("bash -c 'trap \"\" XFSZ; ulimit -f " + std::to_string(kb) + "; exec " + kBin +
+                                  " plan --planner random,greedy --seed 4 --set env.oracle=zf --out " + out.string() +
+                                  "' >/dev/null 2>" + (d / "err").string()).c_str());
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) != 0) << slurp(d / "err");
+  for (const auto& [name, text] : before) EXPECT_EQ(slurp(out / name), text) << name << " changed";
+  EXPECT_TRUE(temporaries_under(out).empty());
+}
+
+// --resume on a run whose metrics.csv was cut at a line boundary, or with fewer steps than done:
+// refused in one line, nothing rewritten (config.toml used to be rewritten, the log appended to).
+TEST(Probe, ResumeRefusesABrokenLogAndABudgetAlreadySpent) {
+  const fs::path out = tmpdir("resume_checks") / "run";
+  const std::string args = " --algo mappo --set env.oracle=zf --set marl.envs=2 --set marl.rollout=64 --set run.threads=1 --out " +
+                           out.string();
+  ASSERT_EQ(run("train --steps 2048" + args).code, 0);
+  const std::string config = slurp(out / "config.toml"), metrics = slurp(out / "metrics.csv");
+  const auto fewer = run("train --resume --steps 1024" + args);
+  EXPECT_EQ(fewer.code, 2) << fewer.err;
+  EXPECT_NE(fewer.err.find("already run"), std::string::npos) << fewer.err;
+  EXPECT_EQ(slurp(out / "config.toml"), config);
+  const auto cut = metrics.rfind('\n', metrics.size() - 2);
+  spit(out / "metrics.csv", metrics.substr(0, cut + 1));
+  const auto broken = run("train --resume --steps 4096" + args);
+  EXPECT_EQ(broken.code, 2) << broken.err;
+  EXPECT_NE(broken.err.find("metrics.csv"), std::string::npos) << broken.err;
+  EXPECT_EQ(slurp(out / "config.toml"), config);
 }
 
 // `config show` says its output is a valid config file: it is, whatever the strings hold.

@@ -12,6 +12,12 @@
 
 namespace skyloop {
 
+/// The most UAVs and users a snapshot, a scenario or an environment may hold (scenario.uavs,
+/// scenario.users, trajectory.starts, explicit user arrays): every size is checked against these
+/// before anything is allocated.
+constexpr int kMaxUavs = 64;
+constexpr int kMaxUsers = 4096;
+
 /// How a beamformer's raw output is scaled onto the power budget (eq:power_constraint).
 enum class PowerScaling {
   /// alpha = sqrt(P / ||W||_F^2): always transmit at full power. The default, because in the

@@ -25,10 +25,30 @@ void check_output_path(const std::string& path);
 /// and is not a directory.
 void check_output_dir(const std::string& dir, const std::string& flag = "--out");
 
-/// A run directory about to receive a fresh (not resumed) run: if any of `results` is already in
-/// `dir`, throws InputError ("already holds a run: allowed --resume, --force or a new directory")
-/// unless `force`, which removes them first. `resume` skips the check.
-void check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force);
+/// An exclusive lock on a run directory (flock on DIR/.skyloop.lock), held while the object lives:
+/// two runs into one `--out` at once would overwrite each other's files. The kernel drops the lock
+/// of a process that dies, so a killed run never blocks the next.
+class RunDirLock {
+ public:
+  RunDirLock() = default;
+  /// Creates `dir` if needed and takes its lock, or throws InputError naming `flag` and the
+  /// directory when another process (or another run in this one) holds it.
+  explicit RunDirLock(const std::string& dir, const std::string& flag = "--out");
+  RunDirLock(RunDirLock&& o) noexcept : fd_(o.fd_) { o.fd_ = -1; }
+  RunDirLock& operator=(RunDirLock&& o) noexcept;
+  RunDirLock(const RunDirLock&) = delete;
+  RunDirLock& operator=(const RunDirLock&) = delete;
+  ~RunDirLock();
+
+ private:
+  int fd_ = -1;
+};
+
+/// A run directory about to receive a run: takes its lock (RunDirLock), then, for a fresh (not
+/// resumed) run, if any of `results` is already in `dir`, throws InputError ("already holds a run:
+/// allowed --resume, --force or a new directory") unless `force`, which removes them first.
+/// `resume` and `force` together are refused. The lock is the caller's to hold for the run.
+[[nodiscard]] RunDirLock check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force);
 
 /// Removes the temporaries (NAME.tmp.PID) that killed processes left in `dir`, and restores the
 /// earlier file from an interrupted pair write (NAME.bak.PID) when NAME is missing. A live

@@ -16,6 +16,11 @@ namespace skyloop {
 /// Installs the handlers described above (idempotent). The CLI calls it first thing.
 void install_interrupt_handlers();
 
+/// What the interruption line says after "interrupted by SIGINT: " (a string that lives as long as
+/// the process): each command names how it continues, e.g. "... rerun the same command with
+/// --resume to continue" for the train commands, whose rerun without --resume is refused.
+void set_interrupt_hint(const char* hint);
+
 /// Runs argv[0] (a path, or a name looked up in PATH) with `argv`; stdout and stderr go to `log_path` (truncated), or are
 /// inherited when it is empty. Blocks until the child ends and returns its exit status, or 128 +
 /// the signal that ended it. Throws std::runtime_error if the process cannot be started. Safe to

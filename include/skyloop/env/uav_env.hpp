@@ -291,6 +291,9 @@ class UavEnv {
   void check_step(std::size_t count) const;
   /// Slots the HOME command takes from (x, y) at velocity (vx, vy) to UAV n's destination.
   int home_slots(int n, double x, double y, double vx, double vy) const;
+  /// Why UAV n cannot arrive within T_max: its true count of moves (or slots of the HOME flight,
+  /// uncapped) and the settings that decide it.
+  std::string unreachable_message(int n, const Config& cfg) const;
   /// Phase 2: arrival, R, reward, termination, given R at the new positions.
   void end_step(const Positions& next, double rate, StepInfo& info);
   /// Whether UAV n at `p` is at its destination (end_step's arrival rule).

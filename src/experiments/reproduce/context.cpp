@@ -145,7 +145,7 @@ Piece StageContext::marl_piece(const Config& cfg) const {
   p.label = fmt::format("{} K={} seed {}", cfg.marl.algo, cfg.scenario.users, cfg.run.seed);
   p.cost = marl_cost(cfg);
   p.train_config = cfg;
-  p.done = [dir] { return trained(dir) && fs::exists(dir / "eval" / "summary.csv"); };
+  p.done = [this, dir, id = p.id] { return trained(dir) && fs::exists(dir / "eval" / "summary.csv") && cache.sealed(id); };
   p.run = [this, cfg, dir] {
     if (!trained(dir)) {
       log << fmt::format("  training {} (K = {}, seed {}, {} steps) in {}\n", cfg.marl.algo, cfg.scenario.users, cfg.run.seed,
@@ -178,7 +178,7 @@ Piece StageContext::eval_piece(const Config& cfg, const fs::path& dir, const std
   p.label = fmt::format("{} K={}{}", names, cfg.scenario.users, policy_run.empty() ? "" : " + policy");
   for (const auto& n : planners) p.cost += planner_cost(cfg, n);
   if (!policy_run.empty()) p.deps.push_back(id_of(policy_run, out));
-  p.done = [dir] { return fs::exists(dir / "summary.csv"); };
+  p.done = [this, dir, id = p.id] { return fs::exists(dir / "summary.csv") && cache.sealed(id); };
   p.run = [this, cfg, dir, planners, policy_run, train_cfg] {
     if (!policy_run.empty()) ensure(marl_piece(train_cfg));
     evaluate(cfg, dir, planners, policy_run);
@@ -203,7 +203,7 @@ Piece StageContext::layouts_piece(const Config& cfg, const fs::path& dir, const 
   p.cost = (0.05 + (o.rollout ? 0.15 : 0.0)) * o.layouts + (deps.empty() ? dp_cost(cfg, k) * o.layouts : 0.0);
   if (!policy_run.empty()) deps.push_back(id_of(policy_run, out));
   p.deps = std::move(deps);
-  p.done = [dir] { return fs::exists(dir / "summary.csv"); };
+  p.done = [this, dir, id = p.id] { return fs::exists(dir / "summary.csv") && cache.sealed(id); };
   p.run = [this, cfg, dir, o, policy_run, train_cfg] {
     if (!policy_run.empty()) ensure(marl_piece(train_cfg));
     LayoutEvalOptions e = o;

@@ -1,6 +1,9 @@
 #include "piece_cache.hpp"
 
+#include <algorithm>
 #include <cerrno>
+#include <cstdio>
+#include <vector>
 #include <cstring>
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -10,6 +13,8 @@
 #include <unistd.h>
 
 #include "skyloop/core/config_io.hpp"
+#include "skyloop/core/io.hpp"
+#include <nlohmann/json.hpp>
 #include "skyloop/core/rng.hpp"
 
 namespace skyloop::repro {
@@ -62,12 +67,86 @@ class FileLock {
 };
 }  // namespace
 
+namespace {
+/// Every regular file under `at` (itself, when a file), as paths relative to `at`, sorted; the
+/// temporaries of atomic writes (NAME.tmp.PID, NAME.bak.PID) left out.
+std::vector<std::string> files_under(const fs::path& at) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  auto keep = [](const fs::path& p) {
+    const std::string n = p.filename().string();
+    return n.find(".tmp.") == std::string::npos && n.find(".bak.") == std::string::npos;
+  };
+  if (fs::is_regular_file(at, ec)) {
+    if (keep(at)) out.push_back("");
+    return out;
+  }
+  if (!fs::is_directory(at, ec)) return out;
+  for (auto it = fs::recursive_directory_iterator(at, ec); !ec && it != fs::recursive_directory_iterator(); it.increment(ec))
+    if (it->is_regular_file(ec) && keep(it->path())) out.push_back(it->path().lexically_relative(at).generic_string());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+/// {"bytes": size, "fnv": hash} of a file, or null when it cannot be read.
+nlohmann::json file_stamp(const fs::path& p) {
+  std::error_code ec;
+  if (!fs::is_regular_file(p, ec)) return nullptr;
+  std::FILE* f = std::fopen(p.c_str(), "rb");
+  if (!f) return nullptr;
+  std::uint64_t h = 0xcbf29ce484222325ULL, bytes = 0;
+  char buf[1 << 16];
+  for (std::size_t n; (n = std::fread(buf, 1, sizeof buf, f)) > 0;) h = hash_bytes(buf, n, h), bytes += n;
+  std::fclose(f);
+  return {{"bytes", bytes}, {"fnv", hex(h)}};
+}
+}  // namespace
+
+bool PieceCache::sealed(const std::string& id) const {
+  const fs::path seal_path = root_ / "seals" / (hex(hash_text(id)) + ".json");
+  std::error_code ec;
+  if (!fs::exists(seal_path, ec)) return false;
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(read_file(seal_path.string(), "seal"));
+    if (j.value("id", std::string()) != id || !j.contains("files") || !j.at("files").is_object()) return false;
+    const fs::path at = root_ / id;
+    for (const auto& [rel, stamp] : j.at("files").items())
+      if (file_stamp(rel.empty() ? at : at / rel) != stamp) return false;
+  } catch (const std::exception&) {
+    return false;  // an unreadable seal: the piece is computed again
+  }
+  return true;
+}
+
+void PieceCache::seal(const std::string& id) const {
+  const fs::path at = root_ / id;
+  nlohmann::json files = nlohmann::json::object();
+  for (const auto& rel : files_under(at)) files[rel] = file_stamp(rel.empty() ? at : at / rel);
+  const nlohmann::json j = {{"id", id}, {"files", files}};
+  write_file_atomic((root_ / "seals" / (hex(hash_text(id)) + ".json")).string(), j.dump(1) + "\n");
+}
+
 bool PieceCache::ensure(const std::string& id, const std::function<bool()>& done, const std::function<void()>& compute,
                         std::ostream* log) const {
-  if (done()) return false;
+  if (done() && sealed(id)) return false;
   FileLock lock(root_ / "locks" / (hex(hash_text(id)) + ".lock"), id, log);
-  if (done()) return false;
+  const bool finished = done();
+  if (finished && sealed(id)) return false;
+  const fs::path seal_path = root_ / "seals" / (hex(hash_text(id)) + ".json");
+  std::error_code ec;
+  if (finished || fs::exists(seal_path, ec)) {
+    // Finished without a seal, or a seal that no longer holds: what is on disk is not what was
+    // computed (a file truncated or edited since), so none of it is reused.
+    if (fs::exists(seal_path, ec) && !sealed(id)) {
+      if (log) *log << fmt::format("  {} changed on disk since it was computed: computing it again\n", id) << std::flush;
+      fs::remove_all(root_ / id, ec);
+    } else if (finished) {
+      fs::remove_all(root_ / id, ec);
+    }
+  }
   compute();
+  seal(id);
   return true;
 }
 

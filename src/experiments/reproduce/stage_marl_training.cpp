@@ -29,7 +29,7 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
   const int k = ctx.base(s).scenario.users;
   std::string curves, finals =
       "experiment,algo,train_seed,users,users_seed,objective,T,success,arrivals,collisions,boundary_events,reward,"
-      "train_seconds,steps_per_second\n";
+      "train_seconds,steps_per_second,train_steps,uavs\n";
   AssemblyProgress progress(ctx, s.algos.size() * s.seeds.size());
   for (const auto& algo : s.algos)
     for (auto seed : s.seeds) {
@@ -43,8 +43,9 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
       const fs::path eval = info.dir / "eval" / "summary.csv";
       const CsvTable e = CsvTable::parse(read_file(eval.string()), eval.string());
       for (std::size_t r = 0; r < e.size(); ++r)
-        finals += fmt::format("{},{},{},{},{},{},{},{}\n", s.name, algo, seed, k, e.at(r, "seed"), episode_columns(e, r),
-                              format_double(info.seconds), format_double(info.steps_per_second));
+        finals += fmt::format("{},{},{},{},{},{},{},{},{},{}\n", s.name, algo, seed, k, e.at(r, "seed"), episode_columns(e, r),
+                              format_double(info.seconds), format_double(info.steps_per_second), cfg.marl.total_steps,
+                              cfg.trajectory.starts.size());
       progress.done(fmt::format("{} seed {}{}", algo, seed, fresh ? "" : " (ready)"), fresh);
     }
   // The heuristic references on the same users.

@@ -42,7 +42,7 @@ ModelSource model_source(StageContext& ctx, const ExperimentSpec& s, const std::
   p.kind = "model";
   p.label = label;
   p.cost = 0.002 * static_cast<double>(cfg.nn.epochs) * static_cast<double>(cfg.nn.train_samples) / 100.0;
-  p.done = [dir] { return fs::exists(dir / "test.json"); };
+  p.done = [&ctx, dir, id = p.id] { return fs::exists(dir / "test.json") && ctx.cache.sealed(id); };
   p.run = [&ctx, cfg, dir, label] {
     ctx.log << "  training " << label << " in " << dir.string() << "\n" << std::flush;
     TrainOptions t;

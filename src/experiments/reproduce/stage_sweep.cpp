@@ -82,7 +82,7 @@ Sweep plan(StageContext& ctx, const ExperimentSpec& s) {
       c.label = fmt::format("{} {}{} = {} snapshots {}-{}", s.name, sv.empty() ? "" : s.series + " = " + sv + ", ", s.sweep, p.value,
                             first, first + count - 1);
       c.cost = kChunkSetup + (per_snapshot + 1e-6 * p.cfg.scenario.users) * static_cast<double>(count);
-      c.done = [file] { return fs::exists(file); };
+      c.done = [&ctx, file, id = c.id] { return fs::exists(file) && ctx.cache.sealed(id); };
       c.run = [&ctx, cfg = p.cfg, specs = w.specs, labels = s.methods, file, first, count, seed = s.seed] {
         BeamformEvalOptions o;
         o.methods = specs;

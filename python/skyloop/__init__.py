@@ -32,7 +32,11 @@ if _os.path.isdir(_os.path.join(_here, "data", "models")) and not _os.environ.ge
 
 Config = _skyloop.Config
 # A Config pickles as its TOML text (multiprocessing, vector-env wrappers that pickle their makers).
-Config.__reduce__ = lambda self: (_skyloop.config_from_toml, (self.toml(),))
+def _config_from_toml(text: str) -> Config:
+    return _skyloop.config_from_toml(text)
+
+
+Config.__reduce__ = lambda self: (_config_from_toml, (self.toml(),))
 
 
 # ---- input checks: every bad argument raises InputError with one line --------------------------

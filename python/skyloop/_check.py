@@ -27,7 +27,7 @@ def as_int(v, name: str, lo: int | None = None, hi: int | None = None) -> int:
     if not isinstance(v, numbers.Integral):
         f = float(v)
         if not math.isfinite(f) or not f.is_integer():
-            raise InputError(f"{name} = {v!r} is not an integer: allowed an integer{rng}")
+            raise InputError(f"{name} = {v!r} has the wrong type: allowed an integer{rng}")
         v = int(f)
     v = int(v)
     if (lo is not None and v < lo) or (hi is not None and v > hi):
@@ -79,7 +79,7 @@ def as_array(v, name: str, allowed: str, dtype=np.float64, ndim: int | None = No
         raise InputError(f"{name} has shape {list(a.shape)}: allowed {allowed}")
     if a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
-        raise InputError(f"{name}{list(bad)} = {a[bad]!r} is not finite: allowed {allowed}")
+        raise InputError(f"{name}{list(bad)} = {a[bad]!r} is invalid (not finite): allowed {allowed}")
     return a if dtype is None else a.astype(dtype, copy=False)
 
 
@@ -96,10 +96,8 @@ def as_actions(v, name: str, shape: tuple, num_actions: int | None) -> np.ndarra
     except (TypeError, ValueError):
         raise InputError(f"{name} = {v!r} is not an array: allowed {allowed}") from None
     if a.dtype == bool or a.dtype.kind not in "iuf":
-        raise InputError(f"{name} = {v!r} has the wrong type: allowed {allowed}")
-    if a.size != int(np.prod(shape)):
-        raise InputError(f"{name} has shape {list(a.shape)}: allowed {allowed}")
-    a = a.reshape(shape)
+        raise InputError(f"{name} = {v!r} has dtype {a.dtype}: allowed {allowed}")
+    a = _shaped(a, name, shape, allowed)
     if a.dtype.kind == "f":
         bad = ~np.isfinite(a) | (a != np.round(a))
         if bad.any():
@@ -112,7 +110,7 @@ def as_actions(v, name: str, shape: tuple, num_actions: int | None) -> np.ndarra
     wrong = (out < 0) | (out >= num_actions)
     if wrong.any():
         i = tuple(int(x) for x in np.argwhere(wrong)[0])
-        raise InputError(f"{name}{list(i)} = {out[i]} is out of range: allowed {allowed}")
+        raise InputError(f"{name}{list(i)} = {out[i]} is invalid: allowed {allowed}")
     return out
 
 
@@ -120,7 +118,18 @@ def as_commands(v, name: str, shape: tuple) -> np.ndarray:
     """Continuous commands of ``shape`` (last axis the command's size): finite reals, as float64
     (the environment clamps them to [-1, 1])."""
     allowed = f"finite commands in [-1, 1] of shape {list(shape)}"
-    a = as_array(v, name, allowed)
-    if a.dtype.kind == "c" or a.size != int(np.prod(shape)):
-        raise InputError(f"{name} has shape {list(a.shape)}: allowed {allowed}")
-    return a.reshape(shape).astype(np.float64)
+    a = as_array(v, name, allowed, dtype=None)
+    if a.dtype.kind == "c":
+        raise InputError(f"{name} has dtype {a.dtype}: allowed {allowed}")
+    return _shaped(a, name, shape, allowed).astype(np.float64)
+
+
+def _shaped(a: np.ndarray, name: str, shape: tuple, allowed: str) -> np.ndarray:
+    """``a`` as ``shape``: the same shape, a scalar where one value is wanted, or the shape with a
+    trailing axis of 1 (the MAPPO runner's [M, N, 1]); anything else is refused."""
+    shape = tuple(shape)
+    if a.shape == shape:
+        return a
+    if (a.ndim == 0 and int(np.prod(shape)) == 1) or a.shape == shape + (1,):
+        return a.reshape(shape)
+    raise InputError(f"{name} has shape {list(a.shape)}: allowed {allowed}")

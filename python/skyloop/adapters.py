@@ -349,7 +349,7 @@ class SmacEnv:
         return self.get_obs(), {}
 
     def step(self, actions):
-        a = as_actions(actions.cpu() if hasattr(actions, "cpu") else actions, "actions", (1, self.n_agents), self.n_actions)
+        a = as_actions(actions.cpu() if hasattr(actions, "cpu") else actions, "actions", (self.n_agents,), self.n_actions)[None]
         r = self.env.step(a)
         terminated, truncated = bool(r.terminated[0]), bool(r.truncated[0])
         info = {k: v[0].item() for k, v in r.info.items() if v.ndim == 1}

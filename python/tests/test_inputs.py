@@ -237,13 +237,17 @@ def test_vecenv_and_config_pickle_as_their_arguments():
 
 def test_a_fleet_home_over_its_budget_terminates_and_is_not_truncated():
     """Every UAV home early but over energy.budget_j: the episode ended because the UAVs arrived
-    (terminated), not at T_max (truncated); success says the mission failed."""
-    cfg = {**CFG, "energy.budget_j": 1000, "trajectory.t_max": 24}
+    (terminated), not at T_max (truncated); success says the mission failed. Each UAV of the
+    paper's layout flies straight home (12, 16 and 12 moves: home at slot 17 of 24)."""
+    cfg = {**CFG, "energy.budget_j": 1000, "marl.action_mask": False, "marl.shield": False}
     e = sl.VecEnv(cfg, 1, 0)
     e.reset()
-    plan = sl.plan(cfg, planner="greedy")
-    assert plan["T"] < 24 and plan["arrivals"] == 3
-    for a in plan["actions"]:
-        r = e.step(np.asarray(a, np.int64)[None])
+    up, down, left, right, stay = (sl.ACTIONS.index(a) for a in ("UP", "DOWN", "LEFT", "RIGHT", "STAY"))
+    paths = [[right] * 8 + [up] * 4, [right] * 8 + [down] * 8, [left] * 8 + [down] * 4]
+    for t in range(16):
+        r = e.step(np.array([[p[t] if t < len(p) else stay for p in paths]], np.int64))
+        if t < 15:
+            assert not (r.terminated[0] or r.truncated[0])
+    assert int(r.info["T"][0]) == 17
     assert bool(r.terminated[0]) and not bool(r.truncated[0])
     assert not bool(r.info["success"][0])

@@ -95,9 +95,13 @@ RunDirLock::~RunDirLock() {
   if (fd_ >= 0) ::close(fd_);  // closing releases the lock
 }
 
-RunDirLock check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force) {
+void check_resume_or_force(bool resume, bool force) {
   if (resume && force)
     throw InputError("--resume and --force together: allowed one of them (--resume continues the run in --out, --force replaces it)");
+}
+
+RunDirLock check_fresh_run_dir(const std::string& dir, const std::vector<std::string>& results, bool resume, bool force) {
+  check_resume_or_force(resume, force);
   check_output_dir(dir);
   RunDirLock lock(dir);
   std::error_code ec;

@@ -179,6 +179,7 @@ Run::Run(const Config& cfg, const MarlTrainOptions& opt, const std::function<voi
       vec(make_training_envs(cfg, *opt.registry)) {
   if (check) check(vec);
   set_torch_threads(cfg.run.threads);
+  check_resume_or_force(opt.resume, opt.force);
   if (opt.resume && !std::filesystem::exists(last))
     throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");
   lock = check_fresh_run_dir(opt.out_dir, {"policy.pt", "last.pt", "metrics.csv"}, opt.resume, opt.force);

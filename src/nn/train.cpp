@@ -81,6 +81,7 @@ TrainResult train_beamformer(const Config& cfg, const TrainOptions& opt) {
   set_torch_threads(cfg.run.threads);
   const fs::path dir(opt.out_dir);
   const std::string last_path = (dir / "last.pt").string(), best_path = (dir / "model.pt").string();
+  check_resume_or_force(opt.resume, opt.force);
   if (opt.resume && !fs::exists(last_path))
     throw InputError("--resume: '" + last_path + "' does not exist: allowed a directory of an earlier training run");
   const bool network = nn::make_model(cfg.nn.model, cfg.channel.antennas, 4, 1)->network();

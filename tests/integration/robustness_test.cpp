@@ -315,7 +315,7 @@ TEST(Probe, MeaninglessSettingsAreRefusedNamingTheirCause) {
       {base + "--set energy.budget_j=1000 --set energy.model=none", {"energy.budget_j"}},
       {base + "--set channel.rician_k_min_db=20 --set channel.rician_k_max_db=10", {"rician_k_min_db"}},
       {base + "--set scenario.user_height_m=99.999", {"channel.d0_m", "user_height_m"}},
-      // the true need of a slow UAV (about 1,130 slots), and the settings that decide it
+      // the true need of a slow UAV (890 slots), and the settings that decide it
       {base + "--set trajectory.mobility=continuous --set trajectory.v_max_mps=0.1", {"v_max_mps = 0.1", "a_max_mps2", "slot_s"}},
       {base + "--set trajectory.mobility=continuous --set trajectory.v_max_mps=0.1 --set trajectory.t_max=26", {"v_max_mps = 0.1"}},
       {base + "--set trajectory.t_max=10", {"needs 12 moves", "trajectory.d_fly_m = 20", "t_max >= 13"}},
@@ -331,7 +331,7 @@ TEST(Probe, MeaninglessSettingsAreRefusedNamingTheirCause) {
   const auto slow = run(base + "--set trajectory.mobility=continuous --set trajectory.v_max_mps=0.1");
   const auto at = slow.err.find(" needs ");
   ASSERT_NE(at, std::string::npos) << slow.err;
-  EXPECT_GT(std::stol(slow.err.substr(at + 7)), 1000) << slow.err;
+  EXPECT_GT(std::stol(slow.err.substr(at + 7)), 500) << slow.err;
 }
 
 // A VDN or QMIX policy trained under continuous mobility (it chooses among the model's discrete
@@ -363,7 +363,7 @@ TEST(Probe, OneRunAtATimePerRunDirectory) {
   const fs::path out = d / "run";
   const std::string args = " --algo mappo --set env.oracle=zf --set marl.envs=2 --set marl.rollout=64 --set run.threads=1 --out " +
                            out.string();
-  const pid_t first = spawn("train --steps 40000" + args, d);
+  const pid_t first = spawn("train --steps 20000000" + args, d);  // killed below, long before its end
   ASSERT_TRUE(eventually([&] { return fs::exists(out / ".skyloop.lock") && fs::exists(out / "config.toml"); }, 120)) << slurp(d / "err");
   for (const std::string& second : {"train --steps 512" + args, "train --steps 512 --force" + args,
                                     "beamform train --model gnn" + kTinyNn + " --out " + out.string(),
@@ -404,7 +404,8 @@ TEST(Probe, InterruptedTrainingSaysHowToResume) {
 TEST(Probe, AFailedWriteLeavesTheEarlierRunWhole) {
   const fs::path d = tmpdir("full_disk");
   const fs::path out = d / "plan";
-  ASSERT_EQ(run("plan --planner random,greedy --seed 3 --set env.oracle=zf --out " + out.string()).code, 0);
+  const std::string plan = "plan --planner random,greedy --set env.oracle=zf --set trajectory.t_max=200 --out " + out.string();
+  ASSERT_EQ(run(plan + " --seed 3").code, 0);
   std::map<std::string, std::string> before;
   std::uintmax_t config_size = 0, largest = 0;
   for (const auto& e : fs::directory_iterator(out)) {
@@ -415,9 +416,8 @@ TEST(Probe, AFailedWriteLeavesTheEarlierRunWhole) {
   }
   ASSERT_GT(largest, config_size + 2048);  // a limit that config.toml fits under and the largest CSV does not
   const std::uintmax_t kb = (config_size + 1023) / 1024 + 1;
-  const int status = std::system(("bash -c 'trap \"\" XFSZ; ulimit -f " + std::to_string(kb) + "; exec " + kBin +
-                                  " plan --planner random,greedy --seed 4 --set env.oracle=zf --out " + out.string() +
-                                  "' >/dev/null 2>" + (d / "err").string()).c_str());
+  const int status = std::system(("bash -c 'trap \"\" XFSZ; ulimit -f " + std::to_string(kb) + "; exec " + kBin + " " + plan +
+                                  " --seed 4' >/dev/null 2>" + (d / "err").string()).c_str());
   EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) != 0) << slurp(d / "err");
   for (const auto& [name, text] : before) EXPECT_EQ(slurp(out / name), text) << name << " changed";
   EXPECT_TRUE(temporaries_under(out).empty());

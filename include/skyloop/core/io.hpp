@@ -44,6 +44,9 @@ class RunDirLock {
   int fd_ = -1;
 };
 
+/// `--resume` and `--force` together are refused (InputError), before anything else is checked.
+void check_resume_or_force(bool resume, bool force);
+
 /// A run directory about to receive a run: takes its lock (RunDirLock), then, for a fresh (not
 /// resumed) run, if any of `results` is already in `dir`, throws InputError ("already holds a run:
 /// allowed --resume, --force or a new directory") unless `force`, which removes them first.

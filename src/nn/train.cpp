@@ -19,10 +19,21 @@
 #include "skyloop/core/rng.hpp"
 #include "skyloop/beamforming/registry.hpp"
 
+#include <dlfcn.h>
+
 namespace skyloop {
 
 void set_torch_threads(int threads) {
-  if (threads > 0) torch::set_num_threads(threads);
+  if (threads > 0) {
+    torch::set_num_threads(threads);
+    // The BLAS under LibTorch keeps threads of its own: OpenBLAS splits a GEMM over every core it
+    // sees whatever torch's count, so "one thread" trained another model on a machine with more
+    // cores visible (a process bound to one core, as mpirun binds its ranks, got other bits).
+    // Found at run time: Debian's libblas.so.3 may be OpenBLAS or the reference BLAS.
+    using SetThreads = void (*)(int);
+    static const auto openblas = reinterpret_cast<SetThreads>(::dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
+    if (openblas) openblas(threads);
+  }
   // Denormal floats appear as training goes on and slow x86 arithmetic by 2x and more.
   at::globalContext().setFlushDenormal(true);
 }

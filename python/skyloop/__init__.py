@@ -126,10 +126,6 @@ def _as_w(W):
     if hasattr(W, "detach"):  # torch
         W = W.detach().cpu().resolve_conj().numpy() if hasattr(W, "resolve_conj") else W.detach().cpu().numpy()
     import numpy as np
-    try:
-        np.asarray(W, dtype=np.complex128)
-    except (TypeError, ValueError):
-        raise InputError(f"W = {W!r} is not a numeric array: allowed a complex [L, K_n] array") from None
     return _as_array(W, "W", "a finite complex [L, K_n] array", dtype=np.complex128)
 
 

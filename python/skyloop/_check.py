@@ -65,18 +65,21 @@ def as_str(v, name: str) -> str:
     return v
 
 
-def as_array(v, name: str, allowed: str, dtype=np.float64, ndim: int | None = None, shape: tuple | None = None) -> np.ndarray:
-    """A finite numeric array (a torch tensor is detached and moved to the CPU first)."""
+def _numpy(v, name: str, allowed: str) -> np.ndarray:
+    """``v`` as a numpy array (a torch tensor detached and moved to the CPU first), or InputError."""
     if hasattr(v, "detach"):
         v = v.detach().cpu().numpy()
     try:
-        a = np.asarray(v)
+        return np.asarray(v)
     except (TypeError, ValueError):
         raise InputError(f"{name} = {v!r} is not an array: allowed {allowed}") from None
-    if a.dtype == object or a.dtype.kind not in "biufc":
+
+
+def as_array(v, name: str, allowed: str, dtype=np.float64) -> np.ndarray:
+    """A finite numeric array, as ``dtype`` (None: as given)."""
+    a = _numpy(v, name, allowed)
+    if a.dtype.kind not in "biufc":
         raise InputError(f"{name} has dtype {a.dtype}: allowed {allowed}")
-    if (ndim is not None and a.ndim != ndim) or (shape is not None and tuple(a.shape) != tuple(shape)):
-        raise InputError(f"{name} has shape {list(a.shape)}: allowed {allowed}")
     if a.dtype.kind in "fc" and not np.all(np.isfinite(a)):
         bad = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
         raise InputError(f"{name}{list(bad)} = {a[bad]!r} is invalid (not finite): allowed {allowed}")
@@ -86,15 +89,11 @@ def as_array(v, name: str, allowed: str, dtype=np.float64, ndim: int | None = No
 def as_actions(v, name: str, shape: tuple, num_actions: int | None) -> np.ndarray:
     """Discrete actions of ``shape``: an integer array (or int scalars) with values in
     0..num_actions-1, as int64. Floats are refused, even integral ones (as VecEnv's own step
-    refuses them), and the message names the first entry that is not an integer (4.9, NaN). ``num_actions`` None: integers, the range left to
-    the caller (take_turn ignores the entries of environments whose turns are over)."""
+    refuses them), and the message names the first entry that is not an integer (4.9, NaN).
+    ``num_actions`` None: integers, the range left to the caller (take_turn ignores the entries of
+    environments whose turns are over)."""
     allowed = (f"integers in 0..{num_actions - 1}" if num_actions is not None else "integers") + f" of shape {list(shape)}"
-    if hasattr(v, "detach"):
-        v = v.detach().cpu().numpy()
-    try:
-        a = np.asarray(v)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} = {v!r} is not an array: allowed {allowed}") from None
+    a = _numpy(v, name, allowed)
     if a.dtype == bool or a.dtype.kind not in "iuf":
         raise InputError(f"{name} = {v!r} has dtype {a.dtype}: allowed {allowed}")
     a = _shaped(a, name, shape, allowed)

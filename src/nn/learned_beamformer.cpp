@@ -9,7 +9,9 @@
 #include "network_batch.hpp"
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/channel/rates.hpp"
+#include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
 #include "skyloop/core/parallel.hpp"
 #include "skyloop/core/paths.hpp"
 
@@ -242,6 +244,23 @@ std::vector<MatrixXcd> LearnedBeamformer::design_fast(const std::vector<const Cl
 
 bool LearnedBeamformer::fast() const { return impl_->fast != nullptr; }
 
+namespace {
+/// The configuration a model directory's own serving settings (DIR/serve.toml, optional) give on
+/// top of `cfg`: a model validated with, say, nn.selection = "ranked" is served that way when it
+/// is named by its directory. Only the serving keys nn.selection and nn.precision may appear.
+Config served_as_its_directory_says(const Config& cfg, const std::filesystem::path& dir) {
+  const auto file = dir / "serve.toml";
+  if (!std::filesystem::exists(file)) return cfg;
+  Config serving = cfg;
+  apply_toml(serving, read_file(file.string(), "serving settings"), file.string());
+  Config others = serving;
+  others.nn.selection = cfg.nn.selection, others.nn.precision = cfg.nn.precision;
+  if (to_toml(others) != to_toml(cfg))
+    throw InputError(file.string() + " sets more than the model's serving: allowed nn.selection and nn.precision only");
+  return serving;
+}
+}  // namespace
+
 void register_learned_beamformers(BeamformerRegistry& reg, const std::string& models_dir) {
   for (const std::string& n : learned_beamformer_names()) {
     reg.add(n, learned_beamformer_description(n),
@@ -249,8 +268,12 @@ void register_learned_beamformers(BeamformerRegistry& reg, const std::string& mo
               namespace fs = std::filesystem;
               const std::string root = models_dir.empty() ? (fs::path(data_dir()) / "models").string() : models_dir;
               std::string path = arg.empty() ? (fs::path(root) / n / "model.pt").string() : arg;
-              if (fs::is_directory(path)) path = (fs::path(path) / "model.pt").string();
-              auto bf = LearnedBeamformer::load(path, cfg);
+              Config serving = cfg;
+              if (fs::is_directory(path)) {  // named by its directory: served as the directory says
+                serving = served_as_its_directory_says(cfg, path);
+                path = (fs::path(path) / "model.pt").string();
+              }
+              auto bf = LearnedBeamformer::load(path, serving);
               if (bf->info().model != n)
                 throw InputError("method '" + n + "=" + arg + "' names a " + bf->info().model + " checkpoint: allowed a " + n + " model");
               return bf;

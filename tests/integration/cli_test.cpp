@@ -83,6 +83,41 @@ TEST(Cli, BadInputIsOneLineAndExitTwo) {
   EXPECT_NE(u.err.find("scenario.uavs = 0"), std::string::npos) << u.err;
 }
 
+// A shipped model named by its directory is served as its serve.toml says (models/gnn_large:
+// ranked selection, the setting its N = 64 figure was measured with); named by its model.pt, as
+// the configuration says. A serve.toml that sets more than serving is refused in one line.
+TEST(Cli, AModelDirectoryIsServedAsItsServeTomlSays) {
+  const std::string dir = tmpdir("serve");
+  const std::string scene = " --uavs 4 --users 64 --samples 2 --seed 5 --quiet --set scenario.area_x_m=500 --set scenario.area_y_m=500"
+                            " --set channel.pathloss=3gpp-uma-av --set channel.fading=rician --set channel.rician_k_db=10"
+                            " --set channel.coverage_radius_m=400";
+  const std::string model = kSrc + "/models/gnn_large";
+  auto rates = [](const std::string& csv) {  // the sum_rate column (the one before latency_ms)
+    std::stringstream in(csv), out;
+    std::string line;
+    std::getline(in, line);
+    while (std::getline(in, line)) {
+      const auto last = line.rfind(',');
+      out << line.substr(line.rfind(',', last - 1) + 1, last - line.rfind(',', last - 1) - 1) << "\n";
+    }
+    return out.str();
+  };
+  ASSERT_EQ(run("beamform eval --methods gnn=" + model + scene + " --out " + dir + "/dir.csv").code, 0);
+  ASSERT_EQ(run("beamform eval --methods gnn=" + model + "/model.pt" + scene + " --set nn.selection=ranked --out " + dir + "/ranked.csv").code, 0);
+  ASSERT_EQ(run("beamform eval --methods gnn=" + model + "/model.pt" + scene + " --out " + dir + "/soft.csv").code, 0);
+  EXPECT_EQ(rates(slurp(dir + "/dir.csv")), rates(slurp(dir + "/ranked.csv")));
+  EXPECT_NE(rates(slurp(dir + "/dir.csv")), rates(slurp(dir + "/soft.csv")));
+  // A directory whose serve.toml sets a training key.
+  const std::string bad = dir + "/bad";
+  std::filesystem::create_directories(bad);
+  std::filesystem::copy_file(model + "/model.pt", bad + "/model.pt");
+  std::ofstream(bad + "/serve.toml") << "[nn]\nselection = \"ranked\"\nepochs = 3\n";
+  const auto r = run("beamform eval --methods gnn=" + bad + scene);
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_EQ(lines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("allowed nn.selection and nn.precision only"), std::string::npos) << r.err;
+}
+
 TEST(Cli, BeamformEvalWritesTidyCsvAndConfigAndIsSeeded) {
   const std::string dir = tmpdir("eval");
   const std::string args = "beamform eval --methods mrt,zf,rzf,wmmse --uavs 3 --users 12 --samples 5 --seed 11 --quiet";

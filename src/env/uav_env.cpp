@@ -205,17 +205,21 @@ void UavEnv::home_velocity(int n, double& vx, double& vy) const {
   mobility_->home_command(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1), vx, vy);
 }
 
-int UavEnv::home_slots(int n, double x, double y, double vx, double vy) const {
+int UavEnv::home_slots(int n, double x, double y, double vx, double vy, int limit, bool* blocked) const {
   const double dx = dest_(n, 0), dy = dest_(n, 1);
-  for (int k = 0; k <= t_max_; ++k) {
+  if (blocked) *blocked = false;
+  for (int k = 0; k <= limit; ++k) {
     if (std::hypot(x - dx, y - dy) <= 1e-9) return k;
     double cx, cy;
     mobility_->home_command(dx - x, dy - y, cx, cy);
     const Landing l = fly(*mobility_, x, y, vx, vy, cx, cy, area_x_, area_y_, dx, dy);
-    if (!l.inside) break;  // HOME would hit the boundary: no way home that keeps a_max
+    if (!l.inside) {  // HOME would hit the boundary: no way home that keeps a_max
+      if (blocked) *blocked = true;
+      break;
+    }
     x = l.x, y = l.y, vx = l.vx, vy = l.vy;
   }
-  return t_max_ + 1;
+  return limit + 1;
 }
 
 std::string UavEnv::unreachable_message(int n, const Config& cfg) const {
@@ -223,27 +227,21 @@ std::string UavEnv::unreachable_message(int n, const Config& cfg) const {
   const std::string allows = "trajectory.t_max = " + std::to_string(t_max_) + " allows " + std::to_string(t_max_ - 1);
   const auto& t = cfg.trajectory;
   if (mobility_->continuous()) {
-    // The HOME flight from a standstill, slot by slot, without t_max's cap (bounded: a flight
-    // that takes more than kLongest slots is reported as such).
+    // The HOME flight from a standstill without t_max's cap (bounded: a flight that takes more
+    // than kLongest slots is reported as such).
     constexpr int kLongest = 10000000;
-    double x = start_(n, 0), y = start_(n, 1), vx = 0, vy = 0;
-    const double dx = dest_(n, 0), dy = dest_(n, 1);
     const std::string cause = "(trajectory.v_max_mps = " + format_double(t.v_max_mps) + ", a_max_mps2 = " + format_double(t.a_max_mps2) +
                               ", slot_s = " + format_double(t.slot_s) + ")";
-    for (int k = 0; k < kLongest; ++k) {
-      if (std::hypot(x - dx, y - dy) <= 1e-9)
-        return who + " needs " + std::to_string(k) + " slots to fly home from its start at its speed and acceleration " + cause +
-               " but " + allows + ": allowed trajectory.t_max >= " + std::to_string(k + 1) + ", or a faster UAV";
-      double cx, cy;
-      mobility_->home_command(dx - x, dy - y, cx, cy);
-      const Landing l = fly(*mobility_, x, y, vx, vy, cx, cy, area_x_, area_y_, dx, dy);
-      if (!l.inside)
-        return who + " cannot fly home from its start within the area at its speed and acceleration " + cause +
-               ": allowed a start and destination it can fly between without meeting the boundary";
-      x = l.x, y = l.y, vx = l.vx, vy = l.vy;
-    }
-    return who + " needs more than " + std::to_string(kLongest) + " slots to fly home from its start " + cause + " but " + allows +
-           ": allowed a faster UAV (trajectory.v_max_mps, a_max_mps2) or longer slots (trajectory.slot_s)";
+    bool blocked = false;
+    const int k = home_slots(n, start_(n, 0), start_(n, 1), 0, 0, kLongest, &blocked);
+    if (blocked)
+      return who + " cannot fly home from its start within the area at its speed and acceleration " + cause +
+             ": allowed a start and destination it can fly between without meeting the boundary";
+    if (k > kLongest)
+      return who + " needs more than " + std::to_string(kLongest) + " slots to fly home from its start " + cause + " but " + allows +
+             ": allowed a faster UAV (trajectory.v_max_mps, a_max_mps2) or longer slots (trajectory.slot_s)";
+    return who + " needs " + std::to_string(k) + " slots to fly home from its start at its speed and acceleration " + cause + " but " +
+           allows + ": allowed trajectory.t_max >= " + std::to_string(k + 1) + ", or a faster UAV";
   }
   const int moves = min_moves(n, start_(n, 0), start_(n, 1));
   const std::string cause = mobility_->is_grid() ? "moves of trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m"
@@ -254,7 +252,7 @@ std::string UavEnv::unreachable_message(int n, const Config& cfg) const {
 }
 
 int UavEnv::min_moves(int n, double x, double y) const {
-  if (mobility_->continuous()) return home_slots(n, x, y, vel_(n, 0), vel_(n, 1));
+  if (mobility_->continuous()) return home_slots(n, x, y, vel_(n, 0), vel_(n, 1), t_max_);
   if (mobility_->is_grid()) {
     const double dx = std::abs(dest_(n, 0) - x), dy = std::abs(dest_(n, 1) - y);
     return static_cast<int>(std::ceil(dx / d_fly_ - 1e-9)) + static_cast<int>(std::ceil(dy / d_fly_ - 1e-9));
@@ -268,7 +266,7 @@ int UavEnv::min_moves(int n, double x, double y) const {
 }
 
 int UavEnv::min_moves(int n, const Landing& l) const {
-  if (mobility_->continuous()) return home_slots(n, l.x, l.y, l.vx, l.vy);
+  if (mobility_->continuous()) return home_slots(n, l.x, l.y, l.vx, l.vy, t_max_);
   return min_moves(n, l.x, l.y);
 }
 

@@ -289,8 +289,9 @@ class UavEnv {
   /// Phase 1's bookkeeping of UAV n landing at l (its energy, speed, velocity).
   void land(int n, const Landing& l, StepInfo& info);
   void check_step(std::size_t count) const;
-  /// Slots the HOME command takes from (x, y) at velocity (vx, vy) to UAV n's destination.
-  int home_slots(int n, double x, double y, double vx, double vy) const;
+  /// Slots the HOME command takes from (x, y) at velocity (vx, vy) to UAV n's destination, or
+  /// limit + 1 when more or when HOME would meet the boundary (then *blocked, when given, is true).
+  int home_slots(int n, double x, double y, double vx, double vy, int limit, bool* blocked = nullptr) const;
   /// Why UAV n cannot arrive within T_max: its true count of moves (or slots of the HOME flight,
   /// uncapped) and the settings that decide it.
   std::string unreachable_message(int n, const Config& cfg) const;

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cerrno>
 #include <cstdio>
-#include <vector>
 #include <cstring>
 #include <fcntl.h>
 #include <fmt/format.h>
@@ -11,10 +10,12 @@
 #include <stdexcept>
 #include <sys/file.h>
 #include <unistd.h>
+#include <vector>
+
+#include <nlohmann/json.hpp>
 
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/io.hpp"
-#include <nlohmann/json.hpp>
 #include "skyloop/core/rng.hpp"
 
 namespace skyloop::repro {
@@ -88,6 +89,8 @@ std::vector<std::string> files_under(const fs::path& at) {
   return out;
 }
 
+fs::path seal_path_of(const fs::path& root, const std::string& id) { return root / "seals" / (hex(hash_text(id)) + ".json"); }
+
 /// {"bytes": size, "fnv": hash} of a file, or null when it cannot be read.
 nlohmann::json file_stamp(const fs::path& p) {
   std::error_code ec;
@@ -103,7 +106,7 @@ nlohmann::json file_stamp(const fs::path& p) {
 }  // namespace
 
 bool PieceCache::sealed(const std::string& id) const {
-  const fs::path seal_path = root_ / "seals" / (hex(hash_text(id)) + ".json");
+  const fs::path seal_path = seal_path_of(root_, id);
   std::error_code ec;
   if (!fs::exists(seal_path, ec)) return false;
   nlohmann::json j;
@@ -124,7 +127,7 @@ void PieceCache::seal(const std::string& id) const {
   nlohmann::json files = nlohmann::json::object();
   for (const auto& rel : files_under(at)) files[rel] = file_stamp(rel.empty() ? at : at / rel);
   const nlohmann::json j = {{"id", id}, {"files", files}};
-  write_file_atomic((root_ / "seals" / (hex(hash_text(id)) + ".json")).string(), j.dump(1) + "\n");
+  write_file_atomic(seal_path_of(root_, id).string(), j.dump(1) + "\n");
 }
 
 bool PieceCache::ensure(const std::string& id, const std::function<bool()>& done, const std::function<void()>& compute,
@@ -132,18 +135,16 @@ bool PieceCache::ensure(const std::string& id, const std::function<bool()>& done
   if (done() && sealed(id)) return false;
   FileLock lock(root_ / "locks" / (hex(hash_text(id)) + ".lock"), id, log);
   const bool finished = done();
-  if (finished && sealed(id)) return false;
-  const fs::path seal_path = root_ / "seals" / (hex(hash_text(id)) + ".json");
   std::error_code ec;
-  if (finished || fs::exists(seal_path, ec)) {
-    // Finished without a seal, or a seal that no longer holds: what is on disk is not what was
-    // computed (a file truncated or edited since), so none of it is reused.
-    if (fs::exists(seal_path, ec) && !sealed(id)) {
-      if (log) *log << fmt::format("  {} changed on disk since it was computed: computing it again\n", id) << std::flush;
-      fs::remove_all(root_ / id, ec);
-    } else if (finished) {
-      fs::remove_all(root_ / id, ec);
-    }
+  const bool has_seal = fs::exists(seal_path_of(root_, id), ec), holds = has_seal && sealed(id);
+  if (finished && holds) return false;
+  // None of what is on disk is reused when its seal no longer holds (a file truncated or edited
+  // since it was computed), or when a finished piece has none (written by another version). A
+  // piece whose seal holds but which has more to do (a MARL run trained, not yet evaluated) keeps
+  // what it has.
+  if (has_seal ? !holds : finished) {
+    if (has_seal && log) *log << fmt::format("  {} changed on disk since it was computed: computing it again\n", id) << std::flush;
+    fs::remove_all(root_ / id, ec);
   }
   compute();
   seal(id);

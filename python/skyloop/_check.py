@@ -13,10 +13,8 @@ import os
 
 import numpy as np
 
-from ._skyloop import InputError
-
-#: The largest seed the command line takes (``--seed``, ``run.seed``): one range for every seed.
-MAX_SEED = 2**62 - 1
+#: The largest seed (run.seed's bound, which the command line's --seed also takes): one range for every seed.
+from ._skyloop import MAX_SEED, InputError
 
 
 def as_int(v, name: str, lo: int | None = None, hi: int | None = None) -> int:

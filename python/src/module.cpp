@@ -949,6 +949,7 @@ PYBIND11_MODULE(_skyloop, m) {
   m.attr("ACTIONS") = py::tuple(py::cast(grid_actions().names));
   m.attr("PLANNERS") = py::tuple(py::cast(builtin_planners().names()));
   m.attr("LEARNERS") = py::tuple(py::cast(learner_names()));
+  m.attr("MAX_SEED") = static_cast<std::uint64_t>(find_field("run.seed")->hi);  // the seeds every entry point takes: run.seed's range
   m.attr("MAX_SEQUENTIAL_PASSES") = kMaxSequentialPasses;
 #ifdef SKYLOOP_HAS_TORCH
   m.attr("HAS_TORCH") = true;

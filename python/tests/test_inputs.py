@@ -92,7 +92,7 @@ CASES = [
     ("sum_rate W inf", lambda: sl.sum_rate(cluster(), np.full((4, 3), np.inf))),
     ("sum_rate W nan", lambda: sl.sum_rate(cluster(), np.full((4, 3), np.nan, complex))),
     ("plan users beyond the bound", lambda: sl.plan(CFG, planner="random", users=np.full((5000, 2), 10.0))),
-    ("seed beyond the CLI's range", lambda: sl.VecEnv(CFG, 1, 2**62)),
+    ("seed beyond the CLI's range", lambda: sl.VecEnv(CFG, 1, 2**62 + 1)),
     ("plan seed beyond the CLI's range", lambda: sl.plan(CFG, planner="random", users_seed=2**64 - 1)),
     ("config user 1 mm below the UAV", lambda: sl.config(overrides={"scenario.user_height_m": 99.999})),
     ("config rician K min above max", lambda: sl.config(overrides={"channel.rician_k_min_db": 20, "channel.rician_k_max_db": 10})),

@@ -145,6 +145,9 @@ void apply_override(Config& cfg, const std::string& assignment) {
   try {
     parsed = toml::parse("v = " + value);
   } catch (const toml::parse_error&) {
+    // A decimal integer TOML cannot hold (beyond 64 bits) is a number out of range, not a word.
+    if (value.find_first_not_of("+-0123456789_") == std::string::npos && value.find_first_of("0123456789") != std::string::npos)
+      throw InputError(key + " = " + value + " is out of range: allowed " + field->allowed());
     // Not a TOML value: a bare word is a string (e.g. power_scaling=cap).
     parsed = toml::table{{"v", value}};
   }

@@ -220,6 +220,7 @@ TEST(Probe, MalformedInputsGiveOneLineAndExitTwo) {
       {"config show --config " + D + "/adir", "is a directory"},
       {"config show --config /nonexistent/x.toml", "cannot be read"},
       {"config show --set run.seed=4611686018427387905", "out of range"},
+      {"config show --set run.seed=1180591620717411303424", "run.seed = 1180591620717411303424 is out of range"},
       {"config show --set nosuchkey", "malformed"},
       // scenario files
       {"snapshot --scenario " + D + "/nan_user.toml", "users[0] = [nan, 10] is outside the area"},

@@ -256,8 +256,10 @@ def mission_text(rs):
     bad = [r for r in rs if failed(r)]
     if not bad:
         return "complete" if len(rs) == 1 else f"complete on all {len(rs)}"
-    what = [f"seed {r.get('train_seed', '-')} ({home_text(r)} home, {r['collisions']} collisions)" for r in bad]
-    return "FAILED on " + "; ".join(what)
+    what = [f"{home_text(r)} home, {r['collisions']} collisions, {r['boundary_events']} boundary events" for r in bad]
+    if "train_seed" not in bad[0]:  # a planner's single episode
+        return f"FAILED ({what[0]})"
+    return "FAILED on " + "; ".join(f"seed {r['train_seed']} ({w})" for r, w in zip(bad, what))
 
 
 def trained_text(rs):

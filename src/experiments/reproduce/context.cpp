@@ -93,21 +93,21 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 }
 
 // Rough seconds on one core (the farm's order, --plan, the ETA; never a result). The per-step
-// costs by learner, encoder and spectrum come from a quick-profile run's timings.csv on the
-// 2-core AVX-512 VM (2026-11-23) and the fast PPO backend's runs (2026-11-24): MAPPO / IPPO
-// 2.5e-5 s per environment step at N = 3 (the GNN oracle; 1.3e-4 on marl.backend = torch),
-// VDN / QMIX 0.45e-4; the set encoder with validation layouts adds 7e-5 and the shared spectrum's
-// interference-aware oracle 1.7e-4; the per-step cost grows as N^1.3 (measured at N = 16). They
-// are scaled to the slower AVX2-only VM (2026-11-26: 19 runs, two at a time, took 804 s against
-// 306 s estimated): x 2.4, plus 3 s per run for the child process's start, its models and the
-// policy's last evaluation. The AVX-512 VM runs them 1.4-3.5x faster: the ETA is the slow machine's.
+// costs by learner, encoder and spectrum come from the quick profile's timings.csv on the 2-core
+// AVX-512 VM (2026-12-01, 16 runs two at a time: 720 s measured), in units of the slower AVX2-only
+// VM (x kMarlMachine = 2.4; 2026-11-26: 19 runs took 804 s against 306 s estimated): MAPPO / IPPO
+// 1.3e-5 s per environment step at N = 3 (the fast backend; 1.3e-4 on marl.backend = torch),
+// VDN / QMIX 1.2e-5 (the paper scenario's 2e6-step runs: 50-71 s each); the set encoder with its
+// validation layouts adds 5e-5 and the shared spectrum's interference-aware oracle 4e-5; the
+// per-step cost grows as N^1.3 (measured at N = 16); plus 3 s per run for the child process's
+// start, its models and the policy's last evaluation.
 constexpr double kMarlMachine = 2.4, kMarlRunSetup = 3.0;
 double marl_cost(const Config& cfg) {
   const auto& learner = find_learner(cfg.marl.algo);
-  const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? 0.45e-4
+  const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? 1.2e-5
                       : cfg.marl.backend == "torch"                          ? 1.3e-4
-                                                                             : 2.5e-5;
-  const double per_step = base + (cfg.marl.encoder == "set" ? 7e-5 : 0.0) + (cfg.channel.spectrum == "shared" ? 1.7e-4 : 0.0);
+                                                                             : 1.3e-5;
+  const double per_step = base + (cfg.marl.encoder == "set" ? 5e-5 : 0.0) + (cfg.channel.spectrum == "shared" ? 4e-5 : 0.0);
   return kMarlRunSetup +
          kMarlMachine * per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
 }

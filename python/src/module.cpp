@@ -925,13 +925,13 @@ PYBIND11_MODULE(_skyloop, m) {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / repeats;
   });
 
-#ifdef SKYLOOP_HAS_TORCH
   m.def("config_from_toml", [](const std::string& text) {
           Config cfg;
           apply_toml(cfg, text, "configuration");
           finalise(cfg);
           return cfg;
         }, py::arg("text"), "a configuration from its TOML text (Config.toml()); how a Config unpickles");
+#ifdef SKYLOOP_HAS_TORCH
   m.def("policy_config", [](const std::string& path) {
           // The configuration stored inside policy.pt, as `skyloop eval --policy` reads it.
           const auto policy = MarlPolicy::load(path);

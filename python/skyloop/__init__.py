@@ -16,10 +16,11 @@ from __future__ import annotations
 import os as _os
 
 from . import _skyloop
+from ._skyloop import __version__  # the VERSION file's, shared with `skyloop --version` and the docs
 from ._skyloop import ACTIONS, LEARNERS, MAX_SEQUENTIAL_PASSES, PLANNERS, Beamformer, Cluster, InputError, Network, Snapshot, SystemModel, beamformers, derive_seed
 
 __all__ = [
-    "ACTIONS", "LEARNERS", "MAX_SEQUENTIAL_PASSES", "PLANNERS", "Beamformer", "Cluster", "Config", "InputError", "Network", "Snapshot", "SystemModel", "VecEnv",
+    "__version__", "ACTIONS", "LEARNERS", "MAX_SEQUENTIAL_PASSES", "PLANNERS", "Beamformer", "Cluster", "Config", "InputError", "Network", "Snapshot", "SystemModel", "VecEnv",
     "beamformer", "beamformers", "config", "derive_seed", "evaluate_layouts", "network_sum_rate", "plan", "rates", "sinr", "sum_rate",
     "user_powers",
 ]

@@ -18,7 +18,10 @@ Every size, bound and action count is read from the environment's spec (``VecEnv
   ``reset(seed, options) -> (obs, info)``, ``step(actions) -> (obs, reward, terminated, truncated,
   info)``, ``get_obs``, ``get_state``, ``get_avail_actions``, ``get_env_info``, ``get_stats``; built
   with EPyMARL's ``common_reward`` and ``reward_scalarisation`` arguments.
-- ``GymVectorEnv``: a Gymnasium vector environment for single-policy learners: every
+- ``GymEnv``: a Gymnasium environment over one skyloop environment (``gymnasium.make(GYM_ID)``), the
+  N agents flattened as in ``GymVectorEnv``; what Gymnasium's ``check_env`` and wrappers take.
+- ``GymVectorEnv``: a Gymnasium vector environment (``gymnasium.vector.VectorEnv`` when installed;
+  ``gymnasium.make_vec(GYM_ID, num_envs=M, vectorization_mode="vector_entry_point")``) for single-policy learners: every
   environment's N agents flattened into one observation (N * obs) and a MultiDiscrete([A] * N)
   action (continuous model: a Box of N * 2 commands); same-step auto-reset with ``final_obs`` / ``final_info`` and episode statistics in
   ``infos["episode"]`` (what CleanRL's PPO and Gymnasium's RecordEpisodeStatistics give).
@@ -421,29 +424,96 @@ class SmacEnv:
 # ---- Gymnasium vector env ------------------------------------------------------------------------
 
 try:  # pragma: no cover - gymnasium is not packaged in Debian
+    import gymnasium as _gym  # type: ignore
     from gymnasium.vector import AutoresetMode as _AutoresetMode  # type: ignore
     _SAME_STEP = _AutoresetMode.SAME_STEP
+    _EnvBase, _VectorBase = _gym.Env, _gym.vector.VectorEnv
 except ImportError:
+    _gym = None
     _SAME_STEP = "same-step"
+    _EnvBase = _VectorBase = object
+
+#: The id under which ``GymEnv`` (``gymnasium.make``) and ``GymVectorEnv`` (``gymnasium.make_vec``)
+#: are registered with Gymnasium when it is installed.
+GYM_ID = "skyloop/UavDownlink-v0"
 
 
-class GymVectorEnv:
+def _flat_actions(actions, n, dims, num_actions, name="action"):
+    """One environment's joint action, flattened as GymEnv takes it, as VecEnv.step's [1, N(, dims)]."""
+    if dims:
+        return as_commands(actions, name, (n * dims,)).reshape(1, n, dims)
+    return as_actions(actions, name, (n,), num_actions)[None]
+
+
+class GymEnv(_EnvBase):
+    """A Gymnasium environment (``gymnasium.Env`` when gymnasium is installed) over one skyloop
+    environment, for single-policy learners and Gymnasium's own tools (``check_env``, wrappers,
+    ``SyncVectorEnv``): the N agents' observations concatenated (float32 [N * obs]), the joint action
+    MultiDiscrete([A] * N) (continuous model: a Box of N * dims commands), the team reward.
+    ``reset(seed)`` redraws the users from ``seed`` (None: the same users, or new ones with
+    ``env.resample_users``); ``info`` holds ``action_mask`` [N, A] and ``state``, and after the last
+    step the finished episode's statistics (``objective``, ``home``, ``success``, ...).
+    ``gymnasium.make("skyloop/UavDownlink-v0", config=...)`` builds one."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config=None, seed: int = 0, oracle: str = "", render_mode=None):
+        if render_mode is not None:
+            raise InputError(f"render_mode = {render_mode!r}: allowed None (skyloop renders no frames)")
+        self._vec = VecEnv(config, 1, seed, oracle)
+        spec, self._n = self._vec.spec, self._vec.num_agents
+        self._dims = spec["dims"]
+        self.observation_space = _row_box(spec["obs"], self._n)
+        self.action_space = _action_space(spec, self._n)
+        self.render_mode = None
+
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        seed = None if seed is None else as_seed(seed, "seed")
+        if _gym is not None:
+            super().reset(seed=seed)  # Gymnasium's np_random, seeded as its checker expects
+        o = self._vec.reset(seed)
+        return o.obs.reshape(-1), {"action_mask": o.action_mask[0], "state": o.state[0]}
+
+    def step(self, action):
+        r = self._vec.step(_flat_actions(action, self._n, self._dims, self._vec.num_actions))
+        terminated, truncated = bool(r.terminated[0]), bool(r.truncated[0])
+        done = terminated or truncated
+        obs = (r.info["final_obs"] if done else r.obs)[0].reshape(-1)
+        info = {k: v[0].item() for k, v in r.info.items() if v.ndim == 1}
+        info["action_mask"] = r.action_mask[0]
+        info["state"] = (r.info["final_state"] if done else r.state)[0]
+        return obs, float(r.reward[0]), terminated, truncated, info
+
+    def render(self):
+        return None
+
+    def close(self):
+        self._vec.close()
+
+
+class GymVectorEnv(_VectorBase):
     """A Gymnasium vector environment for single-policy learners: observation [M, N * obs] (the N
     agents' observations concatenated), action MultiDiscrete([A] * N) per environment,
     ``reset(seed, options) -> (obs, infos)``, ``step(actions [M, N]) -> (obs, rewards,
     terminations, truncations, infos)``. Auto-reset in the same step (``metadata
     ["autoreset_mode"]``): a finished environment's returned observation is its new episode's
-    first; ``infos["final_obs"]`` (object array, [N * obs] where ``infos["_final_obs"]``) and
-    ``infos["final_info"]`` (a dict per finished environment, with ``episode``: r, l) hold the
-    finished episode; ``infos["episode"]`` {r, l, t} with the mask ``infos["_episode"]`` as
-    Gymnasium's RecordEpisodeStatistics writes it. ``infos`` also holds the VecEnv info arrays,
-    ``action_mask`` [M, N, A] and ``state``."""
+    first; ``infos["final_obs"]`` and ``infos["final_info"]`` (with its ``episode``: r, l, t) hold
+    the finished episode, masked by ``infos["_final_obs"]`` / ``["_final_info"]``: in Gymnasium's own
+    layout when gymnasium is installed (an array [M, N * obs] and a dict of arrays, as its
+    SyncVectorEnv writes them), else object arrays with one entry per finished environment.
+    Episode statistics ``infos["episode"]`` {r, l, t} with ``infos["_episode"]`` come from
+    Gymnasium's ``RecordEpisodeStatistics`` wrapper, or from here with ``episode_statistics=True``.
+    ``infos`` also holds the VecEnv info arrays, ``action_mask`` [M, N, A] and ``state``."""
 
     metadata = {"autoreset_mode": _SAME_STEP, "render_modes": []}
     render_mode = None
 
-    def __init__(self, config=None, num_envs: int = 8, seed: int = 0, oracle: str = ""):
+    def __init__(self, config=None, num_envs: int = 8, seed: int = 0, oracle: str = "", episode_statistics: bool = False):
         import time
+        from ._check import as_bool
+        # Gymnasium's convention: episode statistics are its RecordEpisodeStatistics wrapper's to add
+        # (it refuses an "episode" key already there); True adds them here, for use without it.
+        self._episode_statistics = as_bool(episode_statistics, "episode_statistics")
         self.env = VecEnv(config, num_envs, seed, oracle)
         self.num_envs = self.env.num_envs
         spec, n = self.env.spec, self.env.num_agents
@@ -469,6 +539,9 @@ class GymVectorEnv:
     def reset(self, seed: Optional[int] = None, options: Optional[dict] = None):
         import time
         self._open("reset")
+        if seed is not None and _gym is not None:  # Gymnasium's np_random, as its vector envs seed it
+            from gymnasium.utils import seeding
+            self._np_random, self._np_random_seed = seeding.np_random(as_seed(seed, "seed"))
         o = self.env.reset(seed)
         self._return[:] = 0
         self._length[:] = 0
@@ -499,14 +572,19 @@ class GymVectorEnv:
         episode = {"r": np.where(done, self._return, 0.0).astype(np.float32),
                    "l": np.where(done, self._length, 0).astype(np.int32),
                    "t": np.where(done, now - self._start, 0.0).astype(np.float32)}
-        final_obs = np.empty(M, dtype=object)
-        final_info = np.empty(M, dtype=object)
-        for i in np.flatnonzero(done):
-            final_obs[i] = r.info["final_obs"][i].reshape(-1)
-            final_info[i] = {"episode": {"r": float(episode["r"][i]), "l": int(episode["l"][i]), "t": float(episode["t"][i])},
-                             **{k: v[i].item() for k, v in r.info.items() if v.ndim == 1}}
-        if done.any():
+        finished = {int(i): {"episode": {"r": float(episode["r"][i]), "l": int(episode["l"][i]), "t": float(episode["t"][i])},
+                             **{k: v[i].item() for k, v in r.info.items() if v.ndim == 1}} for i in np.flatnonzero(done)}
+        if done.any() and self._episode_statistics:
             infos["episode"], infos["_episode"] = episode, done.copy()
+        if done.any() and _gym is not None:
+            # Gymnasium's own layout of a same-step reset (as its SyncVectorEnv writes it):
+            # infos["final_obs"] [M, N * obs] and infos["final_info"] a dict of arrays, each with its mask.
+            for i, info in finished.items():
+                infos = self._add_info(infos, {"final_obs": r.info["final_obs"][i].reshape(-1), "final_info": info}, i)
+        elif done.any():  # without gymnasium: object arrays of the finished ones (CleanRL's gymnasium 0.29 reads)
+            final_obs, final_info = np.empty(M, dtype=object), np.empty(M, dtype=object)
+            for i, info in finished.items():
+                final_obs[i], final_info[i] = r.info["final_obs"][i].reshape(-1), info
             infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
             infos["final_info"], infos["_final_info"] = final_info, done.copy()
         self._return[done] = 0
@@ -514,7 +592,18 @@ class GymVectorEnv:
         self._start[done] = now
         return r.obs.reshape(M, -1), r.reward, r.terminated, r.truncated, infos
 
-    def close(self):
+    def close(self, **kwargs):
         if not self.closed:
             self.env.close()
         self.closed = True
+
+
+def _register_gymnasium():
+    """Registers GymEnv and GymVectorEnv under GYM_ID (once per process)."""
+    if _gym is None or GYM_ID in _gym.registry:
+        return
+    _gym.register(id=GYM_ID, entry_point="skyloop.adapters:GymEnv", vector_entry_point="skyloop.adapters:GymVectorEnv",
+                  nondeterministic=False)
+
+
+_register_gymnasium()

@@ -736,6 +736,7 @@ py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policie
 
 PYBIND11_MODULE(_skyloop, m) {
   m.doc() = "skyloop: joint beamforming and trajectory optimisation for multi-UAV downlink networks (C++ core)";
+  m.attr("__version__") = SKYLOOP_VERSION;  // the VERSION file, through CMake
   static py::exception<InputError> input_error(m, "InputError", PyExc_ValueError);
   py::register_exception_translator([](std::exception_ptr p) {
     try {

@@ -10,6 +10,15 @@ BIN = os.environ.get("SKYLOOP_BIN", os.path.join(SOURCE, "build", "skyloop"))
 sys.path.insert(0, os.path.join(SOURCE, "examples"))
 
 
+def pytest_terminal_summary(terminalreporter):
+    """One line when the real learning libraries are absent (their tests are then skipped)."""
+    import importlib.util
+    missing = [m for m in ("pettingzoo", "gymnasium") if importlib.util.find_spec(m) is None]
+    if missing:
+        terminalreporter.write_line(f"skipped: the tests against {' and '.join(missing)} (not installed: run "
+                                    f"scripts/install-python-env, which needs PyPI)")
+
+
 @pytest.fixture(scope="session")
 def skyloop_bin():
     if not os.path.exists(BIN):

@@ -235,7 +235,7 @@ def test_epymarl_parallel_runner_worker_protocol():
 # ---- Gymnasium vector API, as CleanRL's PPO reads it ------------------------------------------
 
 def test_gym_vector_env_as_cleanrl_reads_it():
-    envs = GymVectorEnv(CFG, num_envs=4, seed=2)
+    envs = GymVectorEnv(CFG, num_envs=4, seed=2, episode_statistics=True)
     spec = envs.env.spec
     assert envs.single_observation_space.shape == (3 * spec["obs"]["size"],)
     assert list(envs.single_action_space.nvec) == [spec["num_actions"]] * 3
@@ -250,12 +250,16 @@ def test_gym_vector_env_as_cleanrl_reads_it():
         ours += reward
         done = np.logical_or(terminations, truncations)
         assert envs.observation_space.contains(next_obs)
-        if "final_info" in infos:  # gymnasium 0.29 (CleanRL's ppo.py)
+        if "final_info" in infos and not isinstance(infos["final_info"], dict):  # without gymnasium (0.29's layout)
             for i, info in enumerate(infos["final_info"]):
                 if info and "episode" in info:
                     returns_v0.append(info["episode"]["r"])
                     assert abs(info["episode"]["r"] - ours[i]) < 1e-3 * max(1, abs(ours[i]))
                     assert infos["final_obs"][i].shape == next_obs[i].shape
+        if "final_info" in infos and isinstance(infos["final_info"], dict):  # gymnasium 1.x's layout
+            fin = infos["final_info"]
+            returns_v0 += list(fin["episode"]["r"][fin["_episode"]])
+            assert all(o.shape == next_obs[i].shape for i, o in enumerate(infos["final_obs"]) if infos["_final_obs"][i])
         if "episode" in infos:  # gymnasium 1.x (RecordEpisodeStatistics)
             returns_v1 += list(infos["episode"]["r"][infos["_episode"]])
         ours[done] = 0

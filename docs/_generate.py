@@ -106,17 +106,26 @@ def headers():
     return out
 
 
+def areas():
+    """The header directories under include/skyloop (one doxygen project each: a header's name is
+    unique within its area, which breathe's doxygenfile needs; beamforming/ and planning/ both
+    have a registry.hpp)."""
+    inc = os.path.join(ROOT, "include", "skyloop")
+    return sorted(d for d in os.listdir(inc) if os.path.isdir(os.path.join(inc, d)))
+
+
 def run_doxygen(build):
-    xml = os.path.join(build, "docs", "doxygen")
-    os.makedirs(xml, exist_ok=True)
-    conf = "\n".join([
-        "PROJECT_NAME = skyloop", f"OUTPUT_DIRECTORY = {xml}", f"INPUT = {os.path.join(ROOT, 'include')}",
-        "RECURSIVE = YES", "FILE_PATTERNS = *.hpp", "GENERATE_XML = YES", "GENERATE_HTML = NO", "GENERATE_LATEX = NO",
-        f"STRIP_FROM_PATH = {os.path.join(ROOT, 'include')}", f"STRIP_FROM_INC_PATH = {os.path.join(ROOT, 'include')}",
-        "EXTRACT_ALL = YES", "JAVADOC_AUTOBRIEF = YES", "QUIET = YES", "WARNINGS = NO", "WARN_IF_UNDOCUMENTED = NO",
-        "ENABLE_PREPROCESSING = YES", "MACRO_EXPANSION = YES", "PREDEFINED = SKYLOOP_HAS_TORCH=1",
-        "EXCLUDE_SYMBOLS = detail::* *::detail", ""])
-    subprocess.run(["doxygen", "-"], input=conf, text=True, check=True, capture_output=True)
+    for area in areas():
+        out = os.path.join(build, "docs", "doxygen", area)
+        os.makedirs(out, exist_ok=True)
+        src = os.path.join(ROOT, "include", "skyloop", area)
+        conf = "\n".join([
+            f"PROJECT_NAME = skyloop-{area}", f"OUTPUT_DIRECTORY = {out}", f"INPUT = {src}",
+            "FILE_PATTERNS = *.hpp", "GENERATE_XML = YES", "GENERATE_HTML = NO", "GENERATE_LATEX = NO",
+            f"STRIP_FROM_PATH = {os.path.join(ROOT, 'include')}", f"STRIP_FROM_INC_PATH = {os.path.join(ROOT, 'include')}",
+            "EXTRACT_ALL = YES", "JAVADOC_AUTOBRIEF = YES", "QUIET = YES", "WARNINGS = NO", "WARN_IF_UNDOCUMENTED = NO",
+            "ENABLE_PREPROCESSING = YES", "MACRO_EXPANSION = YES", "PREDEFINED = SKYLOOP_HAS_TORCH=1", ""])
+        subprocess.run(["doxygen", "-"], input=conf, text=True, check=True, capture_output=True)
 
 
 def cpp_page():
@@ -125,9 +134,12 @@ def cpp_page():
             "breathe from the headers' own comments. Link against the CMake targets (`skyloop_core`,",
             "`skyloop_env`, `skyloop_experiments`, ...) and include `skyloop/<area>/<header>.hpp`; the",
             "[extending pages](../extending/index.md) show each extension point at work.", ""]
-    for h in headers():
-        text += [f"## `skyloop/{h}`" if not h.startswith("skyloop/") else f"## `{h}`", "",
-                 "```{eval-rst}", f".. doxygenfile:: {h}", "   :project: skyloop", "```", ""]
+    for area in areas():
+        text += [f"## `skyloop/{area}`", ""]
+        for h in headers():
+            if h.startswith(f"skyloop/{area}/"):
+                text += [f"### `{h}`", "", "```{eval-rst}", f".. doxygenfile:: {os.path.basename(h)}",
+                         f"   :project: skyloop-{area}", "```", ""]
     return "\n".join(text)
 
 

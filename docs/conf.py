@@ -27,12 +27,19 @@ html_theme_options = {"description": "multi-UAV beamforming and trajectories", "
                       "page_width": "1100px", "sidebar_width": "240px"}
 html_sidebars = {"**": ["about.html", "navigation.html", "relations.html", "searchbox.html"]}
 autodoc_member_order = "bysource"
+autodoc_inherit_docstrings = False  # the adapters' methods keep their own words, not Gymnasium's
 autodoc_default_options = {"members": True, "undoc-members": False, "show-inheritance": False}
 
-# The public C++ headers (doxygen's XML, made by _generate.py under the build directory).
-breathe_projects = {"skyloop": os.path.join(BUILD, "docs", "doxygen", "xml")}
-breathe_default_project = "skyloop"
+# The public C++ headers: one doxygen project per directory of include/skyloop (its XML made by
+# _generate.py under the build directory).
+_areas = sorted(d for d in os.listdir(os.path.join(ROOT, "include", "skyloop")) if not d.startswith("."))
+breathe_projects = {f"skyloop-{a}": os.path.join(BUILD, "docs", "doxygen", a, "xml") for a in _areas}
+breathe_default_project = "skyloop-core"
 breathe_default_members = ("members",)
+# Each header's section opens `namespace skyloop`, which Sphinx's C++ domain counts as one more
+# declaration of the namespace per header; the C++ domain is used only by the generated header
+# pages, where nothing else is declared twice (one section per header).
+suppress_warnings = ["duplicate_declaration.cpp"]
 
 
 def _generate(app):

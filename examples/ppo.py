@@ -27,7 +27,7 @@ SMALL = {
     "trajectory": {"starts": [[0.0, 0.0], [120.0, 120.0]], "destinations": [[120.0, 40.0], [0.0, 80.0]], "t_max": 12},
     "env": {"oracle": "zf"},
     # The environment's action mask is then arrival-only, so the agent must learn to come home;
-    # with the default reachability mask every episode comes home by construction (README,
+    # with the default reachability mask every episode comes home by construction (docs/concepts/generalisation.md,
     # "Generalisation").
     "marl": {"action_mask": False},
 }

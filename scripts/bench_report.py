@@ -47,6 +47,9 @@ def page():
             "`bench/results/current.csv` by `scripts/bench_report.py`; `scripts/bench --record` refreshes the",
             "Google Benchmark rows on the machine it runs on. Earlier figures are in the file's git history.",
             "A row over fewer than three runs says so: it is due for re-measurement.", "",
+            "Figures that the concept pages cite from *the benchmark record*, with a section name in quotes,",
+            "come from the dated measurement log kept until 2026-12-01, which git holds:",
+            "`git show 1920028:BENCHMARKS.md`.", "",
             "Every machine here is a 2-core x86-64 VM (Debian bookworm, g++ 12 `-O3`, LibTorch 1.13 CPU",
             "with OpenBLAS); they differ in their CPU and its vector units, and drift 10-25% from hour to",
             "hour, so compare figures taken in one run (the ratios) before figures taken on different days.", ""]

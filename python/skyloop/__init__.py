@@ -1,7 +1,8 @@
 """skyloop from Python: the multi-UAV downlink model, every beamformer, the batched trajectory
 environment, the planners, and the adapters the field's learners expect.
 
-Shapes (numpy):
+Shapes (numpy)::
+
   G  complex128 [K_n, L]   a cluster's channel, row k = h_k^H (so (G W)[k, j] = h_k^H w_j)
   W  complex128 [L, K_n]   a beamformer, column k = w_k
   VecEnv: obs float32 [M, N, O], state float32 [M, S], agent_state float32 [M, N, A], action_mask

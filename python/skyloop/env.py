@@ -143,7 +143,7 @@ class VecEnv:
         (``turn.last``). In every pass after the first each agent also sees the agents after it
         at their moves of the pass before (their intentions), and itself where it is: the protocol
         ``skyloop train`` trains and flies with ``marl.sequential_passes``. A learner that trains as
-        it does keeps the last pass's rows and samples the earlier ones without training on them.
+        it does keeps the last pass's rows and samples the earlier ones without training on them::
 
             turn = env.begin_turns()
             while (turn.agent >= 0).any():

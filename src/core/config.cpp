@@ -150,7 +150,7 @@ std::vector<Field> make_fields() {
     std::vector<std::string> models, environments;
     for (const auto& m : kPathLossModels) models.emplace_back(m.name);
     for (const auto& e : kAlHouraniEnvironments) environments.emplace_back(e.name);
-    f.push_back(text("channel.pathloss", "air-to-ground path loss and LoS model (README, channel models)", models,
+    f.push_back(text("channel.pathloss", "air-to-ground path loss and LoS model (docs/concepts/channels.md)", models,
                      [](Config& c) -> std::string& { return c.channel.pathloss; }));
     f.push_back(text("channel.environment", "al-hourani's environment (its S-curve and excess losses)", environments,
                      [](Config& c) -> std::string& { return c.channel.environment; }));
@@ -230,7 +230,7 @@ std::vector<Field> make_fields() {
                       [](Config& c) -> std::uint64_t& { return c.trajectory.layout_seed; }));
   f.push_back(text("trajectory.mobility",
                    "grid: the paper's five moves of D_fly; headings: 8 headings x trajectory.speeds_mps on the D_fly lattice; "
-                   "continuous: a velocity in the disc of v_max_mps, its change bounded by a_max_mps2 (README, mobility models)",
+                   "continuous: a velocity in the disc of v_max_mps, its change bounded by a_max_mps2 (docs/concepts/mobility-energy.md)",
                    {"grid", "headings", "continuous"}, [](Config& c) -> std::string& { return c.trajectory.mobility; }));
   f.push_back(reals("trajectory.speeds_mps",
                     "headings: speeds along the axes (m/s; 0 = hover; diagonals fly sqrt(2) x), each x slot_s a multiple of D_fly",
@@ -428,7 +428,7 @@ std::vector<Field> make_fields() {
   f.push_back(text("env.objective",
                    "what a mission is scored by: sum-rate = P2.2's (1/T) sum R[t]; energy-efficiency = bits per joule (kbit/J); "
                    "weighted = R-bar - energy.weight x mean fleet propulsion power; energy = -kJ (the rate term off) "
-                   "(README, objectives)",
+                   "(docs/concepts/mobility-energy.md)",
                    {"sum-rate", "energy-efficiency", "weighted", "energy"}, [](Config& c) -> std::string& { return c.env.objective; }));
   f.push_back(real("env.w_fea", "weight of the reachability indicator Phi_n", 0, 1e6, [](Config& c) -> double& { return c.env.w_fea; }));
   {

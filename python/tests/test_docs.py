@@ -1,0 +1,139 @@
+"""The documentation cannot drift from the code:
+
+- every tutorial's code (and the first-five-minutes page's) runs as written, on the smaller
+  settings its page's header names (``test-substitutions``); a block shown for reading only is
+  marked ``<!-- no-test -->`` on the line before it;
+- the generated reference lists every configuration field (Config.keys(), the table itself) and
+  every command and option the CLI's sources define (apps/skyloop/*.cpp, read here independently
+  of the generator), so removing one from the generator fails here;
+- every relative link between pages resolves to a page that exists.
+
+The site itself is built with warnings as errors by scripts/docs (in CI), which also renders it
+in headless Chromium."""
+import os
+import pathlib
+import re
+import subprocess
+import sys
+
+import pytest
+
+import skyloop as sl
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+DOCS = ROOT / "docs"
+BIN = os.environ.get("SKYLOOP_BIN", str(ROOT / "build" / "skyloop"))
+BUILD = pathlib.Path(BIN).resolve().parent
+sys.path.insert(0, str(DOCS))
+sys.path.insert(0, str(ROOT / "scripts"))
+
+FENCE = re.compile(r"^```(python|sh)\n(.*?)^```", re.S | re.M)
+RUN_PAGES = sorted(DOCS.glob("tutorials/*.md")) + [DOCS / "getting-started" / "first-steps.md"]
+NEEDS = {"learning-libraries.md": ("pettingzoo", "gymnasium")}
+
+
+def substitutions(text):
+    """The page's header: `test-substitutions:` then one `"from": "to"` per line."""
+    if not text.startswith("---\n"):
+        return {}
+    header = text[4:text.index("\n---", 4)]
+    pairs = re.findall(r'^\s+"(.*?)":\s*"(.*?)"\s*$', header, re.M)
+    return dict(pairs)
+
+
+def runnable_blocks(text):
+    out = []
+    for m in FENCE.finditer(text):
+        before = text[:m.start()].rstrip().splitlines()
+        if before and before[-1].strip() == "<!-- no-test -->":
+            continue
+        out.append((m.group(1), m.group(2)))
+    return out
+
+
+@pytest.mark.parametrize("page", RUN_PAGES, ids=lambda p: str(p.relative_to(DOCS)))
+def test_tutorial_code_runs_as_written(page, tmp_path, monkeypatch):
+    for module in NEEDS.get(page.name, ()):
+        pytest.importorskip(module, reason=f"{module} is not installed (scripts/install-python-env)")
+    if not os.path.exists(BIN):
+        pytest.skip(f"no skyloop binary at {BIN}")
+    text = page.read_text()
+    subs = substitutions(text)
+    blocks = runnable_blocks(text)
+    assert blocks, f"{page.name}: no runnable block"
+    for name in ("configs", "models", "examples"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    monkeypatch.chdir(tmp_path)
+    env = dict(os.environ, PATH=f"{BUILD}{os.pathsep}{os.environ.get('PATH', '')}")
+    namespace = {"__name__": "__tutorial__"}
+    used = set()
+    for lang, code in blocks:
+        for a, b in subs.items():
+            if a in code:
+                used.add(a)
+                code = code.replace(a, b)
+        if lang == "python":
+            exec(compile(code, f"{page.name}:python", "exec"), namespace)
+        else:
+            r = subprocess.run(["bash", "-euo", "pipefail", "-c", code], cwd=tmp_path, env=env, capture_output=True,
+                               text=True, timeout=600)
+            assert r.returncode == 0, f"{page.name}: a block failed:\n{code}\n--- stderr:\n{r.stderr[-3000:]}"
+    assert used == set(subs), f"{page.name}: substitutions that match no block: {sorted(set(subs) - used)}"
+
+
+def test_config_reference_lists_every_field():
+    import _generate
+    page = _generate.config_page(str(BUILD))
+    missing = [k for k in sl.Config.keys() if f"| `{k}` |" not in page]
+    assert not missing, f"the configuration reference lacks {missing}"
+
+
+def _cli_names():
+    """(subcommands, options) as the CLI's sources define them."""
+    src = "\n".join(p.read_text() for p in (ROOT / "apps" / "skyloop").glob("*.cpp"))
+    return (set(re.findall(r'add_subcommand\("([^"]+)"', src)),
+            set(re.findall(r'add_(?:option|flag)\("(--[a-z][a-z0-9-]*)', src)))
+
+
+def test_cli_reference_lists_every_command_and_option():
+    import _generate
+    page = _generate.cli_page(str(BUILD))
+    commands, options = _cli_names()
+    assert {"beamform", "train", "reproduce", "fields"} <= commands and "--set" in options  # the parse found them
+    headings = set(re.findall(r"^## `skyloop(?: ([a-z ]+))?`$", page, re.M))
+    last = {h.split()[-1] for h in headings if h}
+    assert not commands - last, f"the CLI reference lacks the commands {sorted(commands - last)}"
+    missing = sorted(o for o in options if not re.search(re.escape(o) + r"\b", page))
+    assert not missing, f"the CLI reference lacks the options {missing}"
+
+
+def test_every_relative_link_between_pages_resolves():
+    import _generate
+    _generate.main(str(BUILD)) if not (DOCS / "reference" / "cli.md").exists() else None
+    link = re.compile(r"\]\(([^)#\s]+\.md)(#[^)]*)?\)")
+    broken = []
+    for page in DOCS.rglob("*.md"):
+        for target, _ in link.findall(page.read_text()):
+            if "://" not in target and not (page.parent / target).resolve().exists():
+                broken.append(f"{page.relative_to(DOCS)} -> {target}")
+    assert not broken, f"links to no page: {broken}"
+
+
+def test_benchmark_page_is_made_from_its_data():
+    import bench_report
+    rows = bench_report.rows()
+    page = bench_report.page()
+    assert rows and all(f"## {r['area']}" in page and r["quantity"] in page for r in rows)
+    assert all(r["date"] and r["machine"] and r["command"] and int(r["runs"]) >= 1 for r in rows)
+
+
+def test_one_version_everywhere():
+    """VERSION is the one version: the module (through CMake), the CLI, CITATION.cff and the
+    changelog's latest release say the same."""
+    version = (ROOT / "VERSION").read_text().strip()
+    assert sl.__version__ == version
+    out = subprocess.run([BIN, "--version"], capture_output=True, text=True).stdout
+    assert out.startswith(f"skyloop {version} "), out
+    assert re.search(rf"^version: {re.escape(version)}$", (ROOT / "CITATION.cff").read_text(), re.M)
+    releases = re.findall(r"^## \[(\d+\.\d+\.\d+)\]", (ROOT / "CHANGELOG.md").read_text(), re.M)
+    assert releases and releases[0] == version

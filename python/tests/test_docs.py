@@ -28,7 +28,7 @@ sys.path.insert(0, str(DOCS))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 FENCE = re.compile(r"^```(python|sh)\n(.*?)^```", re.S | re.M)
-RUN_PAGES = sorted(DOCS.glob("tutorials/*.md")) + [DOCS / "getting-started" / "first-steps.md"]
+RUN_PAGES = sorted(p for p in DOCS.glob("tutorials/*.md") if p.name != "index.md") + [DOCS / "getting-started" / "first-steps.md"]
 NEEDS = {"learning-libraries.md": ("pettingzoo", "gymnasium")}
 
 

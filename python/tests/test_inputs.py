@@ -251,3 +251,16 @@ def test_a_fleet_home_over_its_budget_terminates_and_is_not_truncated():
     assert int(r.info["T"][0]) == 17
     assert bool(r.terminated[0]) and not bool(r.truncated[0])
     assert not bool(r.info["success"][0])
+
+
+def test_a_shipped_model_is_found_from_any_directory(tmp_path, monkeypatch):
+    """`gnn=models/gnn_structured` (the spec the docs use) names the shipped model when no such
+    path exists where the user stands; a path that is neither still fails in one line."""
+    monkeypatch.chdir(tmp_path)
+    cfg = sl.config()
+    snap = sl.SystemModel(cfg).random_snapshot(3, 12, seed=1)
+    shipped = sl.beamformer("gnn=models/gnn_structured", cfg)
+    c = sl.SystemModel(cfg).clusters(snap)[0]
+    assert sl.sum_rate(c, shipped.design(c)) > 0
+    with pytest.raises(sl.InputError, match="models/no_such_model"):
+        sl.beamformer("gnn=models/no_such_model", cfg)

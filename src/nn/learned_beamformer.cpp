@@ -268,6 +268,11 @@ void register_learned_beamformers(BeamformerRegistry& reg, const std::string& mo
               namespace fs = std::filesystem;
               const std::string root = models_dir.empty() ? (fs::path(data_dir()) / "models").string() : models_dir;
               std::string path = arg.empty() ? (fs::path(root) / n / "model.pt").string() : arg;
+              // A relative path that is not there from here, but is one of the shipped files
+              // ("models/gnn_structured"), names the shipped one: the docs' specs then work from
+              // any directory, and from an installed package.
+              if (!arg.empty() && fs::path(arg).is_relative() && !fs::exists(arg) && fs::exists(fs::path(data_dir()) / arg))
+                path = (fs::path(data_dir()) / arg).string();
               Config serving = cfg;
               if (fs::is_directory(path)) {  // named by its directory: served as the directory says
                 serving = served_as_its_directory_says(cfg, path);

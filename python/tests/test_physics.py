@@ -155,7 +155,11 @@ def test_installed_package_finds_its_own_models(tmp_path, source_dir):
     env = dict(os.environ, DESTDIR=str(tmp_path))
     r = subprocess.run(["cmake", "--install", build, "--component", "python"], capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
-    site = subprocess.run([sys.executable, "-c", "import sysconfig; print(sysconfig.get_path('platlib'))"],
+    # The install goes to the site directory of the interpreter the module was built for (the
+    # tests may run under another: the project's .venv).
+    cache = open(os.path.join(build, "CMakeCache.txt")).read()
+    built_for = next((ln.split("=", 1)[1] for ln in cache.splitlines() if ln.startswith("SKYLOOP_PYTHON_EXECUTABLE:")), sys.executable)
+    site = subprocess.run([built_for, "-c", "import sysconfig; print(sysconfig.get_path('platlib'))"],
                           capture_output=True, text=True).stdout.strip()
     staged = str(tmp_path) + site
     assert os.path.exists(os.path.join(staged, "skyloop", "data", "models", "gnn", "model.pt"))

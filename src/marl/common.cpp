@@ -203,11 +203,20 @@ nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int s
   learned.load(last, true);
   if (std::filesystem::exists(dir / "metrics.csv")) {
     metrics = read_file((dir / "metrics.csv").string());
-    // Written with last.pt at every checkpoint: its last row is last.pt's step count, unless the
-    // file was cut or edited since (a resumed run would append to a broken log).
+    // Written just before last.pt at every checkpoint (checkpoint()): its rows run to last.pt's
+    // step count, or one checkpoint beyond it when the run stopped between the two files; those
+    // rows are of updates the resumed run does again, and are dropped. A log that ends before
+    // last.pt, or mid-row, was cut or edited since (a resumed run would append to a broken log).
     const auto table = CsvTable::parse(metrics, (dir / "metrics.csv").string());
     const bool whole = metrics.empty() || metrics.back() == '\n';
-    const std::int64_t logged = table.size() ? static_cast<std::int64_t>(table.number(table.size() - 1, "env_steps")) : 0;
+    std::size_t keep = 0;  // the rows up to last.pt's step count
+    while (keep < table.size() && static_cast<std::int64_t>(table.number(keep, "env_steps")) <= done) ++keep;
+    const std::int64_t logged = keep ? static_cast<std::int64_t>(table.number(keep - 1, "env_steps")) : 0;
+    if (whole && logged == done && keep < table.size()) {
+      std::size_t end = 0;  // the header line and `keep` rows
+      for (std::size_t line = 0; line <= keep; ++line) end = metrics.find('\n', end) + 1;
+      metrics.resize(end);
+    }
     if (!whole || logged != done)
       throw InputError("--resume: '" + (dir / "metrics.csv").string() + "' ends at " + std::to_string(logged) +
                        " environment steps but '" + last + "' at " + std::to_string(done) +
@@ -236,8 +245,10 @@ void Run::restore_validation(const Config& cfg, std::int64_t steps) {
 }
 
 void Run::checkpoint(const nlohmann::json& meta, Learned& learned, const std::string& metrics) const {
-  learned.save(last, meta, true);
+  // The log first: a run stopped between the two files leaves the log one checkpoint ahead of
+  // last.pt, which resume() cuts back, never behind it (a log that cannot be continued).
   write_file_atomic((dir / "metrics.csv").string(), metrics);
+  learned.save(last, meta, true);
 }
 
 void Run::validate(const Config& cfg, const MarlTrainOptions& opt, const nlohmann::json& meta, Learned& learned, std::int64_t steps) {

@@ -444,6 +444,43 @@ TEST(Probe, ResumeRefusesABrokenLogAndABudgetAlreadySpent) {
   EXPECT_EQ(slurp(out / "config.toml"), config);
 }
 
+// A run stopped after a checkpoint's log was written and before its last.pt (the two files are
+// written one after the other): the log is one checkpoint ahead, and --resume cuts it back to
+// last.pt and goes on, leaving one row per update, each step count once.
+TEST(Probe, AStopBetweenTheLogAndTheCheckpointResumes) {
+  const fs::path out = tmpdir("resume_between") / "run";
+  const std::string args = " --algo mappo --set env.oracle=zf --set marl.envs=2 --set marl.rollout=64 --set run.threads=1 --out " +
+                           out.string();
+  ASSERT_EQ(run("train --steps 1024" + args).code, 0);
+  const std::string earlier = slurp(out / "last.pt");
+  ASSERT_EQ(run("train --resume --steps 2048" + args).code, 0);
+  spit(out / "last.pt", earlier);  // the state a stop between metrics.csv and last.pt leaves
+  const auto r = run("train --resume --steps 3072" + args);
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::istringstream log(slurp(out / "metrics.csv"));
+  std::string line;
+  std::getline(log, line);
+  const auto col = [&] {
+    std::istringstream h(line);
+    std::string name;
+    int i = 0;
+    while (std::getline(h, name, ',') && name != "env_steps") ++i;
+    return i;
+  }();
+  long long previous = -1;
+  int rows = 0;
+  while (std::getline(log, line)) {
+    std::istringstream row(line);
+    std::string cell;
+    for (int i = 0; i <= col; ++i) std::getline(row, cell, ',');
+    const long long steps = std::stoll(cell);
+    EXPECT_GT(steps, previous) << "step count " << steps << " logged twice or out of order";
+    previous = steps, ++rows;
+  }
+  EXPECT_EQ(previous, 3072);
+  EXPECT_EQ(rows, 3072 / 128);  // one row per update of 2 x 64 steps
+}
+
 // `config show` says its output is a valid config file: it is, whatever the strings hold.
 TEST(Probe, ConfigShowAlwaysReloads) {
   const fs::path d = tmpdir("show");

@@ -15,6 +15,7 @@ import datetime
 import io
 import os
 import platform
+import re
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -95,9 +96,13 @@ def record(reps):
         body = text[text.index("name,"):] if "name," in text else text  # Google Benchmark's context lines come first
         for b in csv.DictReader(io.StringIO(body)):
             if b["name"] == name + "_median":
-                seconds = float(b["real_time"]) * _SCALE[b["time_unit"]]
-                r["value"] = f"{seconds / _SCALE[r['unit']]:.4g}"
+                if r["unit"].endswith("/s"):  # a rate: the benchmark's items per second
+                    r["value"] = f"{float(b['items_per_second']):.5g}"
+                else:
+                    seconds = float(b["real_time"]) * _SCALE[b["time_unit"]]
+                    r["value"] = f"{seconds / _SCALE[r['unit']]:.4g}"
                 r["date"], r["machine"], r["runs"] = today, machine, str(reps)
+                r["command"] = re.sub(r"^REPS=\d+ ", f"REPS={reps} ", r["command"])
                 r["statistic"] = "median of repetition means"
                 changed += 1
     with open(CURRENT + ".tmp", "w", newline="") as f:

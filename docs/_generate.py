@@ -7,6 +7,7 @@
 - reference/cpp.md: one section per public header under include/skyloop (breathe, over the XML
   that doxygen writes here into <build>/docs/doxygen);
 - benchmarks/index.md: today's figure per area, from bench/results/*.csv (scripts/bench-report).
+- benchmarks/leaderboard.md (and its profile plots): the benchmark's baselines, from bench/leaderboard/ (scripts/bench_leaderboard.py).
 
 Run by docs/conf.py when Sphinx starts; `python3 docs/_generate.py [build dir]` runs it alone.
 The generated files are not committed (.gitignore); python/tests/test_docs.py checks that every
@@ -19,7 +20,7 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-GENERATED = ["reference/config.md", "reference/cli.md", "reference/cpp.md", "benchmarks/index.md"]
+GENERATED = ["reference/config.md", "reference/cli.md", "reference/cpp.md", "benchmarks/index.md", "benchmarks/leaderboard.md"]
 
 
 def _bin(build):
@@ -152,6 +153,8 @@ def main(build=None):
     sys.path.insert(0, os.path.join(ROOT, "scripts"))
     import bench_report
     _write("benchmarks/index.md", bench_report.page())
+    import bench_leaderboard
+    _write("benchmarks/leaderboard.md", bench_leaderboard.page(plots=os.path.join(ROOT, "docs", "benchmarks", "leaderboard")))
 
 
 if __name__ == "__main__":

@@ -51,5 +51,6 @@ void add_config_command(CLI::App& app, Action& action);
 void add_plan_command(CLI::App& app, Action& action);
 void add_marl_commands(CLI::App& app, Action& action);
 void add_reproduce_command(CLI::App& app, Action& action);
+void add_bench_command(CLI::App& app, Action& action);
 
 }  // namespace skyloop::cli

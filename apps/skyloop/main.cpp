@@ -111,6 +111,7 @@ int main(int argc, char** argv) {
 #ifdef SKYLOOP_HAS_TORCH
   cli::add_marl_commands(app, action);
   cli::add_reproduce_command(app, action);
+  cli::add_bench_command(app, action);
 #endif
   cli::refuse_empty_values(&app);
 #ifdef SKYLOOP_FRONT_END

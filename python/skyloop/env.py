@@ -44,7 +44,7 @@ class StepResult(NamedTuple):
     reward: np.ndarray       # float32 [M]: the team reward r[t] (eq:total_reward)
     terminated: np.ndarray   # bool [M]: every UAV home (episode over)
     truncated: np.ndarray    # bool [M]: T_max reached before every UAV was home
-    info: dict               # arrays [M]: sum_rate, objective, collisions, boundary, arrivals, home, T, success, episode_reward; final_obs, final_state
+    info: dict               # arrays [M]: sum_rate, objective, collisions, boundary, arrivals, home, T, success, episode_reward, episode_collisions, episode_boundary, energy; final_obs, final_state
 
 
 class Turn(NamedTuple):
@@ -67,9 +67,23 @@ class VecEnv:
     Threads: the calls of one VecEnv from several Python threads are serialised (a lock taken with
     the GIL released), so sharing one is safe but not parallel; use one VecEnv per thread for that."""
 
-    def __init__(self, config=None, num_envs: int = 1, seed: int = 0, oracle: str = ""):
-        from . import _as_config, _as_int, _as_seed, _as_str
-        self._args = (_as_int(num_envs, "num_envs", 1, 65536), _as_seed(seed, "seed"), _as_str(oracle, "oracle"))
+    def __init__(self, config=None, num_envs: int = 1, seed: int = 0, oracle: str = "", layouts=None):
+        """``layouts``: one users seed per environment (skyloop/env/layouts.hpp; e.g. a benchmark
+        task's test layouts): environment i flies layout ``layouts[i]`` in every episode, and
+        ``num_envs`` is their count."""
+        from . import InputError, _as_config, _as_int, _as_seed, _as_str
+        if layouts is None:
+            seeds = []
+        else:
+            if isinstance(layouts, (str, bytes)) or not hasattr(layouts, "__len__"):
+                raise InputError(f"layouts = {layouts!r} has the wrong type: allowed a list of users seeds")
+            seeds = [_as_int(x, f"layouts[{i}]", 0, 3 * 2**62 - 1) for i, x in enumerate(layouts)]
+            if not seeds:
+                raise InputError("layouts is empty: allowed at least one users seed")
+            if num_envs not in (1, len(seeds)):
+                raise InputError(f"num_envs = {num_envs!r} with {len(seeds)} layouts: allowed one environment per layout")
+            num_envs = len(seeds)
+        self._args = (_as_int(num_envs, "num_envs", 1, 65536), _as_seed(seed, "seed"), _as_str(oracle, "oracle"), seeds)
         self._env = _skyloop.VecEnv(_as_config(config), *self._args)
         self.spec = self._env.spec
         self.num_envs = self._env.num_envs
@@ -84,7 +98,7 @@ class VecEnv:
     def __reduce__(self):
         # Pickled as its arguments: it unpickles as a VecEnv made afresh with the same
         # configuration, size, seed and oracle, at the start of its first episode.
-        return (VecEnv, (self.config, *self._args))
+        return (VecEnv, (self.config, *self._args[:3], self._args[3] or None))
 
     def close(self):
         """Releases the environments; any later call raises InputError. Closing twice is allowed."""

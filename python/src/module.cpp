@@ -27,6 +27,7 @@
 #include "skyloop/planning/planners.hpp"
 #include "skyloop/planning/safety.hpp"
 #ifdef SKYLOOP_HAS_TORCH
+#include "skyloop/experiments/bench.hpp"
 #include "skyloop/experiments/layout_eval.hpp"
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/nn/learned.hpp"
@@ -122,8 +123,11 @@ py::dict env_spec_dict(const EnvSpec& e) {
 /// with the GIL released): a VecEnv is safe to share, not parallel.
 class PyVecEnv {
  public:
-  PyVecEnv(const Config& cfg, int num_envs, std::uint64_t seed, const std::string& oracle)
-      : cfg_(cfg), num_envs_(num_envs) {
+  PyVecEnv(const Config& cfg, int num_envs, std::uint64_t seed, const std::string& oracle, std::vector<std::uint64_t> layouts)
+      : cfg_(cfg), num_envs_(num_envs), layouts_(std::move(layouts)) {
+    if (!layouts_.empty() && static_cast<int>(layouts_.size()) != num_envs)
+      throw InputError("layouts has " + std::to_string(layouts_.size()) + " seeds for num_envs = " + std::to_string(num_envs) +
+                       ": allowed one layout per environment");
     if (num_envs < 1 || num_envs > kMaxEnvs)
       throw InputError("num_envs = " + std::to_string(num_envs) + " is out of range: allowed an integer in [1, " +
                        std::to_string(kMaxEnvs) + "]");
@@ -144,7 +148,7 @@ class PyVecEnv {
       py::gil_scoped_release nogil;
       std::lock_guard<std::mutex> lock(mutex_);
       turns_.clear();  // turns in progress refer to the environments: dropped before they go
-      if (seed) vec_ = std::make_unique<VecEnv>(cfg_, bf_, num_envs_, *seed);
+      if (seed) vec_ = make_vec(*seed);
       else vec_->reset();
       fill(out);
     }
@@ -244,6 +248,7 @@ class PyVecEnv {
     auto home = Array<std::int32_t>({M}), T = Array<std::int32_t>({M});
     auto success = py::array_t<bool>({M});
     auto episode_reward = Array<double>({M});
+    auto episode_collisions = Array<std::int32_t>({M}), episode_boundary = Array<std::int32_t>({M});
     auto energy = Array<double>({M}), episode_energy = Array<double>({M}), bits_per_joule = Array<double>({M});
     auto sum_rate_objective = Array<double>({M});
     for (int i = 0; i < M; ++i) {
@@ -266,6 +271,8 @@ class PyVecEnv {
       T.mutable_at(i) = s.T;
       success.mutable_at(i) = s.success;
       episode_reward.mutable_at(i) = s.episode_reward;
+      episode_collisions.mutable_at(i) = s.episode_collisions;
+      episode_boundary.mutable_at(i) = s.episode_boundary;
     }
     d["reward"] = reward;
     d["terminated"] = terminated;
@@ -280,6 +287,8 @@ class PyVecEnv {
     inf["T"] = T;
     inf["success"] = success;
     inf["episode_reward"] = episode_reward;
+    inf["episode_collisions"] = episode_collisions;  // so far in the episode (final values where it ends)
+    inf["episode_boundary"] = episode_boundary;
     inf["energy_j"] = energy;                  // the fleet's propulsion energy in this step (J)
     inf["episode_energy_j"] = episode_energy;  // so far in the episode
     inf["bits_per_joule"] = bits_per_joule;
@@ -537,8 +546,13 @@ class PyVecEnv {
   void build(std::uint64_t seed) {
     py::gil_scoped_release nogil;
     std::lock_guard<std::mutex> lock(mutex_);
-    vec_ = std::make_unique<VecEnv>(cfg_, bf_, num_envs_, seed);
+    vec_ = make_vec(seed);
     spec_ = std::make_shared<const EnvSpec>(vec_->env(0).spec());
+  }
+  /// The environments: seeded users (or training layouts), or one fixed layout each.
+  std::unique_ptr<VecEnv> make_vec(std::uint64_t seed) const {
+    if (!layouts_.empty()) return std::make_unique<VecEnv>(cfg_, bf_, layouts_);
+    return std::make_unique<VecEnv>(cfg_, bf_, num_envs_, seed);
   }
 
   /// The arrays of one observation, allocated with the GIL held, filled without it.
@@ -608,6 +622,7 @@ class PyVecEnv {
 
   Config cfg_;
   int num_envs_;
+  std::vector<std::uint64_t> layouts_;    // one users seed per environment, or empty
   std::shared_ptr<const Beamformer> bf_;
   std::unique_ptr<VecEnv> vec_;
   std::shared_ptr<const EnvSpec> spec_;
@@ -729,6 +744,59 @@ py::dict evaluate_layouts_py(const Config& cfg, std::vector<std::string> policie
   out["rows"] = rl;
   out["summary"] = sl;
   return out;
+}
+
+// ---- the benchmark (skyloop/experiments/bench.hpp) ------------------------------------------
+
+py::dict bench_row_dict(const BenchRow& r) {
+  py::dict d;
+  d["task"] = r.task, d["version"] = r.version, d["policy"] = r.policy, d["seed"] = r.seed, d["layout"] = r.layout;
+  d["users_seed"] = r.users_seed, d["users"] = r.users, d["objective"] = r.objective, d["reference"] = r.reference;
+  d["reference_objective"] = r.reference_objective, d["fraction"] = r.fraction, d["complete"] = r.complete;
+  d["home"] = r.home, d["collisions"] = r.collisions, d["boundary_events"] = r.boundary, d["energy_j"] = r.energy_j;
+  d["protocol"] = r.protocol;
+  return d;
+}
+
+BenchRow bench_row_of(const py::dict& d) {
+  BenchRow r;
+  r.task = d["task"].cast<std::string>(), r.version = d["version"].cast<int>(), r.policy = d["policy"].cast<std::string>();
+  r.seed = d["seed"].cast<std::uint64_t>(), r.layout = d["layout"].cast<std::uint64_t>();
+  r.users_seed = d["users_seed"].cast<std::uint64_t>(), r.users = d["users"].cast<int>();
+  r.objective = d["objective"].cast<double>(), r.reference = d["reference"].cast<std::string>();
+  r.reference_objective = d["reference_objective"].cast<double>(), r.fraction = d["fraction"].cast<double>();
+  r.complete = d["complete"].cast<bool>(), r.home = d["home"].cast<int>(), r.collisions = d["collisions"].cast<int>();
+  r.boundary = d["boundary_events"].cast<int>(), r.energy_j = d["energy_j"].cast<double>();
+  r.protocol = d["protocol"].cast<std::string>();
+  return r;
+}
+
+py::dict bench_task_dict(const BenchTask& t) {
+  py::dict d;
+  d["id"] = t.id, d["name"] = t.name, d["version"] = t.version, d["title"] = t.title, d["dir"] = t.dir;
+  d["reference_note"] = t.reference_note, d["reference_rtol"] = t.reference_rtol;
+  d["fingerprint"] = t.fingerprint, d["reference_checksum"] = t.reference_checksum;
+  d["config"] = t.config;
+  py::dict p;
+  p["budget_steps"] = t.protocol.budget_steps, p["seeds"] = t.protocol.seeds, p["train_split"] = t.protocol.train_split;
+  d["protocol"] = p;
+  py::list refs;
+  for (const auto& r : t.references) {
+    py::dict x;
+    x["layout"] = r.layout, x["users_seed"] = r.users_seed, x["users"] = r.users, x["reference"] = r.reference;
+    x["objective"] = r.objective;
+    refs.append(x);
+  }
+  d["references"] = refs;
+  return d;
+}
+
+py::dict bench_summary_dict(const BenchSummary& x) {
+  py::dict d;
+  d["task"] = x.task, d["version"] = x.version, d["policy"] = x.policy, d["seeds"] = x.seeds, d["layouts"] = x.layouts;
+  d["reference"] = x.reference, d["mean"] = x.mean, d["iqm"] = x.iqm, d["iqm_ci_low"] = x.iqm_low, d["iqm_ci_high"] = x.iqm_high;
+  d["p5"] = x.p5, d["complete_rate"] = x.complete_rate, d["protocol"] = x.protocol;
+  return d;
 }
 #endif
 
@@ -901,8 +969,8 @@ PYBIND11_MODULE(_skyloop, m) {
         "per cluster, per user: received signal, intra- and inter-cluster interference and noise (W), and the SINR");
 
   py::class_<PyVecEnv>(m, "VecEnv")
-      .def(py::init<const Config&, int, std::uint64_t, const std::string&>(), py::arg("config"), py::arg("num_envs"),
-           py::arg("seed"), py::arg("oracle") = "")
+      .def(py::init<const Config&, int, std::uint64_t, const std::string&, std::vector<std::uint64_t>>(), py::arg("config"),
+           py::arg("num_envs"), py::arg("seed"), py::arg("oracle") = "", py::arg("layouts") = std::vector<std::uint64_t>{})
       .def_property_readonly("num_envs", &PyVecEnv::num_envs)
       .def_property_readonly("agents", &PyVecEnv::agents)
       .def_property_readonly("spec", &PyVecEnv::spec_dict, "every array's layout: fields, offsets, sizes, bounds")
@@ -933,17 +1001,52 @@ PYBIND11_MODULE(_skyloop, m) {
           return cfg;
         }, py::arg("text"), "a configuration from its TOML text (Config.toml()); how a Config unpickles");
 #ifdef SKYLOOP_HAS_TORCH
-  m.def("policy_config", [](const std::string& path) {
-          // The configuration stored inside policy.pt, as `skyloop eval --policy` reads it.
-          const auto policy = MarlPolicy::load(path);
-          Config cfg;
-          apply_toml(cfg, policy->config_toml(), path + " (training config)");
-          finalise(cfg);
-          return cfg;
-        }, py::arg("path"), "the training configuration a policy (a run directory or its policy.pt) holds");
+  m.def("policy_config", &policy_config, py::arg("path"), "the training configuration a policy (a run directory or its policy.pt) holds");
   m.def("evaluate_layouts", &evaluate_layouts_py, py::arg("config"), py::arg("policies"), py::arg("planners"),
         py::arg("layouts"), py::arg("split"), py::arg("first"), py::arg("unsafe"), py::arg("rollout"), py::arg("cache"),
         py::arg("threads"));
+#endif
+#ifdef SKYLOOP_HAS_TORCH
+  m.def("bench_tasks", &bench_task_ids, "every benchmark task's id");
+  m.def("bench_task", [](const std::string& id) { return bench_task_dict(load_bench_task(id)); }, py::arg("task"));
+  m.def("bench_run", [](const std::string& id, std::vector<std::string> planners, std::vector<std::string> policies,
+                        std::vector<std::uint64_t> seeds, const std::string& label, int threads) {
+          const auto t = load_bench_task(id);
+          BenchRunOptions o;
+          o.planners = std::move(planners), o.policies = std::move(policies), o.seeds = std::move(seeds);
+          o.policy_label = label, o.threads = threads;
+          std::vector<BenchRow> rows;
+          {
+            py::gil_scoped_release nogil;
+            rows = run_bench(t, o, nullptr);
+          }
+          py::list out;
+          for (const auto& r : rows) out.append(bench_row_dict(r));
+          return out;
+        }, py::arg("task"), py::arg("planners"), py::arg("policies"), py::arg("seeds"), py::arg("label"), py::arg("threads"));
+  m.def("bench_outputs", [](const std::string& id, const py::list& rows_in) {
+          const auto t = load_bench_task(id);
+          std::vector<BenchRow> rows;
+          for (const auto& r : rows_in) rows.push_back(bench_row_of(r.cast<py::dict>()));
+          py::list sum;
+          for (const auto& x : summarise_bench(t, rows)) sum.append(bench_summary_dict(x));
+          py::dict files;
+          files["rows.csv"] = bench_rows_csv(rows);
+          files["summary.csv"] = bench_summary_csv(summarise_bench(t, rows));
+          files["profile.csv"] = bench_profile_csv(rows);
+          files["marl_eval.json"] = bench_marl_eval_json(t, rows);
+          files["config.toml"] = to_toml(t.config);
+          py::dict out;
+          out["summary"] = sum;
+          out["files"] = files;
+          return out;
+        }, py::arg("task"), py::arg("rows"), "the summary (mean, IQM and its 95% stratified bootstrap interval, p5, completion) and the output files");
+  m.def("interquartile_mean", &interquartile_mean, py::arg("scores"));
+  m.def("iqm_interval", [](const std::vector<std::vector<double>>& runs_by_layout, int reps, std::uint64_t seed) {
+          double lo = 0, hi = 0;
+          iqm_interval(runs_by_layout, reps, seed, lo, hi);
+          return py::make_tuple(lo, hi);
+        }, py::arg("runs_by_layout"), py::arg("reps"), py::arg("seed"));
 #endif
   m.def("plan", &plan, py::arg("config"), py::arg("planner"), py::arg("users_seed") = 3, py::arg("users") = py::none(),
         py::arg("planner_seed") = py::none());

@@ -873,9 +873,24 @@ VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, 
     envs_.push_back(std::make_unique<UavEnv>(*like_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(static_cast<std::size_t>(i), 0))));
 }
 
-bool VecEnv::sampling() const { return !shared_ && cfg_.env.resample_users && cfg_.env.users_file.empty(); }
+VecEnv::VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, const std::vector<std::uint64_t>& layouts)
+    : cfg_(cfg), beamformer_(std::move(beamformer)), seed_(0), episodes_(layouts.size(), 0), settled_(layouts.size(), 0),
+      cost_(layouts.size(), -1.0), prepared_(layouts.size()), layouts_(layouts) {
+  if (layouts.empty()) throw std::invalid_argument("VecEnv: no layouts, allowed at least 1");
+  for (const auto s : layouts) layout_split(s);  // a layout's seed (InputError otherwise)
+  UavEnv::require_table_memory(cfg_, static_cast<int>(layouts.size()));
+  like_ = std::make_unique<const UavEnv>(cfg_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(0, 0)));
+  envs_.push_back(std::make_unique<UavEnv>(*like_));
+  for (std::size_t i = 1; i < layouts.size(); ++i)
+    envs_.push_back(std::make_unique<UavEnv>(*like_, std::make_shared<RateOracle>(cfg_, beamformer_, users_of(i, 0))));
+}
+
+bool VecEnv::sampling() const {
+  return !shared_ && layouts_.empty() && cfg_.env.resample_users && cfg_.env.users_file.empty();
+}
 
 Positions VecEnv::users_of(std::size_t i, std::uint64_t episode) const {
+  if (!layouts_.empty()) return layout_users(cfg_, layouts_[i]);
   if (sampling()) return layout_users(cfg_, training_layout_seed(seed_, i, episode));
   return make_users(cfg_, cfg_.scenario.users, derive_seed(seed_, static_cast<std::uint64_t>(i)));
 }

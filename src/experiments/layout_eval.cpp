@@ -166,7 +166,9 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
   for (const auto& p : opt.planners)
     if (p != "optimal" && p != "bestknown") names.push_back(p);
   if (opt.rollout && !opt.policies.empty()) check_rollout_settings(cfg);
-  const std::size_t per_layout = names.size() + labels.size() * (1 + (opt.unsafe ? 1 : 0) + (opt.rollout ? 1 : 0)) + 1;
+  const std::size_t per_layout =
+      names.size() + labels.size() * (1 + (opt.unsafe ? 1 : 0) + (opt.rollout ? 1 : 0)) + (opt.solve_reference ? 1 : 0);
+  if (per_layout == 0) throw InputError("nothing to evaluate: allowed planners, policies or the reference");
   std::vector<LayoutRow> rows(static_cast<std::size_t>(opt.layouts) * per_layout);
   std::unique_ptr<Progress> bar;
   std::mutex mu;
@@ -187,6 +189,7 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
     for (const auto& name : names) {
       PlannerArgs args;
       args.seed = derive_seed(seed, 0x52414e44ULL);
+      if (opt.planner_seed) args.seed = derive_seed(args.seed, opt.planner_seed);
       args.safety = safety_options(cfg);
       auto p = builtin_planners().create(name, args);
       timed(*p, name);
@@ -212,9 +215,13 @@ std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptio
         timed(rollout, labels[k] + "+rollout");
       }
     }
-    out.push_back(reference_of(cfg, env, opt.cache_dir));
-    const double best = out.back().objective;
-    const std::string reference = out.back().planner;
+    double best = 0;
+    std::string reference;
+    if (opt.solve_reference) {
+      out.push_back(reference_of(cfg, env, opt.cache_dir));
+      best = out.back().objective;
+      reference = out.back().planner;
+    }
     for (std::size_t k = 0; k < out.size(); ++k) {
       auto& r = out[k];
       r.layout = index, r.users_seed = seed, r.users = env.users(), r.uavs = env.uavs();

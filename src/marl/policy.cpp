@@ -244,4 +244,12 @@ void MarlPolicy::set_sequential_passes(int passes) {
 
 void MarlPolicy::reset(UavEnv&) { impl_->ways = WaysMemory{}; }
 
+Config policy_config(const std::string& path) {
+  const auto policy = MarlPolicy::load(path);
+  Config cfg;
+  apply_toml(cfg, policy->config_toml(), path + " (training config)");
+  finalise(cfg);
+  return cfg;
+}
+
 }  // namespace skyloop

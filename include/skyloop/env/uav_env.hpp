@@ -390,6 +390,9 @@ class UavEnv {
 class VecEnv {
  public:
   VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, int count, std::uint64_t seed);
+  /// One environment per layout (skyloop/env/layouts.hpp): environment i flies the users of
+  /// layouts[i] in every episode (the benchmark's test layouts; layout_users).
+  VecEnv(const Config& cfg, std::shared_ptr<const Beamformer> beamformer, const std::vector<std::uint64_t>& layouts);
   /// M environments on one scenario: they share `oracle` (its users and its cache).
   VecEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, int count);
   int size() const { return static_cast<int>(envs_.size()); }
@@ -454,6 +457,7 @@ class VecEnv {
   };
   std::vector<Prepared> prepared_;
   bool shared_ = false;
+  std::vector<std::uint64_t> layouts_;   // the layouts constructor's: environment i's users seed
 };
 
 }  // namespace skyloop

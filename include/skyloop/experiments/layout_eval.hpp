@@ -30,6 +30,8 @@ struct LayoutEvalOptions {
   bool unsafe = false;                  // also run every policy without mask and shield ("<label>/raw")
   bool rollout = false;                 // also fly every policy as the base of a multiagent rollout ("<label>+rollout",
                                         // RolloutPlanner in skyloop/planning/planners.hpp)
+  bool solve_reference = true;          // false: no reference row (the benchmark reads its shipped references)
+  std::uint64_t planner_seed = 0;       // non-zero: the random planners' stream is also keyed by it (a benchmark seed)
   std::string cache_dir;                // optimum cache; empty = none
   int threads = 0;                      // layouts in parallel (0 = run.threads)
 };

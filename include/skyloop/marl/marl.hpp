@@ -77,6 +77,10 @@ class MarlPolicy final : public Planner {
   std::unique_ptr<Impl> impl_;
 };
 
+/// The training configuration a policy (a run directory or its policy.pt) holds, resolved: what
+/// `skyloop eval --policy` starts from, skyloop.policy_config, and the benchmark's protocol check.
+Config policy_config(const std::string& path);
+
 /// Generalised advantage estimates of one agent's sequence (eq. in Section V-C):
 /// delta_t = r_t + gamma (1 - done_t) V_{t+1} - V_t, A_t = delta_t + gamma lambda (1 - done_t) A_{t+1},
 /// where done_t = 1 if the episode ended with step t. `values` has T + 1 entries (bootstrap last).

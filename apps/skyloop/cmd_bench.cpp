@@ -1,0 +1,273 @@
+// `skyloop bench`: the benchmark's tasks (skyloop/experiments/bench.hpp), their references, and
+// scoring planners and trained policies under the task's protocol.
+#include <cmath>
+#include <filesystem>
+#include <fmt/format.h>
+#include <iostream>
+
+#include "common.hpp"
+#include "skyloop/beamforming/registry.hpp"
+#include "skyloop/core/config_io.hpp"
+#include "skyloop/core/error.hpp"
+#include "skyloop/core/io.hpp"
+#include "skyloop/core/parallel.hpp"
+#include "skyloop/experiments/bench.hpp"
+#include "skyloop/experiments/builtin.hpp"
+#include "skyloop/marl/learners.hpp"
+#include "skyloop/marl/marl.hpp"
+#include "skyloop/nn/learned.hpp"
+#include "skyloop/planning/registry.hpp"
+
+namespace skyloop::cli {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+std::vector<std::string> split_list(const std::string& s, const std::string& flag) {
+  std::vector<std::string> out;
+  std::string cur;
+  for (char c : s + ",") {
+    if (c != ',') {
+      cur += c;
+      continue;
+    }
+    if (cur.empty()) throw InputError(flag + " = '" + s + "' has an empty item: allowed a comma-separated list");
+    out.push_back(cur);
+    cur.clear();
+  }
+  return out;
+}
+
+std::vector<std::uint64_t> parse_seeds(const std::string& s) {
+  std::vector<std::uint64_t> out;
+  for (const auto& x : split_list(s, "--seeds")) {
+    const auto v = parse_seed("--seeds", x);
+    if (std::find(out.begin(), out.end(), v) != out.end()) throw InputError("--seeds = '" + s + "' names " + x + " twice: allowed each seed once");
+    out.push_back(v);
+  }
+  return out;
+}
+
+/// Replaces `key = "..."` in task.toml's text (the file stays as people wrote it otherwise).
+std::string set_toml_string(std::string text, const std::string& key, const std::string& value) {
+  const std::string line = key + " = \"" + value + "\"";
+  std::size_t at = 0;
+  while ((at = text.find(key, at)) != std::string::npos) {
+    const bool line_start = at == 0 || text[at - 1] == '\n';
+    const std::size_t after = at + key.size();
+    if (line_start && text.find_first_not_of(' ', after) != std::string::npos && text[text.find_first_not_of(' ', after)] == '=') {
+      const std::size_t end = text.find('\n', at);
+      return text.replace(at, (end == std::string::npos ? text.size() : end) - at, line);
+    }
+    at = after;
+  }
+  // Not there: after the [task] header.
+  const std::size_t task = text.find("[task]\n");
+  if (task == std::string::npos) throw InputError("task.toml has no [task] table");
+  return text.insert(task + 7, line + "\n");
+}
+
+/// The planners that apply to a task: greedy needs the joint moves enumerable (8 UAVs or fewer).
+std::vector<std::pair<std::string, std::string>> baseline_planners(const BenchTask& t) {
+  std::vector<std::pair<std::string, std::string>> out;  // (planner, why not; empty = runs)
+  const int n = static_cast<int>(t.config.trajectory.starts.size());
+  const bool continuous = t.config.trajectory.mobility == "continuous";
+  for (const std::string p : {"random", "greedy", "seqgreedy", "rollout"}) {
+    std::string why;
+    if (p == "greedy" && n > 8) why = fmt::format("greedy enumerates every joint move: {} UAVs, allowed at most 8", n);
+    if (continuous && p != "random" && p != "seqgreedy") why = "flies the lattice's moves only, not continuous commands";
+    out.emplace_back(p, why);
+  }
+  return out;
+}
+
+struct BenchCliOptions {
+  std::string task, sample = "5", planners, seeds, label, out, threads, learners, steps;
+  std::vector<std::string> policies;
+  bool all = false, write = false, force = false;
+};
+
+int bench_list() {
+  const auto ids = bench_task_ids();
+  std::cout << fmt::format("{:<22} {:>7} {:>16} {:>10}  {}\n", "task", "layouts", "reference", "budget", "title");
+  for (const auto& id : ids) {
+    const auto t = load_bench_task(id);
+    std::string ref;
+    for (const auto& r : t.references)
+      if (!r.reference.empty() && ref.find(r.reference) == std::string::npos) ref += (ref.empty() ? "" : "+") + r.reference;
+    std::cout << fmt::format("{:<22} {:>7} {:>16} {:>10.0e}  {}\n", t.id, t.references.size(), ref.empty() ? "(none yet)" : ref,
+                             static_cast<double>(t.protocol.budget_steps), t.title);
+  }
+  return 0;
+}
+
+int bench_reference(const BenchCliOptions& o) {
+  const auto t = load_bench_task(o.task, o.write);
+  const int threads = o.threads.empty() ? 0 : static_cast<int>(parse_count("--threads", o.threads, 1, 1024));
+  const bool shipped = !t.references.front().reference.empty();
+  std::vector<std::size_t> idx;
+  if (o.write || o.all || !shipped) {
+    for (std::size_t i = 0; i < t.references.size(); ++i) idx.push_back(i);
+  } else {
+    idx = sample_layouts(t.references.size(), parse_count("--sample", o.sample, 1, t.references.size()));
+  }
+  if (!shipped && !o.write) throw InputError("task " + t.id + " has no reference.csv yet: allowed --write to compute it");
+  const std::string fp = config_fingerprint(t.config);
+  std::cerr << fmt::format("bench reference {}: {} of {} layouts\n", t.id, idx.size(), t.references.size());
+  const auto got = compute_references(t, idx, threads, &std::cerr);
+  if (o.write) {
+    const std::string task_toml = (fs::path(t.dir) / "task.toml").string();
+    std::string text = read_file(task_toml, "task file");
+    text = set_toml_string(text, "fingerprint", fp);
+    text = set_toml_string(text, "reference_checksum", reference_checksum(got));
+    write_files_atomic({{(fs::path(t.dir) / "reference.csv").string(), reference_csv(t, got)}, {task_toml, text}});
+    double seconds = 0;
+    for (const auto& r : got) seconds += r.seconds;
+    std::cout << fmt::format("wrote {}/reference.csv ({} layouts, {:.1f} s of references) and task.toml's checksums\n", t.dir,
+                             got.size(), seconds);
+    return 0;
+  }
+  int bad = 0;
+  std::cout << fmt::format("{:>6} {:>10} {:>18} {:>18} {:>10} {:>9}\n", "layout", "reference", "shipped", "recomputed", "rel diff", "seconds");
+  for (std::size_t k = 0; k < got.size(); ++k) {
+    const auto& s = t.references[idx[k]];
+    const auto& g = got[k];
+    const double rel = std::abs(g.objective - s.objective) / std::max(1e-300, std::abs(s.objective));
+    const bool ok = rel <= t.reference_rtol && g.reference == s.reference;
+    bad += ok ? 0 : 1;
+    std::cout << fmt::format("{:>6} {:>10} {:>18.12g} {:>18.12g} {:>10.2e} {:>9.2f}{}\n", s.layout, g.reference, s.objective,
+                             g.objective, rel, g.seconds, ok ? "" : "  DIFFERS");
+  }
+  const bool fp_ok = fp == t.fingerprint;
+  std::cout << fmt::format("fingerprint {} {}\n", fp, fp_ok ? "(as shipped)" : "DIFFERS from task.fingerprint = " + t.fingerprint);
+  if (bad || !fp_ok) {
+    std::cout << fmt::format("{}: {} of {} references differ beyond reference_rtol = {}{}: the task's numbers moved; give it a new "
+                             "version\n", t.id, bad, got.size(), format_double(t.reference_rtol), fp_ok ? "" : ", and its configuration changed");
+    return 1;
+  }
+  std::cout << fmt::format("{}: {} references reproduced within {}\n", t.id, got.size(), format_double(t.reference_rtol));
+  return 0;
+}
+
+void write_outputs(const BenchTask& t, const std::vector<BenchRow>& rows, const std::string& out) {
+  const auto sum = summarise_bench(t, rows);
+  std::cout << fmt::format("bench {} ({}): {} test layouts against {}\n", t.id, t.title, t.references.size(),
+                           sum.empty() ? std::string("?") : sum.front().reference)
+            << format_bench_summary(sum);
+  if (out.empty()) return;
+  write_files_atomic({{out + "/rows.csv", bench_rows_csv(rows)},
+                      {out + "/summary.csv", bench_summary_csv(sum)},
+                      {out + "/profile.csv", bench_profile_csv(rows)},
+                      {out + "/marl_eval.json", bench_marl_eval_json(t, rows)},
+                      {out + "/config.toml", to_toml(t.config)}});
+  std::cout << "wrote " << out << "/{rows,summary,profile}.csv, marl_eval.json, config.toml\n";
+}
+
+int bench_run(const BenchCliOptions& o) {
+  const auto t = load_bench_task(o.task);
+  BenchRunOptions opt;
+  if (!o.planners.empty()) opt.planners = split_list(o.planners, "--planner");
+  if (!o.seeds.empty()) opt.seeds = parse_seeds(o.seeds);
+  opt.policies = o.policies;
+  opt.policy_label = o.label;
+  opt.threads = o.threads.empty() ? 0 : static_cast<int>(parse_count("--threads", o.threads, 1, 1024));
+  if (!o.out.empty()) check_output_dir(o.out);
+  std::unique_ptr<RunDirLock> lock;
+  if (!o.out.empty()) lock = std::make_unique<RunDirLock>(o.out);
+  const auto rows = run_bench(t, opt, &std::cerr);
+  write_outputs(t, rows, o.out);
+  return 0;
+}
+
+int bench_baselines(const BenchCliOptions& o) {
+  const auto t = load_bench_task(o.task);
+  if (o.out.empty()) throw InputError("--out is missing: allowed a directory for the trained runs and the leaderboard");
+  check_output_dir(o.out);
+  RunDirLock lock(o.out);
+  std::vector<std::string> algos = o.learners.empty() ? learner_names() : split_list(o.learners, "--learners");
+  if (algos == std::vector<std::string>{"none"}) algos.clear();  // the planners alone
+  for (const auto& a : algos) find_learner(a);
+  std::vector<std::uint64_t> seeds = o.seeds.empty() ? std::vector<std::uint64_t>{} : parse_seeds(o.seeds);
+  if (seeds.empty())
+    for (int s = 1; s <= t.protocol.seeds; ++s) seeds.push_back(static_cast<std::uint64_t>(s));
+  const std::int64_t steps = o.steps.empty() ? t.protocol.budget_steps
+                                              : static_cast<std::int64_t>(parse_count("--steps", o.steps, 1, std::uint64_t{1} << 40));
+  BenchRunOptions planners;
+  planners.seeds = seeds;
+  std::string skipped;
+  for (const auto& [p, why] : baseline_planners(t)) {
+    if (why.empty()) planners.planners.push_back(p);
+    else skipped += fmt::format("{}: not run ({})\n", p, why);
+  }
+  std::vector<BenchRow> rows = run_bench(t, planners, &std::cerr);
+  for (const auto& algo : algos) {
+    std::vector<std::string> dirs;
+    for (const auto seed : seeds) {
+      const std::string dir = fmt::format("{}/train/{}-s{}", o.out, algo, seed);
+      Config cfg = t.config;
+      apply_override(cfg, "marl.algo=\"" + algo + "\"");
+      apply_override(cfg, "run.seed=" + std::to_string(seed));
+      apply_override(cfg, "marl.total_steps=" + std::to_string(steps));
+      if (!fs::exists(fs::path(dir) / "policy.pt")) {
+        MarlTrainOptions opt;
+        opt.out_dir = dir;
+        opt.resume = fs::exists(fs::path(dir) / "last.pt");
+        opt.progress = &std::cerr;
+        opt.registry = &builtin_beamformers();
+        std::cerr << fmt::format("bench baselines {}: training {} seed {} ({} steps)\n", t.id, algo, seed, steps);
+        train_marl(cfg, opt);
+      }
+      dirs.push_back(dir);
+    }
+    BenchRunOptions p;
+    p.policies = dirs;
+    p.policy_label = algo;
+    const auto r = run_bench(t, p, &std::cerr);
+    rows.insert(rows.end(), r.begin(), r.end());
+  }
+  write_outputs(t, rows, o.out);
+  if (!skipped.empty()) {
+    std::cout << skipped;
+    write_file_atomic(o.out + "/not_run.txt", skipped);
+  }
+  return 0;
+}
+
+}  // namespace
+
+void add_bench_command(CLI::App& app, Action& action) {
+  auto o = std::make_shared<BenchCliOptions>();
+  auto* bench = app.add_subcommand("bench", "the benchmark: named tasks scored against each test layout's exact optimum");
+  bench->require_subcommand(1);
+  auto* list = bench->add_subcommand("list", "every task, one line each");
+  list->final_callback([&action] { action = [] { return bench_list(); }; });
+
+  auto* ref = bench->add_subcommand("reference", "recompute a task's references and compare them with the shipped ones");
+  ref->add_option("task", o->task, "task id (e.g. paper-v1), name or folder")->required();
+  ref->add_option("--sample", o->sample, "how many layouts, spread over the test layouts")->capture_default_str();
+  ref->add_flag("--all", o->all, "every test layout");
+  ref->add_flag("--write", o->write, "compute every layout and write reference.csv and task.toml's checksums (a new task)");
+  ref->add_option("--threads", o->threads, "layouts in parallel (default run.threads)");
+  ref->final_callback([&action, o] { action = [o] { return bench_reference(*o); }; });
+
+  auto* run = bench->add_subcommand("run", "score planners or trained policies on a task's test layouts");
+  run->add_option("task", o->task, "task id (e.g. paper-v1), name or folder")->required();
+  run->add_option("--planner", o->planners, "comma-separated: " + builtin_planners().names_text());
+  run->add_option("--policy", o->policies, "run directories of `skyloop train`, one per training seed");
+  run->add_option("--seeds", o->seeds, "the planners' seeds, comma-separated (default 1..the protocol's seeds)");
+  run->add_option("--label", o->label, "the policies' name in the outputs (default the algorithm)");
+  run->add_option("--threads", o->threads, "layouts in parallel (default run.threads)");
+  run->add_option("--out", o->out, "rows.csv, summary.csv, profile.csv, marl_eval.json, config.toml");
+  run->final_callback([&action, o] { action = [o] { return bench_run(*o); }; });
+
+  auto* base = bench->add_subcommand("baselines", "train and score every baseline under the task's protocol: the leaderboard");
+  base->add_option("task", o->task, "task id (e.g. paper-v1), name or folder")->required();
+  base->add_option("--out", o->out, "the trained runs (train/ALGO-sS) and the outputs of `bench run`")->required();
+  base->add_option("--learners", o->learners, "comma-separated: " + learner_names_text() + " (default all), or none (the planners alone)");
+  base->add_option("--seeds", o->seeds, "training seeds (default 1..the protocol's seeds)");
+  base->add_option("--steps", o->steps, "training steps (default the protocol's budget; another is labelled off-protocol)");
+  base->final_callback([&action, o] { action = [o] { return bench_baselines(*o); }; });
+}
+
+}  // namespace skyloop::cli

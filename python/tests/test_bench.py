@@ -1,0 +1,137 @@
+"""skyloop.bench: any policy scored on a task's test layouts by the same code as `skyloop bench run`."""
+import csv
+import io
+import json
+import os
+
+import numpy as np
+import pytest
+
+import skyloop as sl
+
+bench = pytest.importorskip("skyloop.bench")
+if not getattr(sl._skyloop, "HAS_TORCH", False):
+    pytest.skip("the benchmark needs the LibTorch build", allow_module_level=True)
+
+from conftest import run_cli  # noqa: E402
+
+
+def plan_replay(task):
+    """Each test layout's Greedy moves from sl.plan on that layout's users, and its objective."""
+    env = sl.VecEnv(task.config, len(task.users_seeds), layouts=task.users_seeds)
+    plans = [sl.plan(task.config, "greedy", users=env.users(i)) for i in range(env.num_envs)]
+    env.close()
+    return plans
+
+
+def test_a_python_policy_scores_as_its_moves_flown_through_plan():
+    # A policy in plain Python that flies, layout by layout, the moves sl.plan's Greedy flew on the
+    # same users: bench.evaluate must give sl.plan's objectives, and `bench run`'s Greedy rows.
+    task = bench.task("paper-v1")
+    plans = plan_replay(task)
+    slot = {"t": 0}
+
+    def replay(batch):
+        t = slot["t"]
+        slot["t"] += 1
+        hover = batch["spec"]["hover"]
+        out = np.full(batch["obs"].shape[:2], hover, dtype=np.int64)
+        for i, p in enumerate(plans):
+            if t < len(p["actions"]):
+                out[i] = p["actions"][t]
+        return out
+
+    result = bench.evaluate(task, {1: replay}, label="replay", steps=task.protocol["budget_steps"])
+    assert len(result.rows) == len(task.users_seeds)
+    for row, p in zip(result.rows, plans):
+        assert row["objective"] == pytest.approx(p["objective"], rel=1e-12)
+        assert row["fraction"] == pytest.approx(p["objective"] / row["reference_objective"], rel=1e-12)
+        assert row["complete"] == (p["success"] and p["collisions"] == 0 and p["boundary"] == 0)
+        assert row["protocol"] == "ok"
+    cpp = bench.evaluate(task, "greedy")
+    greedy = [r for r in cpp.rows if r["seed"] == 1]
+    assert [r["objective"] for r in greedy] == pytest.approx([r["objective"] for r in result.rows], rel=1e-12)
+    s = result.summary[0]
+    assert s["seeds"] == 1 and s["layouts"] == len(task.users_seeds)
+    assert "1 seeds of the protocol's 5" in s["protocol"]  # one seed is not the protocol, and says so
+
+
+def test_a_masked_policy_in_plain_python_is_scored_and_labelled():
+    # The first allowed move of every UAV (its action mask), a policy no one trained: scored on
+    # every layout, each against the shipped optimum; no budget stated, so labelled off-protocol.
+    task = bench.task("paper-v1")
+
+    def first_allowed(batch):
+        return np.argmax(batch["action_mask"], axis=-1)
+
+    result = bench.evaluate(task, {s: first_allowed for s in range(1, 6)}, label="first")
+    assert len(result.rows) == 5 * len(task.users_seeds)
+    assert all(0 <= r["fraction"] <= 1 + 1e-9 for r in result.rows)
+    s = result.summary[0]
+    assert s["seeds"] == 5 and s["iqm_ci_low"] == s["iqm_ci_high"]  # a deterministic policy: no spread over seeds
+    assert s["protocol"] == "training budget not stated"
+    rows = list(csv.DictReader(io.StringIO(result.files["rows.csv"])))
+    assert {r["protocol"] for r in rows} == {"training budget not stated"}
+    doc = json.loads(result.files["marl_eval.json"])
+    assert len(doc["skyloop"]["paper-v1"]["first"]["seed_3"]["absolute_metrics"]["fraction_of_reference"]) == len(task.users_seeds)
+
+
+def test_the_iqm_is_scipys_trimmed_mean():
+    assert bench.interquartile_mean([8, 1, 7, 2, 6, 3, 5, 4]) == 4.5
+    try:
+        from scipy.stats import trim_mean
+    except ImportError:
+        return
+    x = np.random.default_rng(3).normal(size=37)
+    assert bench.interquartile_mean(x) == pytest.approx(trim_mean(x, 0.25), rel=1e-12)
+
+
+def test_bad_policies_and_tasks_are_one_line():
+    with pytest.raises(sl.InputError, match="allowed .*paper-v1"):
+        bench.task("nope")
+    with pytest.raises(sl.InputError, match="not callable"):
+        bench.evaluate("paper-v1", {1: 3})
+    with pytest.raises(sl.InputError, match="wrong type"):
+        bench.evaluate("paper-v1", 3.5)
+    with pytest.raises(sl.InputError, match="layouts"):
+        sl.VecEnv(bench.task("paper-v1").config, 3, layouts=[1, 2])
+
+
+def test_the_command_line_lists_runs_and_checks(tmp_path):
+    r = run_cli("bench", "list")
+    assert r.returncode == 0, r.stderr
+    for t in ("paper-v1", "uma-rician-v1", "shared-wmmse-v1", "energy-headings-v1", "continuous-v1", "fleet16-v1"):
+        assert t in r.stdout
+    out = tmp_path / "b"
+    r = run_cli("bench", "run", "paper-v1", "--planner", "greedy", "--seeds", "1", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    for f in ("rows.csv", "summary.csv", "profile.csv", "marl_eval.json", "config.toml"):
+        assert (out / f).exists(), f
+    rows = list(csv.DictReader(open(out / "rows.csv")))
+    assert len(rows) == 20 and {r["seed"] for r in rows} == {"1"}
+    profile = list(csv.DictReader(open(out / "profile.csv")))
+    at0 = [p for p in profile if float(p["tau"]) == 0.0]
+    assert at0 and float(at0[0]["fraction_of_runs"]) == 1.0  # every run reaches 0% of the optimum
+    r = run_cli("bench", "run", "paper-v9", "--planner", "greedy")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "allowed" in r.stderr
+    r = run_cli("bench", "run", "paper-v1", "--planner", "optimal")
+    assert r.returncode == 2 and "optimal" in r.stderr
+    r = run_cli("bench", "reference", "paper-v1", "--sample", "1")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "reproduced" in r.stdout
+
+
+def test_a_tampered_reference_is_refused(tmp_path):
+    import shutil
+    src = bench.task("paper-v1").dir
+    dst = tmp_path / "paper-v1"
+    shutil.copytree(src, dst)
+    text = (dst / "reference.csv").read_text().splitlines()
+    parts = text[1].split(",")
+    parts[6] = str(float(parts[6]) * 0.9)  # the first layout's optimum, 10% lower
+    text[1] = ",".join(parts)
+    (dst / "reference.csv").write_text("\n".join(text) + "\n")
+    with pytest.raises(sl.InputError, match="checksum"):
+        bench.task(str(dst))
+    r = run_cli("bench", "run", str(dst), "--planner", "greedy")
+    assert r.returncode == 2 and "checksum" in r.stderr

@@ -12,6 +12,8 @@
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/parallel.hpp"
 #include "skyloop/experiments/bench.hpp"
+#include "skyloop/env/layouts.hpp"
+#include "skyloop/env/spec.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/marl/marl.hpp"
@@ -68,15 +70,16 @@ std::string set_toml_string(std::string text, const std::string& key, const std:
   return text.insert(task + 7, line + "\n");
 }
 
-/// The planners that apply to a task: greedy needs the joint moves enumerable (8 UAVs or fewer).
+/// The planners that apply to a task: greedy enumerates every joint move (GreedyPlanner's bound).
 std::vector<std::pair<std::string, std::string>> baseline_planners(const BenchTask& t) {
   std::vector<std::pair<std::string, std::string>> out;  // (planner, why not; empty = runs)
   const int n = static_cast<int>(t.config.trajectory.starts.size());
-  const bool continuous = t.config.trajectory.mobility == "continuous";
+  const int a = make_env_spec(t.config, n, max_layout_users(t.config)).action.count();
+  const double joint = std::pow(static_cast<double>(a), n);
   for (const std::string p : {"random", "greedy", "seqgreedy", "rollout"}) {
     std::string why;
-    if (p == "greedy" && n > 8) why = fmt::format("greedy enumerates every joint move: {} UAVs, allowed at most 8", n);
-    if (continuous && p != "random" && p != "seqgreedy") why = "flies the lattice's moves only, not continuous commands";
+    if (p == "greedy" && joint > static_cast<double>(GreedyPlanner::kMaxJointActions))
+      why = fmt::format("greedy enumerates {}^{} joint moves, allowed at most {}", a, n, GreedyPlanner::kMaxJointActions);
     out.emplace_back(p, why);
   }
   return out;
@@ -216,10 +219,18 @@ int bench_baselines(const BenchCliOptions& o) {
         opt.progress = &std::cerr;
         opt.registry = &builtin_beamformers();
         std::cerr << fmt::format("bench baselines {}: training {} seed {} ({} steps)\n", t.id, algo, seed, steps);
-        train_marl(cfg, opt);
+        try {
+          train_marl(cfg, opt);
+        } catch (const InputError& e) {
+          // A learner that cannot run the task's settings is a row of its own, saying why.
+          skipped += fmt::format("{}: not run ({})\n", algo, e.what());
+          dirs.clear();
+          break;
+        }
       }
       dirs.push_back(dir);
     }
+    if (dirs.empty()) continue;
     BenchRunOptions p;
     p.policies = dirs;
     p.policy_label = algo;

@@ -460,22 +460,21 @@ std::vector<BenchRow> run_bench(const BenchTask& task, const BenchRunOptions& op
   base.users_seeds = users_seeds;
   base.solve_reference = false;
   base.threads = opt.threads;
-  // Planners: every seed, rows of one planner together.
-  if (!opt.planners.empty()) {
-    std::vector<std::vector<BenchRow>> per(opt.planners.size());
+  // Planners, rows of one planner together: a seeded one (Planner::seeded) flies every seed; one
+  // that draws nothing flies the same episode under any seed, so it flies once and its rows stand
+  // for every seed (BenchRun.PlannersAreScoredPerSeedAndLayoutAgainstTheShippedOptimum checks it).
+  for (const auto& name : opt.planners) {
+    const bool seeded = builtin_planners().create(name)->seeded();
+    std::vector<LayoutRow> once;
     for (const auto seed : seeds) {
-      LayoutEvalOptions o = base;
-      o.planners = opt.planners;
-      o.planner_seed = seed;
-      const auto rows = evaluate_layouts(task.config, o, builtin_beamformers(), progress);
-      // rows: layout-major, the planners in order
-      for (std::size_t p = 0; p < opt.planners.size(); ++p) {
-        std::vector<LayoutRow> mine;
-        for (std::size_t k = p; k < rows.size(); k += opt.planners.size()) mine.push_back(rows[k]);
-        fill(mine, seed, opt.planners[p], "ok", per[p]);
+      if (seeded || once.empty()) {
+        LayoutEvalOptions o = base;
+        o.planners = {name};
+        o.planner_seed = seed;
+        once = evaluate_layouts(task.config, o, builtin_beamformers(), progress);
       }
+      fill(once, seed, name, "ok", out);
     }
-    for (auto& v : per) out.insert(out.end(), v.begin(), v.end());
   }
   // Policies: one training seed each (its run.seed), scored as trained under the task's settings.
   for (const auto& dir : opt.policies) {

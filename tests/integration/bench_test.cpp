@@ -11,6 +11,8 @@
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/paths.hpp"
 #include "skyloop/experiments/bench.hpp"
+#include "skyloop/experiments/builtin.hpp"
+#include "skyloop/planning/registry.hpp"
 
 namespace skyloop {
 namespace {
@@ -139,8 +141,20 @@ TEST(BenchRun, PlannersAreScoredPerSeedAndLayoutAgainstTheShippedOptimum) {
     EXPECT_NEAR(r.fraction, r.objective / r.reference_objective, 1e-15);
     EXPECT_LE(r.fraction, 1.0 + 1e-9) << r.policy << " beats the exact optimum on layout " << r.layout;
   }
-  // Greedy is deterministic: both seeds score alike; the random planner's seeds differ.
-  EXPECT_EQ(rows[0].objective, rows[L].objective);
+  // Greedy draws nothing (Planner::seeded): it flies once and its rows stand for both seeds, which
+  // is what flying it under each seed gives; the random planner's seeds differ.
+  EXPECT_FALSE(builtin_planners().create("greedy")->seeded());
+  EXPECT_TRUE(builtin_planners().create("random")->seeded());
+  for (const std::uint64_t seed : {1u, 2u}) {
+    LayoutEvalOptions e;
+    e.layouts = static_cast<int>(L);
+    for (const auto& r : t.references) e.users_seeds.push_back(r.users_seed);
+    e.solve_reference = false;
+    e.planners = {"greedy"};
+    e.planner_seed = seed;
+    const auto flown = evaluate_layouts(t.config, e, builtin_beamformers(), nullptr);
+    for (std::size_t l = 0; l < L; ++l) EXPECT_EQ(flown[l].objective, rows[(seed - 1) * L + l].objective);
+  }
   bool differ = false;
   for (std::size_t l = 0; l < L; ++l) differ = differ || rows[2 * L + l].objective != rows[3 * L + l].objective;
   EXPECT_TRUE(differ);

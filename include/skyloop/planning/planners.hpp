@@ -26,6 +26,9 @@ class Planner {
   virtual bool commands_velocities() const { return false; }
   /// Velocity commands for the current slot (m/s; row n = UAV n).
   virtual Positions act_velocities(UavEnv& env);
+  /// True for planners that draw from their seed (PlannerArgs::seed): the others fly the same
+  /// episode under any seed, so an evaluation over seeds flies them once (skyloop bench).
+  virtual bool seeded() const { return false; }
 };
 
 /// Uniform over each UAV's feasible actions (in the area, destination still reachable in the
@@ -34,6 +37,7 @@ class RandomPlanner final : public Planner {
  public:
   explicit RandomPlanner(std::uint64_t seed) : seed_(seed), rng_(seed) {}
   std::string name() const override { return "random"; }
+  bool seeded() const override { return true; }
   void reset(UavEnv&) override { rng_ = Rng(seed_); }
   std::vector<int> act(UavEnv& env) override;
 

@@ -8,6 +8,7 @@
 #include "common.hpp"
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/core/config_io.hpp"
+#include "skyloop/core/csv.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/parallel.hpp"
@@ -83,6 +84,15 @@ std::vector<std::pair<std::string, std::string>> baseline_planners(const BenchTa
     out.emplace_back(p, why);
   }
   return out;
+}
+
+/// Whether the run in `dir` has trained its whole budget: its log's last row has `steps` steps
+/// (policy.pt alone does not say so: model selection writes it while training goes on).
+bool trained_to(const std::string& dir, std::int64_t steps) {
+  const fs::path log = fs::path(dir) / "metrics.csv";
+  if (!fs::exists(log) || !fs::exists(fs::path(dir) / "policy.pt")) return false;
+  const auto t = CsvTable::parse(read_file(log.string(), "training log"), log.string());
+  return t.size() > 0 && t.number(t.size() - 1, "env_steps") >= static_cast<double>(steps);
 }
 
 struct BenchCliOptions {
@@ -212,7 +222,7 @@ int bench_baselines(const BenchCliOptions& o) {
       apply_override(cfg, "marl.algo=\"" + algo + "\"");
       apply_override(cfg, "run.seed=" + std::to_string(seed));
       apply_override(cfg, "marl.total_steps=" + std::to_string(steps));
-      if (!fs::exists(fs::path(dir) / "policy.pt")) {
+      if (!trained_to(dir, steps)) {
         MarlTrainOptions opt;
         opt.out_dir = dir;
         opt.resume = fs::exists(fs::path(dir) / "last.pt");

@@ -70,9 +70,9 @@ def page(plots=None):
                        f"[{100 * float(r['iqm_ci_low']):.2f}, {100 * float(r['iqm_ci_high']):.2f}] | "
                        f"{100 * float(r['mean']):.2f} | {100 * float(r['p5']):.2f} | "
                        f"{100 * float(r['complete_rate']):.0f}% | {r['protocol']} |")
-        not_run = _text(task, "not_run.txt")
-        if not_run:
-            out += ["", "Not run: " + "; ".join(not_run.splitlines()) + "."]
+        for line in _text(task, "not_run.txt").splitlines():  # "name: not run (why)"
+            name, _, why = line.partition(": ")
+            out.append(f"| {name} | - | - | - | - | - | - | - | {why} |")
         if plots:
             os.makedirs(plots, exist_ok=True)
             plot(task, os.path.join(plots, f"{task}.png"))

@@ -135,3 +135,21 @@ def test_a_tampered_reference_is_refused(tmp_path):
         bench.task(str(dst))
     r = run_cli("bench", "run", str(dst), "--planner", "greedy")
     assert r.returncode == 2 and "checksum" in r.stderr
+
+
+def test_baselines_train_score_and_label_a_short_budget(tmp_path):
+    # The baselines command on a tiny budget: the planners, and MAPPO trained for 2048 steps on one
+    # seed, scored and labelled off the protocol (its budget, its single seed) in every row.
+    out = tmp_path / "board"
+    r = run_cli("bench", "baselines", "paper-v1", "--learners", "mappo", "--seeds", "1", "--steps", "2048",
+                "--out", str(out), "--set", "marl.envs=2", "--set", "marl.rollout=64")
+    assert r.returncode == 2 and "--set" in r.stderr  # the task's configuration is frozen: no overrides
+    r = run_cli("bench", "baselines", "paper-v1", "--learners", "mappo", "--seeds", "1", "--steps", "2048", "--out", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    summary = {s["policy"]: s for s in csv.DictReader(open(out / "summary.csv"))}
+    assert set(summary) == {"random", "greedy", "seqgreedy", "rollout", "mappo"}
+    assert "trained 2048 steps, the budget is 2000000" in summary["mappo"]["protocol"]
+    assert "1 seeds of the protocol's 5" in summary["mappo"]["protocol"]
+    rows = [r for r in csv.DictReader(open(out / "rows.csv")) if r["policy"] == "mappo"]
+    assert len(rows) == 20 and all("trained 2048 steps" in r["protocol"] for r in rows)
+    assert (out / "train" / "mappo-s1" / "policy.pt").exists()

@@ -647,6 +647,7 @@ Every number below is read from the CSVs of this directory; each experiment's di
         files = [f for f in figs if f.endswith(".pdf")] + exp["files"] + [f"{exp['name']}/experiment.toml",
                                                                           f"{exp['name']}/config.toml"]
         parts.append("<p>Files: " + ", ".join(link(run, f) for f in files) + f"; {fnum(exp.get('seconds', 0), 1)} s.</p>")
+    parts += leaderboard_html()
     cfg_path = os.path.join(run, "config.toml")
     if os.path.exists(cfg_path):
         with open(cfg_path) as f:
@@ -659,6 +660,31 @@ Every number below is read from the CSVs of this directory; each experiment's di
     os.replace(tmp, os.path.join(run, "report.html"))
     print(f"wrote {os.path.join(run, 'report.html')}")
     return 0
+
+
+def leaderboard_html():
+    """The benchmark's committed leaderboard (scripts/bench_leaderboard.py reads the same files): its
+    training belongs to `skyloop bench baselines`, not to this run, so the section says where it comes from."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    try:
+        import bench_leaderboard as board
+    except ImportError:  # an installed copy of this script without the source tree's leaderboard
+        return []
+    tasks = board.tasks()
+    if not tasks:
+        return []
+    out = ["<h2>The benchmark's leaderboard</h2><p>Every baseline on each benchmark task, as a fraction of each test "
+           "layout's reference (IQM over seeds x layouts, with its 95% stratified bootstrap interval), from "
+           "<code>bench/leaderboard/</code> (made by <code>skyloop bench baselines</code>, not by this run).</p>"]
+    for task in tasks:
+        rows = sorted(board._read(task, "summary.csv"), key=lambda r: -float(r["iqm"]))
+        body = [[r["policy"], r["seeds"], f"{100 * float(r['iqm']):.2f}",
+                 f"[{100 * float(r['iqm_ci_low']):.2f}, {100 * float(r['iqm_ci_high']):.2f}]",
+                 f"{100 * float(r['complete_rate']):.0f}%", r["protocol"]] for r in rows]
+        out.append(table_html(f"{task}: {board._text(task, 'run.txt')}",
+                              ["policy", "seeds", f"IQM % of {rows[0]['reference'] if rows else ''}", "95% interval",
+                               "complete", "protocol"], body))
+    return out
 
 
 if __name__ == "__main__":

@@ -27,28 +27,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::vector<std::string> split_list(const std::string& s, const std::string& flag) {
-  std::vector<std::string> out;
-  std::string cur;
-  for (char c : s + ",") {
-    if (c != ',') {
-      cur += c;
-      continue;
-    }
-    if (cur.empty()) throw InputError(flag + " = '" + s + "' has an empty item: allowed a comma-separated list");
-    out.push_back(cur);
-    cur.clear();
-  }
-  return out;
-}
-
 std::vector<std::uint64_t> parse_seeds(const std::string& s) {
   std::vector<std::uint64_t> out;
-  for (const auto& x : split_list(s, "--seeds")) {
-    const auto v = parse_seed("--seeds", x);
-    if (std::find(out.begin(), out.end(), v) != out.end()) throw InputError("--seeds = '" + s + "' names " + x + " twice: allowed each seed once");
-    out.push_back(v);
-  }
+  for (const auto& x : split_methods(s, "--seeds")) out.push_back(parse_seed("--seeds", x));
   return out;
 }
 
@@ -180,7 +161,7 @@ void write_outputs(const BenchTask& t, const std::vector<BenchRow>& rows, const 
 int bench_run(const BenchCliOptions& o) {
   const auto t = load_bench_task(o.task);
   BenchRunOptions opt;
-  if (!o.planners.empty()) opt.planners = split_list(o.planners, "--planner");
+  if (!o.planners.empty()) opt.planners = split_methods(o.planners, "--planner");
   if (!o.seeds.empty()) opt.seeds = parse_seeds(o.seeds);
   opt.policies = o.policies;
   opt.policy_label = o.label;
@@ -198,7 +179,7 @@ int bench_baselines(const BenchCliOptions& o) {
   if (o.out.empty()) throw InputError("--out is missing: allowed a directory for the trained runs and the leaderboard");
   check_output_dir(o.out);
   RunDirLock lock(o.out);
-  std::vector<std::string> algos = o.learners.empty() ? learner_names() : split_list(o.learners, "--learners");
+  std::vector<std::string> algos = o.learners.empty() ? learner_names() : split_methods(o.learners, "--learners");
   if (algos == std::vector<std::string>{"none"}) algos.clear();  // the planners alone
   for (const auto& a : algos) find_learner(a);
   std::vector<std::uint64_t> seeds = o.seeds.empty() ? std::vector<std::uint64_t>{} : parse_seeds(o.seeds);
@@ -264,16 +245,19 @@ void add_bench_command(CLI::App& app, Action& action) {
   auto* list = bench->add_subcommand("list", "every task, one line each");
   list->final_callback([&action] { action = [] { return bench_list(); }; });
 
-  auto* ref = bench->add_subcommand("reference", "recompute a task's references and compare them with the shipped ones");
-  ref->add_option("task", o->task, "task id (e.g. paper-v1), name or folder")->required();
+  // Every command but list names its task first.
+  auto with_task = [&](CLI::App* cmd) {
+    cmd->add_option("task", o->task, "task id (e.g. paper-v1), name or folder")->required();
+    return cmd;
+  };
+  auto* ref = with_task(bench->add_subcommand("reference", "recompute a task's references and compare them with the shipped ones"));
   ref->add_option("--sample", o->sample, "how many layouts, spread over the test layouts")->capture_default_str();
   ref->add_flag("--all", o->all, "every test layout");
   ref->add_flag("--write", o->write, "compute every layout and write reference.csv and task.toml's checksums (a new task)");
   ref->add_option("--threads", o->threads, "layouts in parallel (default run.threads)");
   ref->final_callback([&action, o] { action = [o] { return bench_reference(*o); }; });
 
-  auto* run = bench->add_subcommand("run", "score planners or trained policies on a task's test layouts");
-  run->add_option("task", o->task, "task id (e.g. paper-v1), name or folder")->required();
+  auto* run = with_task(bench->add_subcommand("run", "score planners or trained policies on a task's test layouts"));
   run->add_option("--planner", o->planners, "comma-separated: " + builtin_planners().names_text());
   run->add_option("--policy", o->policies, "run directories of `skyloop train`, one per training seed");
   run->add_option("--seeds", o->seeds, "the planners' seeds, comma-separated (default 1..the protocol's seeds)");
@@ -282,8 +266,7 @@ void add_bench_command(CLI::App& app, Action& action) {
   run->add_option("--out", o->out, "rows.csv, summary.csv, profile.csv, marl_eval.json, config.toml");
   run->final_callback([&action, o] { action = [o] { return bench_run(*o); }; });
 
-  auto* base = bench->add_subcommand("baselines", "train and score every baseline under the task's protocol: the leaderboard");
-  base->add_option("task", o->task, "task id (e.g. paper-v1), name or folder")->required();
+  auto* base = with_task(bench->add_subcommand("baselines", "train and score every baseline under the task's protocol: the leaderboard"));
   base->add_option("--out", o->out, "the trained runs (train/ALGO-sS) and the outputs of `bench run`")->required();
   base->add_option("--learners", o->learners, "comma-separated: " + learner_names_text() + " (default all), or none (the planners alone)");
   base->add_option("--seeds", o->seeds, "training seeds (default 1..the protocol's seeds)");

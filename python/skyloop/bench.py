@@ -111,17 +111,14 @@ def fly(t: Task, fn: Callable, seed: int = 0) -> list:
     from .env import VecEnv
     env = VecEnv(t.config, len(t.users_seeds), seed=0, layouts=t.users_seeds)
     o = env.reset()
-    M, N = env.num_envs, env.num_agents
+    M = env.num_envs
     done = np.zeros(M, dtype=bool)
     out = [None] * M
     arrays = {"obs": o.obs, "state": o.state, "agent_state": o.agent_state, "action_mask": o.action_mask}
     while not done.all():
-        a = fn({**arrays, "spec": env.spec})
-        a = np.asarray(a)
-        if env.action_dims and a.ndim == 3:
-            a = np.where(done[:, None, None], 0.0, a)  # a finished layout's row is ignored (it restarts)
-        else:
-            a = np.where(done[:, None], env.spec["hover"], a) if a.shape[:1] == (M,) else a
+        a = np.asarray(fn({**arrays, "spec": env.spec}))
+        if a.shape[:1] == (M,):  # a finished layout restarts: its row is flown but not scored, so hover it
+            a = np.where(done.reshape((M,) + (1,) * (a.ndim - 1)), 0.0 if a.ndim == 3 else env.spec["hover"], a)
         r = env.step(a)
         ended = (r.terminated | r.truncated) & ~done
         for i in np.flatnonzero(ended):

@@ -1028,11 +1028,12 @@ PYBIND11_MODULE(_skyloop, m) {
           const auto t = load_bench_task(id);
           std::vector<BenchRow> rows;
           for (const auto& r : rows_in) rows.push_back(bench_row_of(r.cast<py::dict>()));
+          const auto summary = summarise_bench(t, rows);
           py::list sum;
-          for (const auto& x : summarise_bench(t, rows)) sum.append(bench_summary_dict(x));
+          for (const auto& x : summary) sum.append(bench_summary_dict(x));
           py::dict files;
           files["rows.csv"] = bench_rows_csv(rows);
-          files["summary.csv"] = bench_summary_csv(summarise_bench(t, rows));
+          files["summary.csv"] = bench_summary_csv(summary);
           files["profile.csv"] = bench_profile_csv(rows);
           files["marl_eval.json"] = bench_marl_eval_json(t, rows);
           files["config.toml"] = to_toml(t.config);

@@ -9,6 +9,8 @@
 #include <ostream>
 #include <toml++/toml.h>
 
+#include "toml_document.hpp"
+
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/csv.hpp"
@@ -113,15 +115,6 @@ bool task_field(const std::string& key) {
   return false;
 }
 
-double percentile_of(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const double pos = q * static_cast<double>(v.size() - 1);
-  const auto i = static_cast<std::size_t>(std::floor(pos));
-  const double f = pos - static_cast<double>(i);
-  return i + 1 < v.size() ? v[i] * (1 - f) + v[i + 1] * f : v[i];
-}
-
 }  // namespace
 
 std::string bench_tasks_dir() { return (fs::path(data_dir()) / "tasks").string(); }
@@ -174,14 +167,7 @@ BenchTask load_bench_task(const std::string& id_or_dir, bool fresh) {
   }
   const std::string source = (dir / "task.toml").string();
   const std::string text = read_file(source, "task file");
-  toml::table doc;
-  try {
-    doc = toml::parse(text, source);
-  } catch (const toml::parse_error& e) {
-    std::string d(e.description());
-    std::replace(d.begin(), d.end(), '\n', ' ');
-    throw InputError(source + ":" + std::to_string(e.source().begin.line) + ": invalid TOML: " + d);
-  }
+  const toml::table doc = parse_toml_document(text, source);
   check_keys(doc, source);
   const TaskReader r{source, doc};
   BenchTask t;
@@ -281,8 +267,8 @@ void iqm_interval(const std::vector<std::vector<double>>& runs_by_layout, int re
     }
     stats.push_back(interquartile_mean(draw));
   }
-  low = percentile_of(stats, 0.025);
-  high = percentile_of(stats, 0.975);
+  low = percentile(stats, 0.025);
+  high = percentile(stats, 0.975);
 }
 
 std::vector<BenchSummary> summarise_bench(const BenchTask& task, const std::vector<BenchRow>& rows) {
@@ -316,7 +302,7 @@ std::vector<BenchSummary> summarise_bench(const BenchTask& task, const std::vect
     for (const double x : all) s.mean += x / n;
     s.complete_rate /= n;
     s.iqm = interquartile_mean(all);
-    s.p5 = percentile_of(all, 0.05);
+    s.p5 = percentile(all, 0.05);
     std::vector<std::vector<double>> strata;
     for (auto& [layout, runs] : per_layout) strata.push_back(runs);
     // A fixed stream per (task, policy): the same rows give the same interval.

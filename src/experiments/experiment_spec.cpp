@@ -5,6 +5,8 @@
 #include <sstream>
 #include <toml++/toml.h>
 
+#include "toml_document.hpp"
+
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/planning/registry.hpp"
 #include "skyloop/core/config_io.hpp"
@@ -161,14 +163,7 @@ void check_in(const std::string& source, const std::string& key, const std::stri
 }  // namespace
 
 ExperimentSpec parse_experiment(const std::string& text, const std::string& source, const std::string& profile) {
-  toml::table doc;
-  try {
-    doc = toml::parse(text, source);
-  } catch (const toml::parse_error& e) {
-    std::string d(e.description());
-    std::replace(d.begin(), d.end(), '\n', ' ');
-    throw InputError(source + ":" + std::to_string(e.source().begin.line) + ": invalid TOML: " + d);
-  }
+  const toml::table doc = parse_toml_document(text, source);
   Reader r{source};
   ExperimentSpec s;
   s.path = source;

@@ -113,6 +113,8 @@ LayoutRow reference_of(const Config& cfg, UavEnv& env, const std::string& cache_
   return r;
 }
 
+}  // namespace
+
 double percentile(std::vector<double> v, double q) {
   if (v.empty()) return 0;
   std::sort(v.begin(), v.end());
@@ -121,8 +123,6 @@ double percentile(std::vector<double> v, double q) {
   const double f = pos - static_cast<double>(i);
   return i + 1 < v.size() ? v[i] * (1 - f) + v[i + 1] * f : v[i];
 }
-
-}  // namespace
 
 std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptions& opt, const BeamformerRegistry& registry,
                                         std::ostream* progress) {

@@ -79,6 +79,10 @@ void check_rollout_settings(const Config& cfg);
 /// Rows in layout order, each layout's planners in the order given, policies next, the reference last.
 std::vector<LayoutRow> evaluate_layouts(const Config& cfg, const LayoutEvalOptions& opt, const BeamformerRegistry& registry,
                                         std::ostream* progress = nullptr);
+/// The q-quantile of v (0 <= q <= 1), interpolating linearly between order statistics (numpy's
+/// default); 0 for no values. The layout summaries' and the benchmark's percentiles.
+double percentile(std::vector<double> v, double q);
+
 /// One summary per planner, in the rows' order. The 5th percentile interpolates linearly.
 std::vector<LayoutSummary> summarise_layouts(const std::vector<LayoutRow>& rows);
 

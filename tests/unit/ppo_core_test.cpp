@@ -32,7 +32,7 @@ constexpr double kUnitRoundoff = 5.9604644775390625e-08;
 /// float64 with every quantity replaced by its absolute value. A sum's rounding error is at most
 /// gamma times the sum of its terms' magnitudes (the gradient of a bias: sum_r |dz_r|; of a weight:
 /// |dz|^T |h|), and a product carries the errors of both factors. Each tanh adds one unit of its
-/// own; its derivative 1 - h^2 is bounded by 1 and carries 2|h| times h's error (here 2 + 2 E).
+/// own; dz = dh (1 - h^2) carries dh's error (1 - h^2 <= 1) and 2|h| <= 2 times h's, E + 1: 3 + 2 E.
 struct RoundingMagnitudes {
   torch::Tensor out;
   std::array<torch::Tensor, 6> grad;
@@ -43,7 +43,8 @@ RoundingMagnitudes rounding_magnitudes(MlpNet& net64, const torch::Tensor& x, co
   const auto W1 = net64->l1->weight.abs(), b1 = net64->l1->bias.abs(), W2 = net64->l2->weight.abs(),
              b2 = net64->l2->bias.abs(), W3 = net64->l3->weight.abs(), b3 = net64->l3->bias.abs();
   const auto xa = x.abs(), dy = dout.abs();
-  const auto h1 = torch::tanh(net64->l1(x)).abs(), h2 = torch::tanh(net64->l2(torch::tanh(net64->l1(x)))).abs();
+  const auto t1 = torch::tanh(net64->l1(x));
+  const auto h1 = t1.abs(), h2 = torch::tanh(net64->l2(t1)).abs();
   // Forward: E_l bounds the error of layer l's pre-activation; a tanh adds 1 and passes E on.
   const auto e1 = xa.mm(W1.t()) + b1;
   const auto e2 = h1.mm(W2.t()) + b2 + (e1 + 1).mm(W2.t());

@@ -9,6 +9,7 @@
 
 #include "common.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/process.hpp"
 
 namespace skyloop::cli {
@@ -99,6 +100,7 @@ void refuse_empty_values(CLI::App* app) {
 
 int main(int argc, char** argv) {
   using namespace skyloop;
+  flush_denormals();  // before any thread starts: every thread computes in the same mode
   install_interrupt_handlers();
   CLI::App app{"skyloop: joint beamforming and trajectory optimisation for multi-UAV downlink networks"};
   app.set_version_flag("--version", std::string("skyloop ") + SKYLOOP_VERSION + (mpi_available() ? " (MPI)" : " (no MPI)"));

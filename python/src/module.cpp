@@ -20,6 +20,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/paths.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/uav_env.hpp"
@@ -805,6 +806,9 @@ py::dict bench_summary_dict(const BenchSummary& x) {
 PYBIND11_MODULE(_skyloop, m) {
   m.doc() = "skyloop: joint beamforming and trajectory optimisation for multi-UAV downlink networks (C++ core)";
   m.attr("__version__") = SKYLOOP_VERSION;  // the VERSION file, through CMake
+  // Subnormal floats flushed to zero on the importing thread, as the command line does from its
+  // first line (and as torch.set_flush_denormal(True)): the same numbers in Python as there.
+  skyloop::flush_denormals();
   static py::exception<InputError> input_error(m, "InputError", PyExc_ValueError);
   py::register_exception_translator([](std::exception_ptr p) {
     try {

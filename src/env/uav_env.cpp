@@ -981,7 +981,13 @@ std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<S
   int threads = 1;
   if (!shared_ && !in_parallel_for())
     for (std::size_t i : open) threads = std::max(threads, envs_[i]->oracle().threads());
-  const std::size_t lanes = std::min(open.size(), static_cast<std::size_t>(threads));
+  // Under one band a network's beams may depend, in their last bits, on the other networks of
+  // its batch (RateOracle::joint): oracles of their own then keep one lane per environment, the
+  // same company on any thread count (an MPI rank's one core or a machine's all).
+  bool per_environment = !shared_;
+  for (std::size_t i : open) per_environment = per_environment && envs_[i]->oracle().joint();
+  per_environment = per_environment && !open.empty();
+  const std::size_t lanes = per_environment ? open.size() : std::min(open.size(), static_cast<std::size_t>(threads));
   // The environments whose episode this step ends: their next oracle's start in the same batch.
   std::vector<char> ends(open.size(), 0);
   for (std::size_t j = 0; j < open.size() && sampling(); ++j) ends[j] = envs_[open[j]]->ends_episode(next[open[j]]);
@@ -989,7 +995,7 @@ std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<S
   // open environment by its misses (and an ending one by its next start's, every cluster a miss),
   // the heaviest first to the lighter lane; else contiguous runs of equal count.
   std::vector<std::vector<std::size_t>> lane_of(lanes);
-  bool weighed = lanes > 1;
+  bool weighed = lanes > 1 && !per_environment;
   for (std::size_t i : open) weighed = weighed && cost_[i] >= 0;
   if (weighed) {
     std::vector<double> weight(open.size());
@@ -1012,9 +1018,9 @@ std::vector<StepInfo> VecEnv::finish(std::vector<Positions>& next, std::vector<S
       for (std::size_t j = open.size() * lane / lanes; j < open.size() * (lane + 1) / lanes; ++j) lane_of[lane].push_back(j);
   }
   // Each lane's misses one batch on a thread of its own: a cluster's rate is designed per cluster,
-  // so the rates do not depend on the lanes.
+  // so the rates do not depend on the lanes (nor, one lane per environment, a network's).
   std::vector<double> rates(open.size());
-  parallel_for(lanes, static_cast<int>(lanes), [&](std::size_t lane) {
+  parallel_for(lanes, static_cast<int>(std::min(lanes, static_cast<std::size_t>(threads))), [&](std::size_t lane) {
     const auto& mine = lane_of[lane];
     std::vector<RateOracle*> oracles;
     std::vector<const Positions*> ptrs;

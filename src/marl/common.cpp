@@ -175,10 +175,13 @@ Run::Run(const Config& cfg, const MarlTrainOptions& opt, const std::function<voi
     : dir(opt.out_dir),
       last((dir / "last.pt").string()),
       final_path((dir / "policy.pt").string()),
+      threads([&] {
+        set_torch_threads(1);
+        return cfg.run.threads;
+      }()),
       device(device_of(cfg)),
       vec(make_training_envs(cfg, *opt.registry)) {
   if (check) check(vec);
-  set_torch_threads(cfg.run.threads);
   check_resume_or_force(opt.resume, opt.force);
   if (opt.resume && !std::filesystem::exists(last))
     throw InputError("--resume: '" + last + "' does not exist: allowed a directory of an earlier training run");

@@ -147,6 +147,11 @@ struct Run {
   Run(const Config& cfg, const MarlTrainOptions& opt, const std::function<void(const VecEnv&)>& check = {});
   std::filesystem::path dir;
   std::string last, final_path;
+  /// cfg.run.threads: skyloop's own threads (the environments' lanes, the fast learner's
+  /// chunks). LibTorch and its BLAS get one, set before the environments compute their first rate:
+  /// a sum or GEMM split over other threads rounds otherwise (a learned network oracle's, the
+  /// torch learners'), and run.threads would change the numbers.
+  int threads = 0;
   torch::Device device{torch::kCPU};
   VecEnv vec;
   RunDirLock lock;  // the run directory's, for the whole run

@@ -265,11 +265,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
                    fmt::format("allowed marl.buffer_episodes <= {:.0f} for this scenario",
                                std::floor(memory_limit_bytes() / per_episode)));
   });
-  VecEnv& vec = run.vec;
-  // The learner's tensors on one torch thread: torch splits a reduction (the TD loss, the
-  // gradients' sums) across its threads, so run.threads would change the numbers. The
-  // environments still step on run.threads (VecEnv's results do not depend on it).
-  set_torch_threads(1);
+  VecEnv& vec = run.vec;  // the learner's tensors on one torch thread (Run): the TD loss's sums
   const int N = vec.env(0).uavs(), M = vec.size();
   ValueDecompositionCore core(cfg, vec);
   core.to(run.device);

@@ -15,6 +15,7 @@
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/memory.hpp"
+#include "skyloop/core/parallel.hpp"
 #include "skyloop/core/progress.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/beamforming/registry.hpp"
@@ -34,8 +35,7 @@ void set_torch_threads(int threads) {
     static const auto openblas = reinterpret_cast<SetThreads>(::dlsym(RTLD_DEFAULT, "openblas_set_num_threads"));
     if (openblas) openblas(threads);
   }
-  // Denormal floats appear as training goes on and slow x86 arithmetic by 2x and more.
-  at::globalContext().setFlushDenormal(true);
+  flush_denormals();  // as the process's main thread (a thread started before it was set)
 }
 
 namespace nn {

@@ -308,6 +308,37 @@ TEST(Marl, EveryLearnerIsTheSameOnAnyThreadCount) {
   }
 }
 
+// The same under one band, where R[t] comes from the shipped interference-aware GNN (ignn, LibTorch)
+// designing whole networks in padded batches: the environments keep one lane each and LibTorch
+// and its BLAS one thread, whatever run.threads. New users every episode, so every
+// environment's oracle is its own and the lanes matter. Each of the two used to differ: the
+// lanes in the 9th digit of charts/sum_rate, and the first start's rate, computed before the
+// thread count was set (as `skyloop reproduce` under mpirun against one process found).
+TEST(Marl, SharedSpectrumLearnedOracleIsTheSameOnAnyThreadCount) {
+  Config cfg;
+  cfg.channel.spectrum = "shared";
+  cfg.env.oracle = "ignn";
+  cfg.env.resample_users = true;
+  cfg.marl.action_mask = false;
+  cfg.marl.shield = false;
+  cfg.marl.envs = 4;
+  cfg.marl.rollout = 32;
+  cfg.marl.epochs = 1;
+  cfg.marl.batch_episodes = 2;
+  cfg.marl.total_steps = 512;
+  std::vector<std::string> metrics;
+  for (int threads : {1, 2}) {
+    cfg.run.threads = threads;
+    MarlTrainOptions o;
+    o.out_dir = fresh("threads_shared_" + std::to_string(threads));
+    o.registry = &builtin_beamformers();
+    train_marl(cfg, o);
+    metrics.push_back(metrics_without_timing(o.out_dir));
+  }
+  EXPECT_GE(std::count(metrics[0].begin(), metrics[0].end(), '\n'), 3);
+  EXPECT_EQ(metrics[0], metrics[1]) << "run.threads = 1 and 2 logged different numbers";
+}
+
 // --resume keeps model selection going: the earlier validation rows stay in validation.csv, and
 // the best of them (policy.pt) stays the one to beat. The pre-resume best is made unbeatable
 // here, so a resumed run that forgot it would flag its first new row best and replace policy.pt.

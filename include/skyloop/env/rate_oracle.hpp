@@ -59,6 +59,11 @@ class RateOracle {
   double memo_bytes() const { return memo_bytes_; }
   /// The threads a batch of this oracle's misses may use (cfg.run.threads, resolved).
   int threads() const { return threads_; }
+  /// Under one band (channel.spectrum = shared) the rates come from whole networks
+  /// (design_networks). A learned network model serves a call's networks in padded batches, so
+  /// a network's beams may differ in their last bits with the other networks of its call: a
+  /// caller that wants the same numbers on any thread count keeps each batch's company fixed.
+  bool joint() const { return model_.spectrum() == Spectrum::Shared; }
 
  private:
   friend std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles,
@@ -76,7 +81,6 @@ class RateOracle {
   struct JointHash {
     std::size_t operator()(const std::vector<double>& k) const;
   };
-  bool joint() const { return model_.spectrum() == Spectrum::Shared; }
   static std::vector<double> joint_key(const Positions& uavs);
   /// Association of `uavs`: for each UAV its key; fills `members`.
   void keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const;

@@ -151,7 +151,6 @@ Piece StageContext::marl_piece(const Config& cfg) const {
       log << fmt::format("  training {} (K = {}, seed {}, {} steps) in {}\n", cfg.marl.algo, cfg.scenario.users, cfg.run.seed,
                          cfg.marl.total_steps, dir.string())
           << std::flush;
-      set_torch_threads(cfg.run.threads);
       MarlTrainOptions t;
       t.out_dir = dir.string();
       t.force = true;  // an interrupted run starts again (see restart_note)

@@ -4,6 +4,7 @@
 
 #include <filesystem>
 
+#include "skyloop/env/vec_env.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/nn/learned.hpp"
 #include "skyloop/planning/planners.hpp"

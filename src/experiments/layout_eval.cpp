@@ -18,6 +18,7 @@
 #include "skyloop/core/parallel.hpp"
 #include "skyloop/core/progress.hpp"
 #include "skyloop/core/rng.hpp"
+#include "skyloop/env/vec_env.hpp"
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/nn/learned.hpp"
 

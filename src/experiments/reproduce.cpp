@@ -346,154 +346,171 @@ class Runner {
   /// process, one core each, once the runs and pieces they read are done). The assembly then finds
   /// them done; a sweep's chunks stay in the assembly, where each uses --threads cores.
   void prefetch(const std::vector<Piece>& pieces) {
-    std::vector<const Piece*> runs, evals;
-    std::unordered_map<std::string, const Piece*> by_id;
+    Pool pool;
     for (const auto& p : pieces) {
-      by_id[p.id] = &p;
-      if (p.kind == "marl" && !p.done()) runs.push_back(&p);
-      if (p.kind == "eval" && !p.done()) evals.push_back(&p);
+      pool.by_id[p.id] = &p;
+      if (p.kind == "marl" && !p.done()) pool.runs.push_back(&p);
+      if (p.kind == "eval" && !p.done()) pool.evals.push_back(&p);
     }
-    if (runs.empty() && evals.empty()) return;
+    if (pool.runs.empty() && pool.evals.empty()) return;
     // The longest evaluations first, so that the last ones to start are short.
-    std::stable_sort(evals.begin(), evals.end(), [](const Piece* a, const Piece* b) { return a->cost > b->cost; });
+    std::stable_sort(pool.evals.begin(), pool.evals.end(), [](const Piece* a, const Piece* b) { return a->cost > b->cost; });
     std::size_t to_train = 0;
-    for (const auto* r : runs) to_train += !trained(*r);
+    for (const auto* r : pool.runs) to_train += !trained(*r);
     log_ << fmt::format("training {} MARL runs and computing {} evaluations, {} at a time (run logs: <run>/train.log)\n", to_train,
-                        evals.size(), jobs_)
+                        pool.evals.size(), jobs_)
          << std::flush;
     // Lines from the workers and from the pieces they run go through one lock.
     LockedBuf locked(ctx_.log.rdbuf());
     std::streambuf* const shown = ctx_.log.rdbuf(&locked);
     std::ostream out(&locked);
+    pool.out = &out;
+    pool.taken.assign(pool.evals.size(), 0);
+    pool.t0 = Clock::now();
+    std::vector<std::thread> threads;
+    for (int j = 0; j < jobs_; ++j) threads.emplace_back([this, &pool] { work(pool); });
+    for (auto& t : threads) t.join();
+    ctx_.log.rdbuf(shown);
+    if (!pool.failed.empty())
+      throw std::runtime_error(fmt::format("{} of {} MARL runs failed; see {}", pool.failed.size(), pool.runs.size(), pool.failed.front()));
+    if (pool.error) std::rethrow_exception(pool.error);
+  }
+
+  /// What prefetch's workers share; everything after `mu` is guarded by it.
+  struct Pool {
+    std::vector<const Piece*> runs, evals;
+    std::unordered_map<std::string, const Piece*> by_id;
+    std::ostream* out = nullptr;
+    Clock::time_point t0;
     std::mutex mu;
     std::condition_variable changed;
     std::size_t next_run = 0, running = 0, runs_done = 0, evals_done = 0;
-    std::vector<char> taken(evals.size(), 0);
+    std::vector<char> taken;                         // per evaluation: a worker has it
     std::unordered_map<std::string, char> finished;  // ids of pieces this pool completed
     double busy = 0;
     std::vector<std::string> failed;
     std::exception_ptr error;
-    const auto t0 = Clock::now();
-    // A dependency is met when its piece is done (a MARL run: trained; its own evaluation is run
-    // by whichever piece reads it) or is no piece of this phase (the models).
-    auto met = [&](const std::string& dep) {
-      if (finished.count(dep)) return true;
-      const auto it = by_id.find(dep);
-      if (it == by_id.end()) return true;
-      return it->second->kind == "marl" ? trained(*it->second) : it->second->done();
-    };
-    auto ready = [&](std::size_t e) {
-      for (const auto& d : evals[e]->deps)
-        if (!met(d)) return false;
-      return true;
-    };
-    auto eta = [&](std::size_t done, std::size_t total) {
-      if (done >= total) return std::string();
-      const double per = busy / static_cast<double>(done) / static_cast<double>(jobs_);
-      return fmt::format(", ETA {:.0f} s", per * static_cast<double>(total - done));
-    };
-    auto train = [&](const Piece& piece) {
-      const Config& cfg = piece.train_config;
-      const fs::path dir = ctx_.out / piece.id;
-      int rc = 0;
-      double sec = 0;
-      const bool ran = ctx_.cache.ensure(
-          piece.id, [&] { return trained(piece); },
-          [&] {
-            write_file_atomic((dir / "request.toml").string(), to_toml(cfg));
-            std::vector<std::string> argv = {exe_path(), "train", "--config", (dir / "request.toml").string(), "--out", dir.string()};
-            if (fs::exists(dir / "last.pt")) out << restart_note(dir) << std::flush;
-            argv.push_back("--force");
-            const auto tr = Clock::now();
-            rc = run_process(argv, (dir / "train.log").string());
-            sec = since(tr);
-            if (rc == 0) {
-              ctx_.record_timing(piece.id, "marl-train", piece.cost, sec);
-              nlohmann::json j = {{"seconds", sec},
-                                  {"steps_per_second", static_cast<double>(cfg.marl.total_steps) / sec},
-                                  {"env_steps", cfg.marl.total_steps},
-                                  {"process", true}};
-              write_file_atomic((dir / "train.json").string(), j.dump(2) + "\n");
-            }
-          },
-          &out);
-      std::lock_guard<std::mutex> lock(mu);
-      if (rc != 0) {
-        failed.push_back(fmt::format("{} (exit status {})", (dir / "train.log").string(), rc));
-        return;
-      }
-      busy += sec;
-      ++runs_done;
-      out << fmt::format("  {} K = {} seed {}: {:.0f} s{} ({}/{} runs, {:.0f} s elapsed{})\n", cfg.marl.algo, cfg.scenario.users,
-                         cfg.run.seed, sec, ran ? "" : " (by another process)", runs_done, runs.size(), since(t0),
-                         eta(runs_done, runs.size()))
-          << std::flush;
-    };
-    auto evaluate = [&](const Piece& piece, bool counted) {
-      const auto te = Clock::now();
-      try {
-        ctx_.ensure(piece);
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(mu);
-        if (!error) error = std::current_exception();
-        return;
-      }
-      std::lock_guard<std::mutex> lock(mu);
-      finished[piece.id] = 1;
-      if (!counted) return;
-      ++evals_done;
-      out << fmt::format("  {}: {:.1f} s ({}/{} evaluations, {:.0f} s elapsed)\n", piece.label, since(te), evals_done,
-                         evals.size(), since(t0))
-          << std::flush;
-    };
-    auto worker = [&] {
-      set_torch_threads(1);  // one core per worker, denormals flushed as on the main thread
-      std::unique_lock<std::mutex> lock(mu);
-      for (;;) {
-        if (error) return;
-        const Piece* run = nullptr;
-        const Piece* eval = nullptr;
-        if (next_run < runs.size()) {
-          run = runs[next_run++];
-        } else {
-          std::size_t open = 0;
-          for (std::size_t e = 0; e < evals.size() && !eval; ++e) {
-            if (taken[e]) continue;
-            ++open;
-            if (ready(e)) taken[e] = 1, eval = evals[e];
+  };
+
+  /// A dependency is met when its piece is done (a MARL run: trained; its own evaluation is run
+  /// by whichever piece reads it) or is no piece of this phase (the models).
+  bool met(const Pool& pool, const std::string& dep) const {
+    if (pool.finished.count(dep)) return true;
+    const auto it = pool.by_id.find(dep);
+    if (it == pool.by_id.end()) return true;
+    return it->second->kind == "marl" ? trained(*it->second) : it->second->done();
+  }
+
+  bool ready(const Pool& pool, std::size_t e) const {
+    for (const auto& d : pool.evals[e]->deps)
+      if (!met(pool, d)) return false;
+    return true;
+  }
+
+  std::string eta(const Pool& pool, std::size_t done, std::size_t total) const {
+    if (done >= total) return std::string();
+    const double per = pool.busy / static_cast<double>(done) / static_cast<double>(jobs_);
+    return fmt::format(", ETA {:.0f} s", per * static_cast<double>(total - done));
+  }
+
+  /// A MARL run trained by a child `skyloop train` (unless another process holds or made it).
+  void train_run(Pool& pool, const Piece& piece) {
+    const Config& cfg = piece.train_config;
+    const fs::path dir = ctx_.out / piece.id;
+    int rc = 0;
+    double sec = 0;
+    const bool ran = ctx_.cache.ensure(
+        piece.id, [&] { return trained(piece); },
+        [&] {
+          write_file_atomic((dir / "request.toml").string(), to_toml(cfg));
+          std::vector<std::string> argv = {exe_path(), "train", "--config", (dir / "request.toml").string(), "--out", dir.string()};
+          if (fs::exists(dir / "last.pt")) *pool.out << restart_note(dir) << std::flush;
+          argv.push_back("--force");
+          const auto tr = Clock::now();
+          rc = run_process(argv, (dir / "train.log").string());
+          sec = since(tr);
+          if (rc == 0) {
+            ctx_.record_timing(piece.id, "marl-train", piece.cost, sec);
+            nlohmann::json j = {{"seconds", sec},
+                                {"steps_per_second", static_cast<double>(cfg.marl.total_steps) / sec},
+                                {"env_steps", cfg.marl.total_steps},
+                                {"process", true}};
+            write_file_atomic((dir / "train.json").string(), j.dump(2) + "\n");
           }
-          if (!eval) {
-            // Nothing to start: done, or wait for a running piece that may make one ready.
-            if (open == 0 || running == 0) return;
-            changed.wait(lock);
-            continue;
-          }
+        },
+        pool.out);
+    std::lock_guard<std::mutex> lock(pool.mu);
+    if (rc != 0) {
+      pool.failed.push_back(fmt::format("{} (exit status {})", (dir / "train.log").string(), rc));
+      return;
+    }
+    pool.busy += sec;
+    ++pool.runs_done;
+    *pool.out << fmt::format("  {} K = {} seed {}: {:.0f} s{} ({}/{} runs, {:.0f} s elapsed{})\n", cfg.marl.algo,
+                             cfg.scenario.users, cfg.run.seed, sec, ran ? "" : " (by another process)", pool.runs_done,
+                             pool.runs.size(), since(pool.t0), eta(pool, pool.runs_done, pool.runs.size()))
+              << std::flush;
+  }
+
+  void evaluate_piece(Pool& pool, const Piece& piece, bool counted) {
+    const auto te = Clock::now();
+    try {
+      ctx_.ensure(piece);
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(pool.mu);
+      if (!pool.error) pool.error = std::current_exception();
+      return;
+    }
+    std::lock_guard<std::mutex> lock(pool.mu);
+    pool.finished[piece.id] = 1;
+    if (!counted) return;
+    ++pool.evals_done;
+    *pool.out << fmt::format("  {}: {:.1f} s ({}/{} evaluations, {:.0f} s elapsed)\n", piece.label, since(te), pool.evals_done,
+                             pool.evals.size(), since(pool.t0))
+              << std::flush;
+  }
+
+  /// One worker: the runs first, in order, then any evaluation whose inputs are ready.
+  void work(Pool& pool) {
+    set_torch_threads(1);  // one core per worker, denormals flushed as on the main thread
+    std::unique_lock<std::mutex> lock(pool.mu);
+    for (;;) {
+      if (pool.error) return;
+      const Piece* run = nullptr;
+      const Piece* eval = nullptr;
+      if (pool.next_run < pool.runs.size()) {
+        run = pool.runs[pool.next_run++];
+      } else {
+        std::size_t open = 0;
+        for (std::size_t e = 0; e < pool.evals.size() && !eval; ++e) {
+          if (pool.taken[e]) continue;
+          ++open;
+          if (ready(pool, e)) pool.taken[e] = 1, eval = pool.evals[e];
         }
-        ++running;
-        lock.unlock();
-        if (run) {
-          try {
-            if (!trained(*run)) train(*run);
-          } catch (...) {  // the cache's lock or a file: stop the pool, report it after
-            std::lock_guard<std::mutex> guard(mu);
-            if (!error) error = std::current_exception();
-          }
-          if (trained(*run)) evaluate(*run, false);  // its policy on its own users
-        } else {
-          evaluate(*eval, true);
+        if (!eval) {
+          // Nothing to start: done, or wait for a running piece that may make one ready.
+          if (open == 0 || pool.running == 0) return;
+          pool.changed.wait(lock);
+          continue;
         }
-        lock.lock();
-        --running;
-        changed.notify_all();
       }
-    };
-    std::vector<std::thread> pool;
-    for (int j = 0; j < jobs_; ++j) pool.emplace_back(worker);
-    for (auto& t : pool) t.join();
-    ctx_.log.rdbuf(shown);
-    if (!failed.empty())
-      throw std::runtime_error(fmt::format("{} of {} MARL runs failed; see {}", failed.size(), runs.size(), failed.front()));
-    if (error) std::rethrow_exception(error);
+      ++pool.running;
+      lock.unlock();
+      if (run) {
+        try {
+          if (!trained(*run)) train_run(pool, *run);
+        } catch (...) {  // the cache's lock or a file: stop the pool, report it after
+          std::lock_guard<std::mutex> guard(pool.mu);
+          if (!pool.error) pool.error = std::current_exception();
+        }
+        if (trained(*run)) evaluate_piece(pool, *run, false);  // its policy on its own users
+      } else {
+        evaluate_piece(pool, *eval, true);
+      }
+      lock.lock();
+      --pool.running;
+      pool.changed.notify_all();
+    }
   }
 
   bool trained(const Piece& run) const {

@@ -13,6 +13,7 @@
 #include "skyloop/core/parallel.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/layouts.hpp"
+#include "skyloop/env/vec_env.hpp"
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/nn/learned.hpp"
 

@@ -11,6 +11,7 @@
 
 #include "nets.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/env/vec_env.hpp"
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/planning/safety.hpp"
 

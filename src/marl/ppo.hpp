@@ -17,6 +17,7 @@
 
 #include "common.hpp"
 #include "skyloop/core/rng.hpp"
+#include "skyloop/env/vec_env.hpp"
 
 namespace skyloop::marl {
 

@@ -13,6 +13,7 @@
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/memory.hpp"
 #include "skyloop/core/progress.hpp"
+#include "skyloop/env/vec_env.hpp"
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/nn/learned.hpp"

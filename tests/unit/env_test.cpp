@@ -6,6 +6,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/env/layouts.hpp"
+#include "skyloop/env/vec_env.hpp"
 #include "skyloop/planning/planners.hpp"
 
 using namespace skyloop;

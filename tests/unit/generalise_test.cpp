@@ -11,6 +11,7 @@
 #include "skyloop/core/parallel.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/layouts.hpp"
+#include "skyloop/env/vec_env.hpp"
 #include "skyloop/planning/planners.hpp"
 #include "skyloop/planning/safety.hpp"
 #include "skyloop/planning/ways_home.hpp"

@@ -12,6 +12,7 @@
 #include "../scratch.hpp"
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/env/vec_env.hpp"
 
 using namespace skyloop;
 using namespace skyloop::marl;

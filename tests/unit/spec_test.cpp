@@ -13,6 +13,7 @@
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/spec.hpp"
 #include "skyloop/env/uav_env.hpp"
+#include "skyloop/env/vec_env.hpp"
 
 using namespace skyloop;
 

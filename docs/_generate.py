@@ -1,7 +1,7 @@
 """Writes the generated pages of the documentation from the program itself, never by hand:
 
 - reference/config.md: every configuration field (`skyloop config fields --json`: the one table,
-  src/core/config.cpp), grouped by section, with its type, default, allowed values and meaning;
+  src/core/config_fields.cpp), grouped by section, with its type, default, allowed values and meaning;
 - reference/cli.md: every command and option (each command's own `--help`, from the CLI's
   definitions), found by walking the subcommands;
 - reference/cpp.md: one section per public header under include/skyloop (breathe, over the XML
@@ -49,7 +49,7 @@ def config_page(build):
     fields = config_fields(build)
     text = ["# Configuration fields", "",
             "Every field of a skyloop configuration, generated from the one table that loading, `--set`,",
-            "validation and printing all read (`src/core/config.cpp`). A configuration file is TOML with",
+            "validation and printing all read (`src/core/config_fields.cpp`). A configuration file is TOML with",
             "these sections; `--set section.name=value` overrides one field on any command;",
             "`skyloop config show` prints a resolved configuration, which is itself a valid file, and",
             "`skyloop config fields` prints this table. `configs/paper.toml` holds the paper's Section VI",

@@ -227,7 +227,7 @@ struct NnConfig {                   // [nn] learned beamformers (Section IV and 
   std::string features = "linear";  // encoders' input: linear (the paper, eq:node_feature) | log (norm compressed)
   std::string precision = "float32";  // serving arithmetic: float32 (training's) | float64 (a reference for checks)
   std::string inference = "fast";     // serving path: fast (fused float32 kernels) | torch (LibTorch, the reference)
-  std::string selection = "soft";     // what a served per-cluster model's beams become: soft (as trained) | ranked (see config.cpp)
+  std::string selection = "soft";     // what a served per-cluster model's beams become: soft (as trained) | ranked (nn.selection in config_fields.cpp)
 };
 
 struct Config {

@@ -341,7 +341,7 @@ class PyVecEnv {
   /// chosen. reset and step drop turns in progress.
   py::dict begin_turns(std::optional<int> passes_in) {
     if (spec_->action.dims > 0)
-      throw InputError("begin_turns: trajectory.mobility = \"continuous\" has no turns: allowed with \"grid\" or \"headings\"");
+      throw InputError("begin_turns: trajectory.mobility = \"" + cfg_.trajectory.mobility + "\" takes velocity commands, which have no turns: allowed with " + lattice_dynamics_names());
     const int passes = passes_in.value_or(cfg_.marl.sequential_passes);
     if (passes < 1 || passes > kMaxSequentialPasses)
       throw InputError("begin_turns: passes = " + std::to_string(passes) + " is out of range: allowed an integer in [1, " +

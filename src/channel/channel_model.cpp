@@ -1,5 +1,7 @@
 #include "skyloop/channel/channel_model.hpp"
 
+#include "skyloop/channel/fading.hpp"
+
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -126,15 +128,6 @@ class AlHourani final : public PathLossModel {
   AirToGroundEnvironment env_;
 };
 
-/// A unit normal that is a pure function of `key` (Box-Muller on two mixed words).
-std::pair<double, double> normals_of(std::uint64_t key) {
-  const std::uint64_t a = mix64(key), b = mix64(key ^ 0x9e3779b97f4a7c15ULL);
-  const double u1 = (static_cast<double>(a >> 11) + 0.5) * 0x1.0p-53;  // (0, 1)
-  const double u2 = static_cast<double>(b >> 11) * 0x1.0p-53;
-  const double r = std::sqrt(-2.0 * std::log(u1));
-  return {r * std::cos(2.0 * kPi * u2), r * std::sin(2.0 * kPi * u2)};
-}
-
 std::uint64_t key_of(std::uint64_t seed, std::uint64_t which, double x, double y) {
   std::uint64_t h = hash_bytes(&seed, sizeof seed);
   h = hash_bytes(&which, sizeof which, h);
@@ -182,19 +175,15 @@ ChannelModel::ChannelModel(const Config& cfg)
       beta0_(db_to_linear(cfg.channel.beta0_db)),
       d0_(cfg.channel.d0_m),
       free_space_(cfg.channel.pathloss == "free-space"),
-      rician_(cfg.channel.fading == "rician"),
       shadowing_(cfg.channel.shadowing),
-      k_elevation_(cfg.channel.rician_k == "elevation"),
-      k_db_(cfg.channel.rician_k_db),
-      k_min_db_(cfg.channel.rician_k_min_db),
-      k_max_db_(cfg.channel.rician_k_max_db),
       correlation_(cfg.channel.correlation_m),
-      fast_slots_(cfg.channel.fast_slots),
       seed_(cfg.channel.seed),
-      path_loss_(make_path_loss(cfg.channel)) {
-  if (cfg.channel.fading != "none" && cfg.channel.fading != "rician")
-    throw InputError("channel.fading = \"" + cfg.channel.fading + "\" is unknown: allowed none, rician");
-}
+      path_loss_(make_path_loss(cfg.channel)),
+      fading_(make_fading(cfg.channel)) {}
+
+bool ChannelModel::paper() const { return free_space_ && !fading_->random(); }
+
+int ChannelModel::fast_slots() const { return fading_->fast_slots(); }
 
 double ChannelModel::distance(double ux, double uy, double x, double y) const {
   const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
@@ -222,15 +211,10 @@ double ChannelModel::field(int which, double ux, double uy, double x, double y) 
       const double w = (cx ? tx : 1.0 - tx) * (cy ? ty : 1.0 - ty);
       if (w == 0.0) continue;
       const auto px = static_cast<std::int64_t>(ix) + cx, py = static_cast<std::int64_t>(iy) + cy;
-      sum += w * normals_of(derive_seed(user, static_cast<std::uint64_t>(px), static_cast<std::uint64_t>(py))).first;
+      sum += w * unit_normals(derive_seed(user, static_cast<std::uint64_t>(px), static_cast<std::uint64_t>(py))).first;
       weights += w * w;
     }
   return sum / std::sqrt(weights);
-}
-
-double ChannelModel::k_factor(double elevation_deg) const {
-  if (!k_elevation_) return db_to_linear(k_db_);
-  return db_to_linear(k_min_db_ + (k_max_db_ - k_min_db_) * elevation_deg / 90.0);
 }
 
 LinkState ChannelModel::link(double ux, double uy, double x, double y) const {
@@ -247,8 +231,7 @@ LinkState ChannelModel::link(double ux, double uy, double x, double y) const {
     if (spread > 0) s.shadowing_db = spread * field(1, ux, uy, x, y);
     s.gain = db_to_linear(-(s.path_loss_db + s.shadowing_db));
   }
-  const double inf = std::numeric_limits<double>::infinity();
-  s.k_factor_db = !rician_ ? inf : s.los ? linear_to_db(k_factor(s.geometry.elevation_deg)) : -inf;
+  s.k_factor_db = fading_->k_factor_db(s);
   return s;
 }
 
@@ -270,20 +253,14 @@ VectorXcd ChannelModel::channel(double ux, double uy, double x, double y, int sl
   }
   const LinkState s = link(ux, uy, x, y);
   const VectorXcd a = steering(height_above_users() / s.geometry.distance_m);
-  if (!rician_) return std::sqrt(s.gain) * a;
-  const double k = s.los ? k_factor(s.geometry.elevation_deg) : 0.0;
-  const double direct = std::sqrt(k / (k + 1.0)), scattered = std::sqrt(1.0 / (k + 1.0));
+  if (!fading_->random()) return fading_->realise(s, a, 0);
+  // The slot's draws: a pure function of (channel.seed, the UAV's position, the user's, the slot).
   std::uint64_t h = key_of(seed_, 2, ux, uy);
   h = hash_bytes(&x, sizeof x, h);
   h = hash_bytes(&y, sizeof y, h);
   const auto m = static_cast<std::uint64_t>(slot);
   h = hash_bytes(&m, sizeof m, h);
-  VectorXcd out(antennas_);
-  for (int l = 0; l < antennas_; ++l) {
-    const auto [re, im] = normals_of(derive_seed(h, static_cast<std::uint64_t>(l)));
-    out[l] = std::sqrt(s.gain) * (direct * a[l] + scattered * std::complex<double>(re, im) / std::sqrt(2.0));
-  }
-  return out;
+  return fading_->realise(s, a, h);
 }
 
 }  // namespace skyloop

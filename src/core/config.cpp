@@ -10,6 +10,7 @@
 #include "skyloop/core/io.hpp"
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/channel/path_loss.hpp"
+#include "skyloop/env/dynamics.hpp"
 #include "skyloop/marl/learners.hpp"
 
 namespace skyloop {
@@ -242,55 +243,6 @@ long lattice_steps(double v, double slot_s, double pitch) {
   return std::abs(k - static_cast<double>(r)) < 1e-6 ? r : -1;
 }
 
-void validate_mobility(const Config& c) {
-  const auto& t = c.trajectory;
-  if (t.mobility == "grid") {
-    if (c.energy.model != "none" && t.d_fly_m / t.slot_s >= c.energy.u_tip_mps)
-      throw InputError("trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m per trajectory.slot_s = " + format_double(t.slot_s) +
-                       " s flies " + format_double(t.d_fly_m / t.slot_s) + " m/s, at or above energy.u_tip_mps = " +
-                       format_double(c.energy.u_tip_mps) + ": allowed a ground speed below the tip speed (the power model's range)");
-    return;
-  }
-  if (t.mobility == "continuous") {
-    if (c.marl.reserve_slack >= 0)
-      throw InputError("marl.reserve_slack = " + std::to_string(c.marl.reserve_slack) +
-                       " is not allowed with trajectory.mobility = continuous: allowed -1 (ways home are planned on the lattice of grid and headings)");
-    if (c.energy.model != "none" && t.v_max_mps >= c.energy.u_tip_mps)
-      throw InputError("trajectory.v_max_mps = " + format_double(t.v_max_mps) + " is at or above energy.u_tip_mps = " +
-                       format_double(c.energy.u_tip_mps) + ": allowed a ground speed below the tip speed (the power model's range)");
-    return;
-  }
-  if (t.mobility != "headings")
-    throw InputError("trajectory.mobility = \"" + t.mobility + "\" is not allowed: allowed one of grid, headings, continuous");
-  int moving = 0;
-  for (std::size_t i = 0; i < t.speeds_mps.size(); ++i) {
-    const double v = t.speeds_mps[i];
-    if (v == 0) continue;
-    const long k = lattice_steps(v, t.slot_s, t.d_fly_m);
-    if (k < 1)
-      throw InputError("trajectory.speeds_mps[" + std::to_string(i) + "] = " + format_double(v) + " m/s flies " +
-                       format_double(v * t.slot_s) + " m per slot of trajectory.slot_s = " + format_double(t.slot_s) +
-                       " s: allowed speeds whose step is a whole multiple of trajectory.d_fly_m = " + format_double(t.d_fly_m) +
-                       " m (the lattice pitch), or 0 (hover)");
-    for (std::size_t j = 0; j < i; ++j)
-      if (t.speeds_mps[j] == v)
-        throw InputError("trajectory.speeds_mps[" + std::to_string(i) + "] = " + format_double(v) + " repeats entry " +
-                         std::to_string(j) + ": allowed distinct speeds");
-    if (std::sqrt(2.0) * v >= c.energy.u_tip_mps && c.energy.model != "none")
-      throw InputError("trajectory.speeds_mps[" + std::to_string(i) + "] = " + format_double(v) + " m/s flies " +
-                       format_double(std::sqrt(2.0) * v) + " m/s on a diagonal, at or above energy.u_tip_mps = " +
-                       format_double(c.energy.u_tip_mps) + ": allowed ground speeds below the tip speed (the power model's range)");
-    ++moving;
-  }
-  if (moving == 0)
-    throw InputError("trajectory.speeds_mps = " + format_value(FieldValue(t.speeds_mps)) +
-                     " has no positive speed: allowed at least one speed above 0 (0 = hover)");
-  if (8 * moving + 1 > kMaxActions)
-    throw InputError("trajectory.speeds_mps has " + std::to_string(moving) + " positive speeds, " + std::to_string(8 * moving + 1) +
-                     " actions: allowed at most " + std::to_string((kMaxActions - 1) / 8) + " positive speeds (" +
-                     std::to_string(kMaxActions) + " actions)");
-}
-
 void finalise(Config& c) {
   if (c.trajectory.layout == "generated") generate_layout(c);
   validate(c);
@@ -362,7 +314,11 @@ void validate(const Config& c) {
                        c.channel.pathloss + "\"'s range: allowed an area whose diagonal is at most " +
                        format_double(pl->max_horizontal_m) + " m");
   }
-  validate_mobility(c);
+  // The model's own settings (its factory refuses what does not fit it), and what needs the lattice.
+  const auto dynamics = make_dynamics(c);
+  if (c.marl.reserve_slack >= 0 && !dynamics->lattice())
+    throw InputError("marl.reserve_slack = " + std::to_string(c.marl.reserve_slack) + " is not allowed with trajectory.mobility = " +
+                     c.trajectory.mobility + ": allowed -1 (ways home are planned on the lattice of " + lattice_dynamics_names() + ")");
   if (c.marl.rate_map > 0 && c.marl.encoder != "set")
     throw InputError("marl.rate_map = " + std::to_string(c.marl.rate_map) + " with marl.encoder = \"" + c.marl.encoder +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
@@ -375,9 +331,9 @@ void validate(const Config& c) {
   if (c.marl.sequential && find_learner(c.marl.algo).core != LearnerInfo::Core::Ppo)
     throw InputError("marl.sequential = true with marl.algo = \"" + c.marl.algo +
                      "\": allowed with the PPO learners (mappo, ippo), whose policies sample one agent at a time");
-  if (c.marl.sequential && c.trajectory.mobility == "continuous")
-    throw InputError("marl.sequential = true with trajectory.mobility = \"continuous\": allowed with the grid and headings "
-                     "mobility models (their moves land where the shield orders them)");
+  if (c.marl.sequential && !dynamics->lattice())
+    throw InputError("marl.sequential = true with trajectory.mobility = \"" + c.trajectory.mobility + "\": allowed with the " +
+                     lattice_dynamics_names() + " mobility models (their moves land where the shield orders them)");
   if (c.marl.sequential_passes > 1 && !c.marl.sequential)
     throw InputError("marl.sequential_passes = " + std::to_string(c.marl.sequential_passes) +
                      " with marl.sequential = false: allowed 1, or more passes with marl.sequential = true (the passes are its turns)");

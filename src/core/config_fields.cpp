@@ -7,11 +7,13 @@
 #include <vector>
 
 #include "skyloop/beamforming/registry.hpp"
+#include "skyloop/channel/fading.hpp"
 #include "skyloop/channel/path_loss.hpp"
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/rng.hpp"
+#include "skyloop/env/dynamics.hpp"
 #include "skyloop/marl/learners.hpp"
 
 namespace skyloop {
@@ -131,8 +133,12 @@ void add_channel_fields(std::vector<Field>& f) {
     b.set = [](Config& c, const FieldValue& v) { c.channel.shadowing = std::get<bool>(v); };
     f.push_back(std::move(b));
   }
-  f.push_back(text("channel.fading", "small-scale fading: none (the paper) or rician (Rayleigh on NLoS links)", {"none", "rician"},
-                   [](Config& c) -> std::string& { return c.channel.fading; }));
+  {
+    std::vector<std::string> fading;  // the fading models' table (skyloop/channel/fading.hpp)
+    for (const auto& m : kFadingModels) fading.emplace_back(m.name);
+    f.push_back(text("channel.fading", "small-scale fading: none (the paper) or rician (Rayleigh on NLoS links)", fading,
+                     [](Config& c) -> std::string& { return c.channel.fading; }));
+  }
   f.push_back(text("channel.rician_k", "Rician K: fixed = rician_k_db; elevation = k_min_db at 0 deg rising linearly in dB to k_max_db at 90 deg",
                    {"fixed", "elevation"}, [](Config& c) -> std::string& { return c.channel.rician_k; }));
   f.push_back(real("channel.rician_k_db", "Rician K-factor of a LoS link (dB)", -50, 100,
@@ -204,10 +210,10 @@ void add_trajectory_and_energy_fields(std::vector<Field>& f) {
                    {"given", "generated"}, [](Config& c) -> std::string& { return c.trajectory.layout; }));
   f.push_back(integer("trajectory.layout_seed", "seed of a generated layout", 0, 4611686018427387904.0,
                       [](Config& c) -> std::uint64_t& { return c.trajectory.layout_seed; }));
-  f.push_back(text("trajectory.mobility",
-                   "grid: the paper's five moves of D_fly; headings: 8 headings x trajectory.speeds_mps on the D_fly lattice; "
-                   "continuous: a velocity in the disc of v_max_mps, its change bounded by a_max_mps2 (docs/concepts/mobility-energy.md)",
-                   {"grid", "headings", "continuous"}, [](Config& c) -> std::string& { return c.trajectory.mobility; }));
+  std::string mobility_help;  // the models' own lines (skyloop/env/dynamics.hpp's registry)
+  for (const auto& m : dynamics_models()) mobility_help += (mobility_help.empty() ? "" : "; ") + std::string(m.name) + ": " + m.description;
+  f.push_back(text("trajectory.mobility", mobility_help + " (docs/concepts/mobility-energy.md)", dynamics_names(),
+                   [](Config& c) -> std::string& { return c.trajectory.mobility; }));
   f.push_back(reals("trajectory.speeds_mps",
                     "headings: speeds along the axes (m/s; 0 = hover; diagonals fly sqrt(2) x), each x slot_s a multiple of D_fly",
                     0, 200, [](Config& c) -> std::vector<double>& { return c.trajectory.speeds_mps; }));

@@ -18,22 +18,17 @@ void UavEnv::write_observation(int n, float* o) const {
   double mx = 0, my = 0;
   for (Eigen::Index k = 0; k < users.rows(); ++k) mx += users(k, 0) - pos_(n, 0), my += users(k, 1) - pos_(n, 1);
   const double K = static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
-  o[0] = static_cast<float>(pos_(n, 0) / area_x_);
-  o[1] = static_cast<float>(pos_(n, 1) / area_y_);
-  o[2] = static_cast<float>(mx / K / area_x_);
-  o[3] = static_cast<float>(my / K / area_y_);
-  o[4] = static_cast<float>((dest_(n, 0) - pos_(n, 0)) / area_x_);
-  o[5] = static_cast<float>((dest_(n, 1) - pos_(n, 1)) / area_y_);
+  o[0] = static_cast<float>(pos_(n, 0) / mission_.area_x);
+  o[1] = static_cast<float>(pos_(n, 1) / mission_.area_y);
+  o[2] = static_cast<float>(mx / K / mission_.area_x);
+  o[3] = static_cast<float>(my / K / mission_.area_y);
+  o[4] = static_cast<float>((mission_.destinations(n, 0) - pos_(n, 0)) / mission_.area_x);
+  o[5] = static_cast<float>((mission_.destinations(n, 1) - pos_(n, 1)) / mission_.area_y);
   write_previous_action(n, o + 6);
 }
 
 void UavEnv::write_previous_action(int n, float* o) const {
-  if (mobility_->continuous()) {
-    o[0] = static_cast<float>(vel_(n, 0) / mobility_->v_max());
-    o[1] = static_cast<float>(vel_(n, 1) / mobility_->v_max());
-    return;
-  }
-  for (int a = 0; a < actions(); ++a) o[a] = a == prev_action_[static_cast<std::size_t>(n)] ? 1.0f : 0.0f;
+  dynamics_->write_previous_action(prev_action_[static_cast<std::size_t>(n)], current(n), o);
 }
 
 std::vector<float> UavEnv::observation(int n) const {
@@ -114,10 +109,10 @@ void add_kernel(float* map, int G, double step, double width, double dx, double 
 void UavEnv::write_set_observation(int n, float* o) const {
   const double x = pos_(n, 0), y = pos_(n, 1);
   const int left = t_max_ - t_;
-  *o++ = static_cast<float>(x / area_x_);
-  *o++ = static_cast<float>(y / area_y_);
-  *o++ = static_cast<float>((dest_(n, 0) - x) / area_x_);
-  *o++ = static_cast<float>((dest_(n, 1) - y) / area_y_);
+  *o++ = static_cast<float>(x / mission_.area_x);
+  *o++ = static_cast<float>(y / mission_.area_y);
+  *o++ = static_cast<float>((mission_.destinations(n, 0) - x) / mission_.area_x);
+  *o++ = static_cast<float>((mission_.destinations(n, 1) - y) / mission_.area_y);
   *o++ = static_cast<float>(left - min_moves(n, x, y)) / static_cast<float>(t_max_);
   *o++ = static_cast<float>(t_) / static_cast<float>(t_max_);
   write_previous_action(n, o);
@@ -191,7 +186,7 @@ void UavEnv::write_rate_map(int n, float* o) const {
   for (int c = 0; c < C; ++c) {
     const double x = pos_(n, 0) + d_fly_ * cells[static_cast<std::size_t>(c)][0];
     const double y = pos_(n, 1) + d_fly_ * cells[static_cast<std::size_t>(c)][1];
-    if (x < 0 || y < 0 || x > area_x_ || y > area_y_) {
+    if (x < 0 || y < 0 || x > mission_.area_x || y > mission_.area_y) {
       o[c] = -1.0f;
       continue;
     }
@@ -233,8 +228,8 @@ void UavEnv::write_compact_state(float* s) const {
     constexpr int G = kStateGrid;
     std::fill(s, s + compact_state_size(), 0.0f);
     auto cell = [&](double x, double y) {
-      const int ix = std::min(G - 1, std::max(0, static_cast<int>(x / area_x_ * G)));
-      const int iy = std::min(G - 1, std::max(0, static_cast<int>(y / area_y_ * G)));
+      const int ix = std::min(G - 1, std::max(0, static_cast<int>(x / mission_.area_x * G)));
+      const int iy = std::min(G - 1, std::max(0, static_cast<int>(y / mission_.area_y * G)));
       return iy * G + ix;
     };
     const float per_user = 1.0f / static_cast<float>(std::max<Eigen::Index>(1, users.rows()));
@@ -244,7 +239,7 @@ void UavEnv::write_compact_state(float* s) const {
     for (int n = 0; n < n_; ++n) {
       s[G * G + cell(pos_(n, 0), pos_(n, 1))] += per_uav;
       if (arrived(n)) ++home;
-      else s[2 * G * G + cell(dest_(n, 0), dest_(n, 1))] += per_uav;
+      else s[2 * G * G + cell(mission_.destinations(n, 0), mission_.destinations(n, 1))] += per_uav;
     }
     s[3 * G * G] = static_cast<float>(t_) / static_cast<float>(t_max_);
     s[3 * G * G + 1] = static_cast<float>(home) * per_uav;
@@ -257,10 +252,10 @@ void UavEnv::write_state(float* s) const {
     write_compact_state(s);
     return;
   }
-  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(pos_(n, 0) / area_x_), *s++ = static_cast<float>(pos_(n, 1) / area_y_);
+  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(pos_(n, 0) / mission_.area_x), *s++ = static_cast<float>(pos_(n, 1) / mission_.area_y);
   for (Eigen::Index k = 0; k < users.rows(); ++k)
-    *s++ = static_cast<float>(users(k, 0) / area_x_), *s++ = static_cast<float>(users(k, 1) / area_y_);
-  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(dest_(n, 0) / area_x_), *s++ = static_cast<float>(dest_(n, 1) / area_y_);
+    *s++ = static_cast<float>(users(k, 0) / mission_.area_x), *s++ = static_cast<float>(users(k, 1) / mission_.area_y);
+  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(mission_.destinations(n, 0) / mission_.area_x), *s++ = static_cast<float>(mission_.destinations(n, 1) / mission_.area_y);
 }
 
 void UavEnv::write_agent_context(int n, float* out) const {
@@ -277,8 +272,8 @@ void UavEnv::write_agent_context(int n, float* out) const {
   std::fill(out, out + 2 * kNeighbours, 0.0f);
   for (std::size_t i = 0; i < take; ++i) {
     const int m = near[i].second;
-    out[2 * i] = static_cast<float>((pos_(m, 0) - pos_(n, 0)) / area_x_);
-    out[2 * i + 1] = static_cast<float>((pos_(m, 1) - pos_(n, 1)) / area_y_);
+    out[2 * i] = static_cast<float>((pos_(m, 0) - pos_(n, 0)) / mission_.area_x);
+    out[2 * i + 1] = static_cast<float>((pos_(m, 1) - pos_(n, 1)) / mission_.area_y);
   }
 }
 

@@ -97,23 +97,15 @@ double total_of(const std::vector<double>& per_uav) {
 }
 }  // namespace
 
-std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, const std::vector<const Positions*>& uavs) {
+/// One call of batch_sum_rates: every position set's clusters (or network) looked up in its
+/// oracle's memo, the misses designed per beamformer in one batch each, the sums assembled.
+class RateBatch {
+ public:
   using Key = RateOracle::Key;
-  const std::size_t m = oracles.size();
-  // One association at a time (reused storage); what R needs of it is kept flat: per position set
-  // its clusters' rates in UAV order, a hit's value at once, a miss's looked up once computed.
-  thread_local std::vector<Key> keys, prev_keys;
-  thread_local std::vector<std::vector<int>> members;
-  // A set asked right after another of the same oracle (a UAV's moves, its radio map) mostly keeps
-  // its clusters: a cluster whose key is the one before's takes that part's rate (or, while that
-  // one is a miss, its value once computed: `aliases`) without a memo lookup.
-  const RateOracle* prev_oracle = nullptr;
-  std::vector<std::ptrdiff_t> part_of, prev_part_of;  // per UAV of the set (and of the set before): its part, -1 none
-  std::vector<std::pair<std::size_t, std::size_t>> aliases;  // (part, the earlier part whose rate it takes)
-  std::vector<std::size_t> parts_begin(m + 1, 0);
-  std::vector<double> part_rate;        // the cluster's rate, or NaN until its miss is computed
-  std::vector<std::size_t> part_later;  // parts whose rate is a miss of this batch (with its key and oracle below)
-  std::vector<Key> later_keys;
+  RateBatch(const std::vector<RateOracle*>& oracles, const std::vector<const Positions*>& uavs) : oracles_(oracles), uavs_(uavs) {}
+  std::vector<double> run();
+
+ private:
   // Misses per beamformer. Per-cluster (orthogonal): (oracle, key) and its cluster. Joint
   // (shared): (oracle, joint key) and its network.
   // A miss holds its fast slots' clusters (or networks) at [first, first + slots); its rate is
@@ -130,121 +122,160 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
     std::size_t first = 0;
     int slots = 1;
   };
-  std::vector<const Beamformer*> groups;
-  std::vector<std::vector<Miss>> misses;
-  std::vector<std::vector<Cluster>> clusters;
-  std::vector<std::vector<JointMiss>> joint_misses;
-  std::vector<std::vector<Network>> networks;
-  auto group_of = [&](const Beamformer* bf) {
-    std::size_t g = 0;
-    while (g < groups.size() && groups[g] != bf) ++g;
-    if (g == groups.size()) {
-      groups.push_back(bf);
-      misses.emplace_back(), clusters.emplace_back(), joint_misses.emplace_back(), networks.emplace_back();
-    }
-    return g;
-  };
-  std::unordered_map<const RateOracle*, std::unordered_map<Key, char, RateOracle::KeyHash>> pending;
-  std::unordered_map<const RateOracle*, std::unordered_map<std::vector<double>, char, RateOracle::JointHash>> joint_pending;
-  std::vector<std::vector<double>> jkeys(m);
-  std::vector<RateOracle*> later_oracle;
-  // A memo past its bound starts afresh before the batch looks anything up (the batch reads back
-  // what it inserts, so never in the middle of one).
-  for (RateOracle* o : oracles)
+  /// A memo past its bound starts afresh before the batch looks anything up (the batch reads back
+  /// what it inserts, so never in the middle of one).
+  void clear_full_memos();
+  std::size_t group_of(const Beamformer* bf);
+  /// Position set s under one band: its network, a hit or a miss.
+  void add_network(std::size_t s, RateOracle& o);
+  /// Position set s per cluster: each cluster's rate, a hit (also by the set before's same key) or a miss.
+  void add_clusters(std::size_t s, RateOracle& o);
+  /// Every group's misses designed in one batch, into the memos.
+  void design();
+  std::vector<double> assemble() const;
+  static std::vector<Key>& scratch_keys(int which) {
+    thread_local std::vector<Key> keys[2];  // reused storage: one association at a time
+    return keys[which];
+  }
+  static std::vector<std::vector<int>>& scratch_members() {
+    thread_local std::vector<std::vector<int>> members;
+    return members;
+  }
+
+  const std::vector<RateOracle*>& oracles_;
+  const std::vector<const Positions*>& uavs_;
+  // One association at a time (reused storage); what R needs of it is kept flat: per position set
+  // its clusters' rates in UAV order, a hit's value at once, a miss's looked up once computed.
+  std::vector<Key>& keys_ = scratch_keys(0);
+  std::vector<Key>& prev_keys_ = scratch_keys(1);
+  std::vector<std::vector<int>>& members_ = scratch_members();
+  // A set asked right after another of the same oracle (a UAV's moves, its radio map) mostly keeps
+  // its clusters: a cluster whose key is the one before's takes that part's rate (or, while that
+  // one is a miss, its value once computed: `aliases_`) without a memo lookup.
+  const RateOracle* prev_oracle_ = nullptr;
+  std::vector<std::ptrdiff_t> part_of_, prev_part_of_;  // per UAV of the set (and of the set before): its part, -1 none
+  std::vector<std::pair<std::size_t, std::size_t>> aliases_;  // (part, the earlier part whose rate it takes)
+  std::vector<std::size_t> parts_begin_;
+  std::vector<double> part_rate_;        // the cluster's rate, or NaN until its miss is computed
+  std::vector<std::size_t> part_later_;  // parts whose rate is a miss of this batch (with its key and oracle below)
+  std::vector<Key> later_keys_;
+  std::vector<RateOracle*> later_oracle_;
+  std::vector<const Beamformer*> groups_;
+  std::vector<std::vector<Miss>> misses_;
+  std::vector<std::vector<Cluster>> clusters_;
+  std::vector<std::vector<JointMiss>> joint_misses_;
+  std::vector<std::vector<Network>> networks_;
+  std::unordered_map<const RateOracle*, std::unordered_map<Key, char, RateOracle::KeyHash>> pending_;
+  std::unordered_map<const RateOracle*, std::unordered_map<std::vector<double>, char, RateOracle::JointHash>> joint_pending_;
+  std::vector<std::vector<double>> jkeys_;
+};
+
+void RateBatch::clear_full_memos() {
+  for (RateOracle* o : oracles_)
     if (o->memo_bytes_ > o->memo_limit_) {
       o->cache_ = {};
       o->joint_cache_ = {};
       o->memo_bytes_ = 0;
     }
-  for (std::size_t s = 0; s < m; ++s) {
-    RateOracle& o = *oracles[s];
-    o.keys_of(*uavs[s], keys, members);
-    parts_begin[s] = part_rate.size();
-    if (o.joint()) {
-      prev_oracle = nullptr;
-      jkeys[s] = RateOracle::joint_key(*uavs[s]);
-      auto& mine = joint_pending[&o];
-      if (o.joint_cache_.count(jkeys[s]) || mine.count(jkeys[s])) {
-        ++o.stats_.hits;
-        continue;
-      }
-      ++o.stats_.misses;
-      mine.emplace(jkeys[s], 1);
-      const std::size_t g = group_of(o.beamformer_.get());
-      const int slots = o.model_.fast_slots();
-      joint_misses[g].push_back({&o, jkeys[s], networks[g].size(), slots});
-      for (int slot = 0; slot < slots; ++slot) networks[g].push_back(o.model_.network(*uavs[s], o.users_, members, slot));
+}
+
+std::size_t RateBatch::group_of(const Beamformer* bf) {
+  std::size_t g = 0;
+  while (g < groups_.size() && groups_[g] != bf) ++g;
+  if (g == groups_.size()) {
+    groups_.push_back(bf);
+    misses_.emplace_back(), clusters_.emplace_back(), joint_misses_.emplace_back(), networks_.emplace_back();
+  }
+  return g;
+}
+
+void RateBatch::add_network(std::size_t s, RateOracle& o) {
+  prev_oracle_ = nullptr;
+  jkeys_[s] = RateOracle::joint_key(*uavs_[s]);
+  auto& mine = joint_pending_[&o];
+  if (o.joint_cache_.count(jkeys_[s]) || mine.count(jkeys_[s])) {
+    ++o.stats_.hits;
+    return;
+  }
+  ++o.stats_.misses;
+  mine.emplace(jkeys_[s], 1);
+  const std::size_t g = group_of(o.beamformer_.get());
+  const int slots = o.model_.fast_slots();
+  joint_misses_[g].push_back({&o, jkeys_[s], networks_[g].size(), slots});
+  for (int slot = 0; slot < slots; ++slot) networks_[g].push_back(o.model_.network(*uavs_[s], o.users_, members_, slot));
+}
+
+void RateBatch::add_clusters(std::size_t s, RateOracle& o) {
+  std::unordered_map<Key, char, RateOracle::KeyHash>* mine = nullptr;
+  const bool chained = prev_oracle_ == &o && prev_keys_.size() == keys_.size();
+  part_of_.assign(keys_.size(), -1);
+  for (std::size_t i = 0; i < keys_.size(); ++i) {
+    if (members_[i].empty()) continue;
+    const Key& key = keys_[i];
+    const std::size_t part = part_rate_.size();
+    part_of_[i] = static_cast<std::ptrdiff_t>(part);
+    if (chained && prev_part_of_[i] >= 0 && key == prev_keys_[i]) {
+      const auto q = static_cast<std::size_t>(prev_part_of_[i]);
+      const double known = part_rate_[q];
+      part_rate_.push_back(known);
+      if (std::isnan(known)) aliases_.emplace_back(part, q);
+      ++o.stats_.hits;  // a memo hit, or a miss this batch computes: a hit as below
       continue;
     }
-    std::unordered_map<Key, char, RateOracle::KeyHash>* mine = nullptr;
-    const bool chained = prev_oracle == &o && prev_keys.size() == keys.size();
-    part_of.assign(keys.size(), -1);
-    for (std::size_t i = 0; i < keys.size(); ++i) {
-      if (members[i].empty()) continue;
-      const Key& key = keys[i];
-      const std::size_t part = part_rate.size();
-      part_of[i] = static_cast<std::ptrdiff_t>(part);
-      if (chained && prev_part_of[i] >= 0 && key == prev_keys[i]) {
-        const auto q = static_cast<std::size_t>(prev_part_of[i]);
-        const double known = part_rate[q];
-        part_rate.push_back(known);
-        if (std::isnan(known)) aliases.emplace_back(part, q);
-        ++o.stats_.hits;  // a memo hit, or a miss this batch computes: a hit as below
-        continue;
-      }
-      part_rate.push_back(std::numeric_limits<double>::quiet_NaN());
-      if (const auto it = o.cache_.find(key); it != o.cache_.end()) {
-        ++o.stats_.hits;
-        part_rate.back() = it->second;
-        continue;
-      }
-      part_later.push_back(part);
-      later_keys.push_back(key);
-      later_oracle.push_back(&o);
-      if (!mine) mine = &pending[&o];
-      if (mine->count(key)) {
-        ++o.stats_.hits;
-        continue;
-      }
-      ++o.stats_.misses;
-      mine->emplace(key, 1);
-      const std::size_t g = group_of(o.beamformer_.get());
-      const int slots = o.model_.fast_slots();
-      misses[g].push_back({&o, key, clusters[g].size(), slots});
-      for (int slot = 0; slot < slots; ++slot)
-        clusters[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members[i],
-                                                    static_cast<int>(uavs[s]->rows()), slot));
+    part_rate_.push_back(std::numeric_limits<double>::quiet_NaN());
+    if (const auto it = o.cache_.find(key); it != o.cache_.end()) {
+      ++o.stats_.hits;
+      part_rate_.back() = it->second;
+      continue;
     }
-    prev_oracle = &o;
-    std::swap(keys, prev_keys);
-    std::swap(part_of, prev_part_of);
+    part_later_.push_back(part);
+    later_keys_.push_back(key);
+    later_oracle_.push_back(&o);
+    if (!mine) mine = &pending_[&o];
+    if (mine->count(key)) {
+      ++o.stats_.hits;
+      continue;
+    }
+    ++o.stats_.misses;
+    mine->emplace(key, 1);
+    const std::size_t g = group_of(o.beamformer_.get());
+    const int slots = o.model_.fast_slots();
+    misses_[g].push_back({&o, key, clusters_[g].size(), slots});
+    for (int slot = 0; slot < slots; ++slot)
+      clusters_[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members_[i],
+                                                   static_cast<int>(uavs_[s]->rows()), slot));
   }
-  parts_begin[m] = part_rate.size();
+  prev_oracle_ = &o;
+  std::swap(keys_, prev_keys_);
+  std::swap(part_of_, prev_part_of_);
+}
+
+void RateBatch::design() {
   int threads = 1;
   if (!in_parallel_for())
-    for (const RateOracle* o : oracles) threads = std::max(threads, o->threads_);
-  for (std::size_t g = 0; g < groups.size(); ++g) {
-    if (!clusters[g].empty()) {
-      const auto W = groups[g]->design_batch(clusters[g], threads);
-      for (const Miss& miss : misses[g]) {
+    for (const RateOracle* o : oracles_) threads = std::max(threads, o->threads_);
+  for (std::size_t g = 0; g < groups_.size(); ++g) {
+    if (!clusters_[g].empty()) {
+      const auto W = groups_[g]->design_batch(clusters_[g], threads);
+      for (const Miss& miss : misses_[g]) {
         double rate = 0;
         for (int slot = 0; slot < miss.slots; ++slot) {
           const std::size_t c = miss.first + static_cast<std::size_t>(slot);
-          check_beamformer_output(*groups[g], clusters[g][c], W[c]);
-          rate += sum_rate(clusters[g][c], W[c]);
+          check_beamformer_output(*groups_[g], clusters_[g][c], W[c]);
+          rate += sum_rate(clusters_[g][c], W[c]);
         }
         miss.oracle->cache_.emplace(miss.key, miss.slots == 1 ? rate : rate / miss.slots);
         miss.oracle->memo_bytes_ += kEntryBytes + 8.0 * static_cast<double>(miss.key.big.size());
       }
     }
-    if (!networks[g].empty()) {
-      const auto W = groups[g]->design_networks(networks[g], threads);
-      for (const JointMiss& miss : joint_misses[g]) {
+    if (!networks_[g].empty()) {
+      const auto W = groups_[g]->design_networks(networks_[g], threads);
+      for (const JointMiss& miss : joint_misses_[g]) {
         std::vector<double> per_uav;
         for (int slot = 0; slot < miss.slots; ++slot) {
           const std::size_t n = miss.first + static_cast<std::size_t>(slot);
-          const Network& net = networks[g][n];
-          check_network_output(*groups[g], net, W[n]);
+          const Network& net = networks_[g][n];
+          check_network_output(*groups_[g], net, W[n]);
           const auto rates = network_cluster_rates(net, W[n]);
           per_uav.resize(static_cast<std::size_t>(net.uavs), 0.0);
           for (std::size_t c = 0; c < net.clusters.size(); ++c) per_uav[static_cast<std::size_t>(net.clusters[c].uav)] += rates[c];
@@ -256,17 +287,41 @@ std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, con
       }
     }
   }
-  for (std::size_t j = 0; j < part_later.size(); ++j) part_rate[part_later[j]] = later_oracle[j]->cache_.at(later_keys[j]);
-  for (const auto& [part, q] : aliases) part_rate[part] = part_rate[q];  // in order: q is filled before
-  std::vector<double> out(m, 0.0);
-  for (std::size_t s = 0; s < m; ++s) {
-    if (oracles[s]->joint()) {
-      out[s] = total_of(oracles[s]->joint_cache_.at(jkeys[s]));
+}
+
+std::vector<double> RateBatch::assemble() const {
+  std::vector<double> out(oracles_.size(), 0.0);
+  for (std::size_t s = 0; s < oracles_.size(); ++s) {
+    if (oracles_[s]->joint()) {
+      out[s] = total_of(oracles_[s]->joint_cache_.at(jkeys_[s]));
       continue;
     }
-    for (std::size_t p = parts_begin[s]; p < parts_begin[s + 1]; ++p) out[s] += part_rate[p];  // in UAV order, as total_of
+    for (std::size_t p = parts_begin_[s]; p < parts_begin_[s + 1]; ++p) out[s] += part_rate_[p];  // in UAV order, as total_of
   }
   return out;
+}
+
+std::vector<double> RateBatch::run() {
+  const std::size_t m = oracles_.size();
+  parts_begin_.assign(m + 1, 0);
+  jkeys_.resize(m);
+  clear_full_memos();
+  for (std::size_t s = 0; s < m; ++s) {
+    RateOracle& o = *oracles_[s];
+    o.keys_of(*uavs_[s], keys_, members_);
+    parts_begin_[s] = part_rate_.size();
+    if (o.joint()) add_network(s, o);
+    else add_clusters(s, o);
+  }
+  parts_begin_[m] = part_rate_.size();
+  design();
+  for (std::size_t j = 0; j < part_later_.size(); ++j) part_rate_[part_later_[j]] = later_oracle_[j]->cache_.at(later_keys_[j]);
+  for (const auto& [part, q] : aliases_) part_rate_[part] = part_rate_[q];  // in order: q is filled before
+  return assemble();
+}
+
+std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles, const std::vector<const Positions*>& uavs) {
+  return RateBatch(oracles, uavs).run();
 }
 
 std::vector<double> RateOracle::sum_rates(const std::vector<Positions>& all) {

@@ -6,7 +6,7 @@
 
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/error.hpp"
-#include "skyloop/env/mobility.hpp"
+#include "skyloop/env/dynamics.hpp"
 
 namespace skyloop {
 
@@ -39,11 +39,6 @@ float ArraySpec::high() const {
   float v = fields.empty() ? 0.0f : fields.front().high;
   for (const auto& f : fields) v = std::max(v, f.high);
   return v;
-}
-
-const ActionSpec& grid_actions() {
-  static const ActionSpec spec{{"UP", "DOWN", "LEFT", "RIGHT", "STAY"}, kStay};
-  return spec;
 }
 
 namespace {
@@ -96,7 +91,7 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.t_max = cfg.trajectory.t_max;
   p.state = parse_state_kind(cfg.env.state);
   p.observation = parse_observation_kind(cfg.marl.encoder);
-  p.action = MobilityModel(cfg).actions();
+  p.action = make_dynamics(cfg)->actions();
   p.lookahead = cfg.marl.lookahead;
   p.rate_map = cfg.marl.rate_map;
   return p;

@@ -37,19 +37,19 @@ Objective parse_objective(const std::string& s) {
   throw InputError("env.objective = \"" + s + "\" is not allowed: allowed one of sum-rate, energy-efficiency, weighted, energy");
 }
 
-UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
+UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle) : UavEnv(cfg, std::move(oracle), make_dynamics(cfg)) {}
+
+UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, std::shared_ptr<const Dynamics> dynamics)
     : n_(static_cast<int>(cfg.trajectory.starts.size())),
       t_max_(cfg.trajectory.t_max),
       d_fly_(cfg.trajectory.d_fly_m),
       d_min_(cfg.trajectory.d_min_m),
-      area_x_(cfg.scenario.area_x_m),
-      area_y_(cfg.scenario.area_y_m),
       w_rate_(cfg.env.w_rate),
       w_arr_(cfg.env.w_arr),
       w_bud_(cfg.env.w_bud),
       w_col_(cfg.env.w_col),
       w_fea_(cfg.env.w_fea),
-      mobility_(std::make_shared<const MobilityModel>(cfg)),
+      dynamics_(std::move(dynamics)),
       propulsion_(cfg.energy),
       objective_kind_(parse_objective(cfg.env.objective)),
       bandwidth_hz_(cfg.channel.bandwidth_hz),
@@ -58,44 +58,29 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle)
       compact_(cfg.env.state == "compact"),
       objective_reward_(cfg.env.reward == "objective"),
       spec_params_(spec_params(cfg, n_, 0)),
-      start_(positions_in_area(cfg.trajectory.starts, cfg, "trajectory.starts")),
-      dest_(positions_in_area(cfg.trajectory.destinations, cfg, "trajectory.destinations")),
       oracle_(std::move(oracle)) {
+  mission_.starts = positions_in_area(cfg.trajectory.starts, cfg, "trajectory.starts");
+  mission_.destinations = positions_in_area(cfg.trajectory.destinations, cfg, "trajectory.destinations");
+  mission_.area_x = cfg.scenario.area_x_m, mission_.area_y = cfg.scenario.area_y_m;
+  mission_.t_max = t_max_;
   spec_params_.users = users();
+  spec_params_.action = dynamics_->actions();
   spec_ = shared_env_spec(spec_params_);
   vel_ = Positions::Zero(n_, 2);
-  require_table_memory(cfg, 1);
+  require_table_memory(cfg, *dynamics_, 1);
   tables_ = std::make_shared<SharedTables>();
   tables_->destinations.resize(static_cast<std::size_t>(n_));
   tables_->made = std::make_unique<std::once_flag[]>(static_cast<std::size_t>(n_));
-  if (!mobility_->is_grid() && !mobility_->continuous()) {
-    // Each UAV's lattice through its start; its destination must lie on it (validate() checks).
-    for (int n = 0; n < n_; ++n) {
-      DistanceTable l;
-      l.frame = LatticeFrame(start_(n, 0), start_(n, 1), area_x_, area_y_, d_fly_);
-      l.slots = mobility_->slots_to(l.frame.nx, l.frame.ny, l.frame.cell(dest_(n, 0), dest_(n, 1)));
-      tables_->headings.push_back(std::move(l));
-    }
-  }
-  for (int n = 0; n < n_; ++n) {
-    if (!mobility_->is_grid() && !mobility_->continuous()) {
-      const DistanceTable& l = tables_->headings[static_cast<std::size_t>(n)];
-      if (l.slots[static_cast<std::size_t>(l.frame.cell(start_(n, 0), start_(n, 1)))] < 0)
-        throw InputError("trajectory.destinations[" + std::to_string(n) + "] cannot be reached from trajectory.starts[" +
-                         std::to_string(n) + "] with trajectory.speeds_mps = " + format_value(FieldValue(cfg.trajectory.speeds_mps)) +
-                         " (no speed flies a single lattice step per slot, so some lattice points are out of reach): allowed "
-                         "speeds that include trajectory.d_fly_m / trajectory.slot_s = " +
-                         format_double(d_fly_ / mobility_->slot_s()) + " m/s");
-    }
-    if (min_moves(n, start_(n, 0), start_(n, 1)) > t_max_ - 1) throw InputError(unreachable_message(n, cfg));
-  }
+  reach_ = dynamics_->reachability(mission_);  // InputError where a destination is out of the model's reach
+  for (int n = 0; n < n_; ++n)
+    if (min_moves(n, mission_.starts(n, 0), mission_.starts(n, 1)) > t_max_ - 1) throw InputError(dynamics_->unreachable(n, mission_, *reach_));
   reset();
 }
 
 UavEnv::UavEnv(const UavEnv& like, std::shared_ptr<RateOracle> oracle) : UavEnv(like) { set_oracle(std::move(oracle)); }
 
 void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle) {
-  const double r = oracle->sum_rate(start_);
+  const double r = oracle->sum_rate(mission_.starts);
   set_oracle(std::move(oracle), r);
 }
 
@@ -109,10 +94,10 @@ void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle, double start_rate) {
   reset(start_rate);
 }
 
-void UavEnv::reset() { reset(oracle_->sum_rate(start_)); }
+void UavEnv::reset() { reset(oracle_->sum_rate(mission_.starts)); }
 
 void UavEnv::reset(double start_rate) {
-  pos_ = start_;
+  pos_ = mission_.starts;
   any_decided_ = false;
   t_ = 1;
   arrived_.assign(static_cast<std::size_t>(n_), false);
@@ -128,13 +113,11 @@ void UavEnv::reset(double start_rate) {
   prev_tmin_.assign(static_cast<std::size_t>(n_), 0);
   bool all = true;
   for (int n = 0; n < n_; ++n) {
-    arrived_[static_cast<std::size_t>(n)] = mobility_->continuous()
-                                                ? std::hypot(pos_(n, 0) - dest_(n, 0), pos_(n, 1) - dest_(n, 1)) <= mobility_->arrival_m()
-                                                : same(pos_(n, 0), dest_(n, 0)) && same(pos_(n, 1), dest_(n, 1));
+    arrived_[static_cast<std::size_t>(n)] = dynamics_->arrived(pos_(n, 0), pos_(n, 1), mission_.destinations(n, 0), mission_.destinations(n, 1));
     all = all && arrived_[static_cast<std::size_t>(n)];
     parked_ += arrived_[static_cast<std::size_t>(n)] ? 1 : 0;
-    const double d = std::hypot(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1));
-    prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / mobility_->reach() - 1e-9));
+    const double d = std::hypot(mission_.destinations(n, 0) - pos_(n, 0), mission_.destinations(n, 1) - pos_(n, 1));
+    prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / dynamics_->reach() - 1e-9));
   }
   rates_.assign(1, start_rate);
   rate_sum_ = start_rate;
@@ -143,132 +126,33 @@ void UavEnv::reset(double start_rate) {
   tot_reward_ = 0;
 }
 
-bool UavEnv::move(double x, double y, int a, double& nx, double& ny) const {
-  const LatticeStep s = mobility_->step(a);
-  nx = x, ny = y;
-  if (s.dx) nx += s.dx * d_fly_;
-  if (s.dy) ny += s.dy * d_fly_;
-  return nx >= -1e-9 && nx <= area_x_ + 1e-9 && ny >= -1e-9 && ny <= area_y_ + 1e-9;
-}
-
 UavEnv::Landing UavEnv::landing(int n, int a) const {
-  Landing l;
-  l.x = pos_(n, 0), l.y = pos_(n, 1);
-  if (arrived(n)) return l;
-  if (mobility_->continuous()) {
-    double vx, vy;
-    primitive_velocity(n, a, vx, vy);
-    return landing_velocity(n, vx, vy);
-  }
-  double nx, ny;
-  if (!move(l.x, l.y, a, nx, ny)) {
-    l.inside = false;
+  if (arrived(n)) {
+    Landing l;
+    l.x = pos_(n, 0), l.y = pos_(n, 1);
     return l;
   }
-  const LatticeStep st = mobility_->step(a);
-  l.x = nx, l.y = ny;
-  l.vx = st.dx * d_fly_ / mobility_->slot_s(), l.vy = st.dy * d_fly_ / mobility_->slot_s();
-  l.speed = mobility_->speed(a);
-  return l;
+  return dynamics_->fly(n, current(n), a, mission_);
 }
-
-namespace {
-/// One slot of the continuous dynamics from (x, y) at last velocity (px, py) under command
-/// (cx, cy): projected, moved, cancelled outside the area, placed on (dx, dy) within arrival_m.
-UavEnv::Landing fly(const MobilityModel& m, double x, double y, double px, double py, double cx, double cy, double area_x,
-                    double area_y, double dx, double dy) {
-  UavEnv::Landing l;
-  m.project(cx, cy, px, py, l.vx, l.vy);
-  l.x = x + l.vx * m.slot_s(), l.y = y + l.vy * m.slot_s();
-  if (l.x < -1e-9 || l.x > area_x + 1e-9 || l.y < -1e-9 || l.y > area_y + 1e-9) {
-    l.x = x, l.y = y, l.vx = l.vy = 0, l.inside = false;
-    return l;
-  }
-  l.speed = std::hypot(l.vx, l.vy);
-  if (std::hypot(l.x - dx, l.y - dy) <= m.arrival_m()) l.x = dx, l.y = dy;
-  return l;
-}
-}  // namespace
 
 UavEnv::Landing UavEnv::landing_velocity(int n, double vx, double vy) const {
-  if (!mobility_->continuous())
-    throw std::logic_error("UavEnv::landing_velocity: velocity commands need trajectory.mobility = continuous");
+  if (!dynamics_->commands_velocities())
+    throw std::logic_error("UavEnv::landing_velocity: trajectory.mobility = " + dynamics_->name() + " takes no velocity commands");
   if (arrived(n)) return landing(n, hover());
-  return fly(*mobility_, pos_(n, 0), pos_(n, 1), vel_(n, 0), vel_(n, 1), vx, vy, area_x_, area_y_, dest_(n, 0), dest_(n, 1));
+  return dynamics_->fly_command(n, current(n), vx, vy, mission_);
 }
 
 void UavEnv::command_velocity(int n, double u0, double u1, double& vx, double& vy) const {
-  mobility_->commanded_velocity(u0, u1, vel_(n, 0), vel_(n, 1), dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1), vx, vy);
-}
-
-void UavEnv::home_velocity(int n, double& vx, double& vy) const {
-  mobility_->home_command(dest_(n, 0) - pos_(n, 0), dest_(n, 1) - pos_(n, 1), vx, vy);
-}
-
-int UavEnv::home_slots(int n, double x, double y, double vx, double vy, int limit, bool* blocked) const {
-  const double dx = dest_(n, 0), dy = dest_(n, 1);
-  if (blocked) *blocked = false;
-  for (int k = 0; k <= limit; ++k) {
-    if (std::hypot(x - dx, y - dy) <= 1e-9) return k;
-    double cx, cy;
-    mobility_->home_command(dx - x, dy - y, cx, cy);
-    const Landing l = fly(*mobility_, x, y, vx, vy, cx, cy, area_x_, area_y_, dx, dy);
-    if (!l.inside) {  // HOME would hit the boundary: no way home that keeps a_max
-      if (blocked) *blocked = true;
-      break;
-    }
-    x = l.x, y = l.y, vx = l.vx, vy = l.vy;
-  }
-  return limit + 1;
-}
-
-std::string UavEnv::unreachable_message(int n, const Config& cfg) const {
-  const std::string who = "trajectory: UAV " + std::to_string(n);
-  const std::string allows = "trajectory.t_max = " + std::to_string(t_max_) + " allows " + std::to_string(t_max_ - 1);
-  const auto& t = cfg.trajectory;
-  if (mobility_->continuous()) {
-    // The HOME flight from a standstill without t_max's cap (bounded: a flight that takes more
-    // than kLongest slots is reported as such).
-    constexpr int kLongest = 10000000;
-    const std::string cause = "(trajectory.v_max_mps = " + format_double(t.v_max_mps) + ", a_max_mps2 = " + format_double(t.a_max_mps2) +
-                              ", slot_s = " + format_double(t.slot_s) + ")";
-    bool blocked = false;
-    const int k = home_slots(n, start_(n, 0), start_(n, 1), 0, 0, kLongest, &blocked);
-    if (blocked)
-      return who + " cannot fly home from its start within the area at its speed and acceleration " + cause +
-             ": allowed a start and destination it can fly between without meeting the boundary";
-    if (k > kLongest)
-      return who + " needs more than " + std::to_string(kLongest) + " slots to fly home from its start " + cause + " but " + allows +
-             ": allowed a faster UAV (trajectory.v_max_mps, a_max_mps2) or longer slots (trajectory.slot_s)";
-    return who + " needs " + std::to_string(k) + " slots to fly home from its start at its speed and acceleration " + cause + " but " +
-           allows + ": allowed trajectory.t_max >= " + std::to_string(k + 1) + ", or a faster UAV";
-  }
-  const int moves = min_moves(n, start_(n, 0), start_(n, 1));
-  const std::string cause = mobility_->is_grid() ? "moves of trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m"
-                                                 : "trajectory.speeds_mps = " + format_value(FieldValue(t.speeds_mps)) +
-                                                       " on the lattice of trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m";
-  return who + " needs " + std::to_string(moves) + " moves from its start to its destination with " + cause + " but " + allows +
-         ": allowed trajectory.t_max >= " + std::to_string(moves + 1) + ", or longer moves";
+  dynamics_->command_velocity(n, current(n), u0, u1, mission_, vx, vy);
 }
 
 int UavEnv::min_moves(int n, double x, double y) const {
-  if (mobility_->continuous()) return home_slots(n, x, y, vel_(n, 0), vel_(n, 1), t_max_);
-  if (mobility_->is_grid()) {
-    const double dx = std::abs(dest_(n, 0) - x), dy = std::abs(dest_(n, 1) - y);
-    return static_cast<int>(std::ceil(dx / d_fly_ - 1e-9)) + static_cast<int>(std::ceil(dy / d_fly_ - 1e-9));
-  }
-  const DistanceTable& l = tables_->headings[static_cast<std::size_t>(n)];
-  const long ix = std::lround((x - l.frame.ox) / d_fly_), iy = std::lround((y - l.frame.oy) / d_fly_);
-  const int far = t_max_ + 1;  // off the lattice or cut off: never reachable in time
-  if (ix < 0 || iy < 0 || ix >= l.frame.nx || iy >= l.frame.ny) return far;
-  const int d = l.slots[static_cast<std::size_t>(iy * l.frame.nx + ix)];
-  return d < 0 ? far : d;
+  Landing from;  // at UAV n's current velocity
+  from.x = x, from.y = y, from.vx = vel_(n, 0), from.vy = vel_(n, 1);
+  return reach_->slots(n, from, t_max_);
 }
 
-int UavEnv::min_moves(int n, const Landing& l) const {
-  if (mobility_->continuous()) return home_slots(n, l.x, l.y, l.vx, l.vy, t_max_);
-  return min_moves(n, l.x, l.y);
-}
+int UavEnv::min_moves(int n, const Landing& l) const { return reach_->slots(n, l, t_max_); }
 
 UavEnv::Landing UavEnv::current(int n) const {
   Landing l;
@@ -281,8 +165,7 @@ UavEnv::DistanceTable UavEnv::clear_table(int n, ClearOf what) const {
   const bool parked = what == ClearOf::Parked;
   DistanceTable table;
   table.version = parked ? parked_ : 0;
-  table.frame = mobility_->is_grid() ? LatticeFrame(start_(n, 0), start_(n, 1), area_x_, area_y_, d_fly_)
-                                     : tables_->headings[static_cast<std::size_t>(n)].frame;
+  table.frame = LatticeFrame(mission_.starts(n, 0), mission_.starts(n, 1), mission_.area_x, mission_.area_y, d_fly_);
   const LatticeFrame& f = table.frame;
   std::vector<char> closed(static_cast<std::size_t>(f.cells()), 0);
   // The lattice points strictly within D_min of the other UAVs' destinations or parked
@@ -290,22 +173,22 @@ UavEnv::DistanceTable UavEnv::clear_table(int n, ClearOf what) const {
   const int r = static_cast<int>(std::ceil(d_min_ / d_fly_)) + 1;
   for (int m = 0; m < n_; ++m) {
     if (m == n || (parked && !arrived(m))) continue;
-    const double px = parked ? pos_(m, 0) : dest_(m, 0), py = parked ? pos_(m, 1) : dest_(m, 1);
+    const double px = parked ? pos_(m, 0) : mission_.destinations(m, 0), py = parked ? pos_(m, 1) : mission_.destinations(m, 1);
     const long cx = std::lround((px - f.ox) / d_fly_), cy = std::lround((py - f.oy) / d_fly_);
     for (long iy = std::max(0L, cy - r); iy <= std::min<long>(f.ny - 1, cy + r); ++iy)
       for (long ix = std::max(0L, cx - r); ix <= std::min<long>(f.nx - 1, cx + r); ++ix)
         if (std::hypot(f.ox + d_fly_ * static_cast<double>(ix) - px, f.oy + d_fly_ * static_cast<double>(iy) - py) < d_min_ - 1e-9)
           closed[static_cast<std::size_t>(iy * f.nx + ix)] = 1;
   }
-  const int to = f.cell(dest_(n, 0), dest_(n, 1));
+  const int to = f.cell(mission_.destinations(n, 0), mission_.destinations(n, 1));
   closed[static_cast<std::size_t>(to)] = 0;
-  table.slots = mobility_->slots_to(f.nx, f.ny, to, &closed);
+  table.slots = dynamics_->lattice()->slots_to(f.nx, f.ny, to, &closed);
   return table;
 }
 
 int UavEnv::min_moves_around(int n, const Landing& l, ClearOf what) const {
   const bool parked = what == ClearOf::Parked;
-  if (mobility_->continuous() || n_ == 1 || (parked && (parked_ == 0 || (parked_ == 1 && arrived(n))))) return min_moves(n, l);
+  if (!dynamics_->lattice() || n_ == 1 || (parked && (parked_ == 0 || (parked_ == 1 && arrived(n))))) return min_moves(n, l);
   const std::size_t i = static_cast<std::size_t>(n);
   const DistanceTable* table = nullptr;
   if (parked) {
@@ -316,19 +199,17 @@ int UavEnv::min_moves_around(int n, const Landing& l, ClearOf what) const {
     std::call_once(tables_->made[i], [&] { tables_->destinations[i] = clear_table(n, what); });
     table = &tables_->destinations[i];
   }
-  const LatticeFrame& f = table->frame;
-  const long ix = std::lround((l.x - f.ox) / d_fly_), iy = std::lround((l.y - f.oy) / d_fly_);
-  const int far = t_max_ + 1;
-  if (ix < 0 || iy < 0 || ix >= f.nx || iy >= f.ny) return far;
-  const int d = table->slots[static_cast<std::size_t>(iy * f.nx + ix)];
-  return d < 0 ? far : d;
+  const int c = table->frame.find(l.x, l.y);
+  const int d = c < 0 ? -1 : table->slots[static_cast<std::size_t>(c)];
+  return d < 0 ? t_max_ + 1 : d;
 }
 
 void UavEnv::require_table_memory(const Config& cfg, int envs) {
-  const MobilityModel mobility(cfg);
-  const bool headings = !mobility.is_grid() && !mobility.continuous();
-  const bool clearance = cfg.marl.mask_clearance != "none" && !mobility.continuous();
-  if (!headings && !clearance) return;  // no lattice tables
+  require_table_memory(cfg, *make_dynamics(cfg), envs);
+}
+
+void UavEnv::require_table_memory(const Config& cfg, const Dynamics& dynamics, int envs) {
+  const bool clearance = cfg.marl.mask_clearance != "none" && dynamics.lattice();
   const auto& t = cfg.trajectory;
   double cells = 0, most = 0;  // every UAV's lattice points, and the largest lattice's
   for (const Point2& s : t.starts) {
@@ -336,12 +217,16 @@ void UavEnv::require_table_memory(const Config& cfg, int envs) {
     cells += c, most = std::max(most, c);
   }
   const double table = sizeof(int);  // bytes a lattice point takes in one distance table
-  const double shared = ((headings ? 1 : 0) + (clearance ? 1 : 0)) * table * cells;
+  const double reach = dynamics.reachability_bytes(cells);
+  if (reach <= 0 && !clearance) return;  // no lattice tables
+  const bool headings = reach > 0;  // the dynamics keeps tables of its own
+  const double shared = reach + (clearance ? table * cells : 0);
   const double per_env = (clearance ? table * cells : 0) + (2 * table + 1) * most;  // Parked; the search's
   const double bytes = shared + per_env * envs, limit = memory_limit_bytes();
   if (limit <= 0 || bytes <= limit) return;  // the message only when it fails
-  const std::string tables = headings && clearance ? "trajectory.mobility = \"headings\" and marl.mask_clearance = \"" + cfg.marl.mask_clearance + "\""
-                             : headings            ? "trajectory.mobility = \"headings\""
+  const std::string model = "trajectory.mobility = \"" + dynamics.name() + "\"";
+  const std::string tables = headings && clearance ? model + " and marl.mask_clearance = \"" + cfg.marl.mask_clearance + "\""
+                             : headings            ? model
                                                    : "marl.mask_clearance = \"" + cfg.marl.mask_clearance + "\"";
   const int uavs = static_cast<int>(t.starts.size());
   require_memory(bytes,
@@ -371,8 +256,7 @@ Positions UavEnv::next_positions(const std::vector<int>& actions) const {
 }
 
 void UavEnv::primitive_velocity(int n, int a, double& vx, double& vy) const {
-  if (a == mobility_->home()) home_velocity(n, vx, vy);
-  else vx = mobility_->primitive_vx(a), vy = mobility_->primitive_vy(a);
+  dynamics_->primitive_velocity(n, current(n), a, mission_, vx, vy);
 }
 
 Positions UavEnv::primitive_velocities(const std::vector<int>& actions) const {
@@ -401,9 +285,9 @@ void UavEnv::check_step(std::size_t count) const {
 void UavEnv::land(int n, const Landing& l, StepInfo& info) {
   const auto i = static_cast<std::size_t>(n);
   if (!l.inside) ++info.boundary;  // cancelled: the UAV hovers
-  const double e = propulsion_.slot_energy(l.speed, speed_[i], mobility_->slot_s());
+  const double e = propulsion_.slot_energy(l.speed, speed_[i], dynamics_->slot_s());
   speed_[i] = l.speed;
-  power_[i] = e / mobility_->slot_s();
+  power_[i] = e / dynamics_->slot_s();
   energy_[i] += e;
   info.energy_j += e;
   vel_(n, 0) = l.vx, vel_(n, 1) = l.vy;
@@ -415,10 +299,10 @@ Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
   Positions next = pos_;
   for (int n = 0; n < n_; ++n) {
     const int requested = actions[static_cast<std::size_t>(n)];
-    if (requested < 0 || requested >= mobility_->count())
+    if (requested < 0 || requested >= dynamics_->count())
       throw std::invalid_argument("UavEnv::step: action " + std::to_string(requested) + " of UAV " + std::to_string(n) +
-                                  " is not one of 0.." + std::to_string(mobility_->count() - 1) + " (trajectory.mobility = " +
-                                  mobility_->name() + ")");
+                                  " is not one of 0.." + std::to_string(dynamics_->count() - 1) + " (trajectory.mobility = " +
+                                  dynamics_->name() + ")");
     const int a = arrived(n) ? hover() : requested;  // arrival-aware: arrived UAVs are locked
     const Landing l = landing(n, a);
     next(n, 0) = l.x, next(n, 1) = l.y;
@@ -432,9 +316,9 @@ Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
 Positions UavEnv::begin_step_velocities(const Positions& v, StepInfo& info) {
   any_decided_ = false;
   check_step(static_cast<std::size_t>(v.rows()));
-  if (!mobility_->continuous())
-    throw std::invalid_argument("UavEnv::step_velocities: trajectory.mobility = " + mobility_->name() +
-                                " takes discrete actions; velocity commands need continuous");
+  if (!dynamics_->commands_velocities())
+    throw std::invalid_argument("UavEnv::step_velocities: trajectory.mobility = " + dynamics_->name() +
+                                " takes discrete actions, not velocity commands");
   Positions next = pos_;
   for (int n = 0; n < n_; ++n) {
     if (!std::isfinite(v(n, 0)) || !std::isfinite(v(n, 1)))
@@ -448,7 +332,7 @@ Positions UavEnv::begin_step_velocities(const Positions& v, StepInfo& info) {
   return next;
 }
 
-bool UavEnv::at_destination(const Positions& p, int n) const { return same(p(n, 0), dest_(n, 0)) && same(p(n, 1), dest_(n, 1)); }
+bool UavEnv::at_destination(const Positions& p, int n) const { return same(p(n, 0), mission_.destinations(n, 0)) && same(p(n, 1), mission_.destinations(n, 1)); }
 
 bool UavEnv::ends_episode(const Positions& next) const {
   if (t_ + 1 >= t_max_) return true;
@@ -505,8 +389,8 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
 }
 
 int UavEnv::feasibility_indicator(int n, double x, double y, int t) {
-  const double d = std::hypot(dest_(n, 0) - x, dest_(n, 1) - y);
-  const int tmin = static_cast<int>(std::ceil(d / mobility_->reach() - 1e-9));
+  const double d = std::hypot(mission_.destinations(n, 0) - x, mission_.destinations(n, 1) - y);
+  const int tmin = static_cast<int>(std::ceil(d / dynamics_->reach() - 1e-9));
   const int phi = (tmin <= t_max_ - t && tmin <= prev_tmin_[static_cast<std::size_t>(n)]) ? 1 : -1;
   prev_tmin_[static_cast<std::size_t>(n)] = tmin;
   return phi;
@@ -529,7 +413,7 @@ StepInfo UavEnv::step_velocities(const Positions& v) {
 double UavEnv::sum_rate_objective() const { return rate_sum_ / static_cast<double>(t_); }
 
 double UavEnv::objective_of(double rate_sum, int T, double energy_j) const {
-  const double dt = mobility_->slot_s();
+  const double dt = dynamics_->slot_s();
   switch (objective_kind_) {
     case Objective::SumRate: return rate_sum / static_cast<double>(T);
     case Objective::EnergyEfficiency: return energy_j > 0 ? bandwidth_hz_ * dt * rate_sum / energy_j / 1e3 : 0.0;
@@ -545,7 +429,7 @@ double UavEnv::step_energy(const std::vector<int>& actions) const {
   double e = 0;
   for (int n = 0; n < n_; ++n) {
     const Landing l = landing(n, arrived(n) ? hover() : actions[static_cast<std::size_t>(n)]);
-    e += propulsion_.slot_energy(l.speed, speed_[static_cast<std::size_t>(n)], mobility_->slot_s());
+    e += propulsion_.slot_energy(l.speed, speed_[static_cast<std::size_t>(n)], dynamics_->slot_s());
   }
   return e;
 }
@@ -553,7 +437,7 @@ double UavEnv::step_energy(const std::vector<int>& actions) const {
 double UavEnv::objective() const { return objective_at(); }
 
 double UavEnv::bits_per_joule() const {
-  return energy_total_ > 0 ? bandwidth_hz_ * mobility_->slot_s() * rate_sum_ / energy_total_ : 0.0;
+  return energy_total_ > 0 ? bandwidth_hz_ * dynamics_->slot_s() * rate_sum_ / energy_total_ : 0.0;
 }
 
 int UavEnv::over_budget() const {

@@ -46,19 +46,18 @@ LayoutRow row_of(const EpisodeRecord& r, const std::string& planner, double seco
 /// The reference of one layout (layout_reference), from the cache when it holds it.
 LayoutRow reference_of(const Config& cfg, UavEnv& env, const std::string& cache_dir);
 
-/// The continuous model's reference: the lattice twin's (headings at v_max / 2 and v_max, no
-/// acceleration limit) on the same users, labelled optimal-headings.
-LayoutRow continuous_reference(const Config& cfg, UavEnv& env, const std::string& cache_dir) {
-  const Config twin = lattice_twin(cfg);
+/// The reference of dynamics off the lattice: their lattice twin's (Dynamics::reference_twin) on
+/// the same users, labelled with the twin's model (optimal-headings).
+LayoutRow twin_reference(const Config& twin, UavEnv& env, const std::string& cache_dir) {
   const auto& o = env.oracle();
   UavEnv lattice(twin, std::make_shared<RateOracle>(twin, o.beamformer_ptr(), o.users()));
   LayoutRow r = reference_of(twin, lattice, cache_dir);
-  r.planner += "-headings";
+  r.planner += "-" + twin.trajectory.mobility;
   return r;
 }
 
 LayoutRow reference_of(const Config& cfg, UavEnv& env, const std::string& cache_dir) {
-  if (env.mobility().continuous()) return continuous_reference(cfg, env, cache_dir);
+  if (const auto twin = env.dynamics().reference_twin(cfg)) return twin_reference(*twin, env, cache_dir);
   const std::string name = layout_reference(env);
   std::string path;
   if (!cache_dir.empty()) {
@@ -247,27 +246,13 @@ void check_rollout_settings(const Config& cfg) {
                      "slot to slot)");
 }
 
-std::string layout_reference(const UavEnv& env) {
-  if (env.mobility().continuous()) return "optimal-headings";
-  return fits_optimal(env) ? "optimal" : "bestknown";
-}
+std::string layout_reference(const UavEnv& env) { return fits_optimal(env) ? "optimal" : "bestknown"; }
 
 Config lattice_twin(const Config& cfg) {
-  Config twin = cfg;
-  const auto& t = cfg.trajectory;
-  twin.trajectory.mobility = "headings";
-  twin.trajectory.speeds_mps = {0.0, t.v_max_mps / 2, t.v_max_mps};
-  // The continuous settings do not act on headings: defaults, so that twins share cached optima.
-  const TrajectoryConfig defaults;
-  twin.trajectory.v_max_mps = defaults.v_max_mps, twin.trajectory.a_max_mps2 = defaults.a_max_mps2;
-  twin.trajectory.arrival_m = defaults.arrival_m, twin.trajectory.command = defaults.command;
-  if (lattice_steps(t.v_max_mps / 2, t.slot_s, t.d_fly_m) < 1 || lattice_steps(t.v_max_mps, t.slot_s, t.d_fly_m) < 1)
-    throw InputError("trajectory.v_max_mps = " + format_double(t.v_max_mps) + ": the continuous model's reference is the optimum "
-                     "of its lattice twin (headings at v_max / 2 and v_max), which needs v_max / 2 x trajectory.slot_s to be a "
-                     "whole multiple of trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m: allowed v_max_mps = " +
-                     format_double(2 * t.d_fly_m / t.slot_s) + " x k");
-  validate(twin);
-  return twin;
+  const auto twin = make_dynamics(cfg)->reference_twin(cfg);
+  if (!twin)
+    throw std::logic_error("lattice_twin: trajectory.mobility = " + cfg.trajectory.mobility + " is a lattice model (its own reference)");
+  return *twin;
 }
 
 std::vector<std::uint64_t> training_layouts_of(const Config& run, int count) {

@@ -125,12 +125,12 @@ int checked_input(const MarlPolicy::Impl& impl, const UavEnv& env) {
   // The actions it chooses among: the mobility model's (the Q-learners, and any discrete chooser
   // under continuous mobility, choose among its primitives; a continuous policy commands its dims).
   const ActionSpec& mine = impl.actions;
-  const ActionSpec& theirs = env.mobility().actions();
+  const ActionSpec& theirs = env.dynamics().actions();
   const bool same_dims = mine.dims == theirs.dims || (mine.dims == 0 && impl.q_based);
   if (mine.names != theirs.names || mine.hover != theirs.hover || !same_dims) {
     std::string what;
-    if (impl.mobility != env.mobility().name()) what = "trajectory.mobility = \"" + impl.mobility + "\" but the environment has \"" +
-                                                       env.mobility().name() + "\"";
+    if (impl.mobility != env.dynamics().name()) what = "trajectory.mobility = \"" + impl.mobility + "\" but the environment has \"" +
+                                                       env.dynamics().name() + "\"";
     else if (mine.names != theirs.names)
       what = "the actions " + joined(mine.names) + " but the environment's are " + joined(theirs.names) +
              " (trajectory.speeds_mps, trajectory.v_max_mps)";
@@ -194,9 +194,9 @@ bool MarlPolicy::commands_velocities() const { return impl_->actions.continuous(
 
 Positions MarlPolicy::act_velocities(UavEnv& env) {
   if (!impl_->actions.continuous()) return Planner::act_velocities(env);
-  if (env.mobility().command() != impl_->command)
+  if (env.dynamics().command_mode() != impl_->command)
     throw InputError("policy " + impl_->algo + " was trained with trajectory.command = \"" + impl_->command +
-                     "\" but the environment has trajectory.command = \"" + env.mobility().command() +
+                     "\" but the environment has trajectory.command = \"" + env.dynamics().command_mode() +
                      "\": allowed the command it was trained with");
   const auto out = network_outputs(*impl_, env);
   const auto o = out.accessor<float, 2>();

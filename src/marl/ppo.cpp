@@ -467,7 +467,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   Run run(cfg, opt, [&](const VecEnv& v) {
     N = v.env(0).uavs(), M = v.size(), obs_width = encoder.width(v.env(0)), critic_width = critic.width(v.env(0));
     critic_observation = critic.observation_width(v.env(0));
-    C = v.env(0).mobility().actions().dims, A = C > 0 ? 0 : v.env(0).actions();
+    C = v.env(0).dynamics().actions().dims, A = C > 0 ? 0 : v.env(0).actions();
     const double bytes = Rollout::bytes(m.rollout, M, N, obs_width, critic_width - critic_observation, A, C, m.minibatches);
     require_memory(bytes,
                    fmt::format("the PPO rollout of marl.rollout = {} steps x marl.envs = {} environments x {} UAVs ({} + {} "
@@ -487,7 +487,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
                           {"obs_dim", obs_width}, {"encoder", m.encoder}, {"backend", m.backend},
-                          {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).mobility().actions().names},
+                          {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).dynamics().actions().names},
                           {"hover", vec.env(0).hover()}, {"dims", C},
                           {"critic_input", critic.name()}, {"critic_dim", critic_width},
                           {"hidden", m.hidden}, {"env_steps", steps}, {"updates", updates},

@@ -276,7 +276,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
                           {"obs_dim", vec.env(0).observation_size()}, {"context_dim", D - vec.env(0).observation_size()},
-                          {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).mobility().actions().names},
+                          {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).dynamics().actions().names},
                           {"hover", vec.env(0).hover()},
                           {"state_dim", S}, {"hidden", m.hidden}, {"backend", "torch"}, {"encoder", m.encoder},
                           {"mixer_embed", m.mixer_embed}, {"env_steps", steps}, {"grad_steps", core.grad_steps},

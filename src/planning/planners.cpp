@@ -13,27 +13,13 @@
 
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "joint.hpp"
 
 namespace skyloop {
 
 namespace {
 constexpr double kNegInf = -std::numeric_limits<double>::infinity();
 
-/// All joint actions of n UAVs with A actions each, index j -> digit n = (j / A^n) % A.
-std::vector<int> joint_action(long j, int n, int A) {
-  std::vector<int> a(static_cast<std::size_t>(n));
-  for (int i = 0; i < n; ++i, j /= A) a[static_cast<std::size_t>(i)] = static_cast<int>(j % A);
-  return a;
-}
-/// A^n, or -1 above 2^40.
-long joint_count(int A, int n) {
-  long p = 1;
-  for (int i = 0; i < n; ++i) {
-    if (p > (1L << 40) / A) return -1;
-    p *= A;
-  }
-  return p;
-}
 }  // namespace
 
 std::vector<int> RandomPlanner::act(UavEnv& env) {
@@ -52,7 +38,7 @@ void GreedyPlanner::reset(UavEnv& env) {
   if (total < 0 || total > kMaxJointActions)
     throw InputError("planner greedy enumerates A^N joint actions and takes at most " + std::to_string(kMaxJointActions) +
                      ", while the scenario has " + std::to_string(env.actions()) + "^" + std::to_string(env.uavs()) +
-                     " (trajectory.mobility = " + env.mobility().name() +
+                     " (trajectory.mobility = " + env.dynamics().name() +
                      "): allowed seqgreedy (the sequential greedy, linear in N) for larger fleets or action spaces");
 }
 
@@ -199,10 +185,13 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
 
 // ---- exact optimum --------------------------------------------------------------------------
 
-void require_lattice(const UavEnv& env, const std::string& who) {
-  if (env.mobility().continuous())
-    throw InputError(who + " searches the D_fly lattice, which trajectory.mobility = \"continuous\" leaves: allowed "
-                     "trajectory.mobility = grid or headings (continuous missions: random, greedy, seqgreedy, the learners)");
+const LatticeDynamics& require_lattice(const UavEnv& env, const std::string& who) {
+  const LatticeDynamics* lattice = env.dynamics().lattice();
+  if (!lattice)
+    throw InputError(who + " searches the D_fly lattice, which trajectory.mobility = \"" + env.dynamics().name() +
+                     "\" leaves: allowed trajectory.mobility = " + lattice_dynamics_names() +
+                     " (missions off the lattice: random, greedy, seqgreedy, the learners)");
+  return *lattice;
 }
 
 std::string optimum_key(const Config& cfg) {
@@ -226,294 +215,12 @@ std::string optimum_key(const Config& cfg) {
 }
 
 bool fits_optimal(const UavEnv& env) {
-  if (env.mobility().continuous()) return false;
+  if (!env.dynamics().lattice()) return false;
   const double d = env.d_fly();
   const LatticeFrame f(env.starts()(0, 0), env.starts()(0, 1), env.area_x(), env.area_y(), d);
   const double G = static_cast<double>(f.nx) * static_cast<double>(f.ny);
   const double states = std::pow(G, env.uavs());
   return states <= 5e6 && states * env.t_max() <= 134217728.0;
-}
-
-OptimalPlan solve_optimal(UavEnv& env, std::ostream* progress) {
-  using Clock = std::chrono::steady_clock;
-  const auto t0 = Clock::now();
-  env.reset();
-  const int N = env.uavs(), Tmax = env.t_max(), A = env.actions(), hover = env.hover();
-  const MobilityModel& mob = env.mobility();
-  const PropulsionModel& prop = env.propulsion();
-  require_lattice(env, "the optimal planner");
-  if (prop.kinetic())
-    throw InputError("energy.acceleration = \"kinetic\" makes a move's energy depend on the previous speed, which the optimal "
-                     "planner's state does not hold: allowed energy.acceleration = \"none\" for the optimal planner");
-  if (env.budget_j() > 0)
-    throw InputError("energy.budget_j = " + format_double(env.budget_j()) + " is not a constraint of the optimal planner's DP: "
-                     "allowed energy.budget_j = 0 for the optimal planner (the plans report each UAV's energy)");
-  const double d = env.d_fly();
-  const Positions start = env.positions(), dest = env.destinations();
-  // The D_fly lattice through start 0, clipped to the area.
-  const LatticeFrame frame(start(0, 0), start(0, 1), env.area_x(), env.area_y(), d);
-  const double ox = frame.ox, oy = frame.oy;
-  const int nx = frame.nx, ny = frame.ny;
-  const int G = nx * ny;
-  auto cell_of = [&](double x, double y, const std::string& what) {
-    const double fx = (x - ox) / d, fy = (y - oy) / d;
-    const long ix = std::lround(fx), iy = std::lround(fy);
-    if (std::abs(fx - static_cast<double>(ix)) > 1e-6 || std::abs(fy - static_cast<double>(iy)) > 1e-6 || ix < 0 || iy < 0 ||
-        ix >= nx || iy >= ny)
-      throw InputError(what + " = [" + format_double(x) + ", " + format_double(y) +
-                       "] is not on the D_fly grid of trajectory.starts[0]: the optimal planner needs every start and "
-                       "destination on one grid of spacing trajectory.d_fly_m");
-    return static_cast<int>(iy * nx + ix);
-  };
-  std::vector<int> s_cell(static_cast<std::size_t>(N)), d_cell(static_cast<std::size_t>(N));
-  for (int n = 0; n < N; ++n) {
-    s_cell[static_cast<std::size_t>(n)] = cell_of(start(n, 0), start(n, 1), "trajectory.starts[" + std::to_string(n) + "]");
-    d_cell[static_cast<std::size_t>(n)] = cell_of(dest(n, 0), dest(n, 1), "trajectory.destinations[" + std::to_string(n) + "]");
-  }
-  double Sd = 1;
-  for (int n = 0; n < N; ++n) Sd *= G;
-  if (Sd > 5e6) {
-    // The largest instances within the limit: UAVs on this grid, and the grid for this many UAVs.
-    int max_uavs = 0;
-    for (double s = G; s <= 5e6; s *= G) ++max_uavs;
-    const int max_cells = static_cast<int>(std::floor(std::pow(5e6, 1.0 / N) + 1e-9));
-    throw InputError("the optimal planner's joint grid has " + format_double(Sd) + " states (" + std::to_string(G) +
-                     " cells ^ " + std::to_string(N) + " UAVs): allowed at most 5e6, i.e. at most " + std::to_string(max_uavs) +
-                     " UAVs on this " + std::to_string(nx) + " x " + std::to_string(ny) + " grid, or at most " +
-                     std::to_string(max_cells) + " cells for " + std::to_string(N) + " UAVs; use seqgreedy or a learned planner beyond");
-  }
-  // The value table holds T_max x states doubles: at most 2^27 of them (1 GiB).
-  constexpr double kMaxTableEntries = 134217728.0;
-  if (Sd * Tmax > kMaxTableEntries)
-    throw InputError("the optimal planner's value table has " + format_double(Sd * Tmax) + " entries (" +
-                     format_double(Sd) + " joint states x trajectory.t_max = " + std::to_string(Tmax) +
-                     "): allowed at most 2^27 (1 GiB), i.e. trajectory.t_max <= " +
-                     std::to_string(static_cast<long long>(kMaxTableEntries / Sd)) + " on this grid; use seqgreedy beyond");
-  const std::size_t S = static_cast<std::size_t>(Sd);
-  std::vector<std::size_t> stride(static_cast<std::size_t>(N));
-  for (int n = 0; n < N; ++n) stride[static_cast<std::size_t>(n)] = n == 0 ? 1 : stride[static_cast<std::size_t>(n - 1)] * static_cast<std::size_t>(G);
-  auto cx = [&](int c) { return ox + d * (c % nx); };
-  auto cy = [&](int c) { return oy + d * (c / nx); };
-  // neighbour[c * A + a] = cell after action a, or -1 outside the grid.
-  std::vector<int> neighbour(static_cast<std::size_t>(G * A), -1);
-  for (int c = 0; c < G; ++c)
-    for (int a = 0; a < A; ++a) {
-      const int jx = c % nx + mob.step(a).dx, jy = c / nx + mob.step(a).dy;
-      if (jx >= 0 && jx < nx && jy >= 0 && jy < ny) neighbour[static_cast<std::size_t>(c * A + a)] = jy * nx + jx;
-    }
-  // Fewest slots between each cell and each UAV's start and destination (the model's moves inside
-  // the area; unreachable = a number past the horizon).
-  std::vector<std::vector<int>> from_start, to_dest;
-  for (int n = 0; n < N; ++n) {
-    auto fix = [&](std::vector<int> v) {
-      for (int& x : v) x = x < 0 ? Tmax + 1 : x;
-      return v;
-    };
-    from_start.push_back(fix(mob.slots_to(nx, ny, s_cell[static_cast<std::size_t>(n)])));
-    to_dest.push_back(fix(mob.slots_to(nx, ny, d_cell[static_cast<std::size_t>(n)])));
-  }
-  // The objective as Dinkelbach's parametric problem: maximise sum_t (alpha R[t] - beta lambda)
-  // - sum_moves gamma E(move), then lambda <- J of the maximiser (env.objective; UavEnv's J).
-  const Objective kind = env.objective_kind();
-  const double dt = mob.slot_s();
-  double alpha = 1, beta = 1, gamma = 0;
-  switch (kind) {
-    case Objective::SumRate: break;
-    case Objective::Weighted: gamma = env.energy_weight() / dt; break;
-    case Objective::EnergyEfficiency: alpha = env.bandwidth_hz() * dt / 1e3, beta = 0; break;
-    case Objective::Energy: alpha = 0, beta = 0, gamma = 1e-3; break;
-  }
-  std::vector<double> move_energy(static_cast<std::size_t>(A));
-  for (int a = 0; a < A; ++a) move_energy[static_cast<std::size_t>(a)] = prop.slot_energy(mob.speed(a), 0.0, dt);
-  auto cell = [&](std::size_t s, int n) { return static_cast<int>((s / stride[static_cast<std::size_t>(n)]) % static_cast<std::size_t>(G)); };
-  // A state is possible at some slot if each UAV's cell lies on a path start -> dest of length <= T_max - 1,
-  // and no two UAVs are closer than D_min.
-  std::vector<std::vector<char>> useful(static_cast<std::size_t>(N), std::vector<char>(static_cast<std::size_t>(G), 0));
-  for (int n = 0; n < N; ++n)
-    for (int c = 0; c < G; ++c)
-      useful[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] =
-          from_start[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] + to_dest[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] <= Tmax - 1;
-  std::vector<double> R(S, std::numeric_limits<double>::quiet_NaN());
-  {
-    std::vector<std::size_t> need;
-    Positions p(N, 2);
-    for (std::size_t s = 0; s < S; ++s) {
-      bool ok = true;
-      for (int n = 0; n < N && ok; ++n) ok = useful[static_cast<std::size_t>(n)][static_cast<std::size_t>(cell(s, n))];
-      if (!ok) continue;
-      for (int n = 0; n < N; ++n) p(n, 0) = cx(cell(s, n)), p(n, 1) = cy(cell(s, n));
-      if (env.collisions(p) > 0) continue;
-      need.push_back(s);
-    }
-    if (progress) *progress << "optimal: " << need.size() << " feasible joint states of " << S << "; evaluating R\n" << std::flush;
-    const std::size_t chunk = 20000;
-    for (std::size_t first = 0; first < need.size(); first += chunk) {
-      std::vector<Positions> batch;
-      const std::size_t last = std::min(need.size(), first + chunk);
-      for (std::size_t i = first; i < last; ++i) {
-        for (int n = 0; n < N; ++n) p(n, 0) = cx(cell(need[i], n)), p(n, 1) = cy(cell(need[i], n));
-        batch.push_back(p);
-      }
-      const auto r = env.oracle().sum_rates(batch);
-      for (std::size_t i = first; i < last; ++i) R[need[i]] = r[i - first];
-    }
-  }
-  OptimalPlan plan;
-  plan.states = S;
-  for (double r : R) plan.evaluated_states += !std::isnan(r);
-  // Value tables V[t] for slots t = 1..Tmax (index t - 1).
-  std::vector<std::vector<double>> V(static_cast<std::size_t>(Tmax), std::vector<double>(S, kNegInf));
-  plan.memory_bytes = static_cast<std::size_t>(Tmax) * S * sizeof(double) + S * sizeof(double) * 3 + S * sizeof(std::int32_t) * 2;
-  std::vector<double> M(S), tmp(S);
-  const std::size_t s0 = [&] {
-    std::size_t s = 0;
-    for (int n = 0; n < N; ++n) s += stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(s_cell[static_cast<std::size_t>(n)]);
-    return s;
-  }();
-  const std::size_t s_home = [&] {
-    std::size_t s = 0;
-    for (int n = 0; n < N; ++n) s += stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(d_cell[static_cast<std::size_t>(n)]);
-    return s;
-  }();
-  auto all_home = [&](std::size_t s) { return s == s_home; };
-  if (std::isnan(R[s0])) throw InputError("the start positions collide or cannot reach the destinations by trajectory.t_max");
-  // A state is alive at slot t when every UAV can have reached its cell from its start by slot t
-  // and can reach its destination by T_max: first[s] <= t <= last[s] (first > last: never,
-  // including the states with no rate, i.e. impossible or colliding ones).
-  std::vector<std::int32_t> first(S), last(S);
-  for (std::size_t s = 0; s < S; ++s) {
-    int from = 0, to = 0;
-    for (int n = 0; n < N; ++n) {
-      const auto c = static_cast<std::size_t>(cell(s, n));
-      from = std::max(from, from_start[static_cast<std::size_t>(n)][c]);
-      to = std::max(to, to_dest[static_cast<std::size_t>(n)][c]);
-    }
-    const bool never = std::isnan(R[s]);
-    first[s] = static_cast<std::int32_t>(never ? Tmax + 1 : from + 1);
-    last[s] = static_cast<std::int32_t>(never ? 0 : Tmax - to);
-  }
-  // The moves of UAV n out of cell c: the offset of the successor state and the move's index.
-  struct Move {
-    std::ptrdiff_t offset;
-    int action;
-  };
-  std::vector<std::vector<Move>> moves(static_cast<std::size_t>(G));
-  double lambda = 0.0;
-  std::vector<std::size_t> path;
-  const long joint = joint_count(A, N);
-  for (int iter = 1; iter <= 50; ++iter) {
-    // Energy cost of each action this iteration (gamma, or lambda under energy-efficiency).
-    const double g = kind == Objective::EnergyEfficiency ? lambda : gamma;
-    std::vector<double> cost(static_cast<std::size_t>(A), 0.0);
-    if (g != 0)
-      for (int a = 0; a < A; ++a) cost[static_cast<std::size_t>(a)] = g * move_energy[static_cast<std::size_t>(a)];
-    const double hover_cost = cost[static_cast<std::size_t>(hover)];
-    plan.iterations = iter;
-    for (int t = Tmax; t >= 1; --t) {
-      auto& Vt = V[static_cast<std::size_t>(t - 1)];
-      if (t < Tmax) {
-        // M(s) = max over joint actions of V[t+1](s') less their energy cost, one UAV at a time
-        // (arrived UAVs only hover).
-        M = V[static_cast<std::size_t>(t)];
-        for (int n = 0; n < N; ++n) {
-          // States in blocks of equal cell c of UAV n: s = (upper * G + c) * st + lower.
-          const std::size_t st = stride[static_cast<std::size_t>(n)], block = st * static_cast<std::size_t>(G);
-          for (int c = 0; c < G; ++c) {
-            auto& mv = moves[static_cast<std::size_t>(c)];
-            mv.clear();
-            if (c != d_cell[static_cast<std::size_t>(n)])
-              for (int a = 0; a < A; ++a) {
-                const int c2 = neighbour[static_cast<std::size_t>(c * A + a)];
-                if (a != hover && c2 >= 0)
-                  mv.push_back({static_cast<std::ptrdiff_t>(st) * (c2 - c), a});
-              }
-          }
-          for (std::size_t upper = 0; upper < S; upper += block)
-            for (int c = 0; c < G; ++c) {
-              const auto& mv = moves[static_cast<std::size_t>(c)];
-              const std::size_t from = upper + static_cast<std::size_t>(c) * st;
-              const double* m = M.data() + from;
-              double* out = tmp.data() + from;
-              // Without an energy term every cost is 0, and v - 0 is v exactly.
-              for (std::size_t i = 0; i < st; ++i) out[i] = m[i] - hover_cost;
-              for (const Move& x : mv) {
-                const double* m2 = m + x.offset;
-                const double move_cost = cost[static_cast<std::size_t>(x.action)];
-                for (std::size_t i = 0; i < st; ++i) out[i] = std::max(out[i], m2[i] - move_cost);
-              }
-            }
-          M.swap(tmp);
-        }
-      }
-      for (std::size_t s = 0; s < S; ++s) {
-        if (t < first[s] || t > last[s]) {
-          Vt[s] = kNegInf;
-          continue;
-        }
-        const double gain = kind == Objective::SumRate ? R[s] - lambda : alpha * R[s] - beta * lambda;
-        if (all_home(s)) Vt[s] = gain;                                 // the episode ends: T = t
-        else Vt[s] = t < Tmax ? gain + M[s] : kNegInf;                 // not home at T_max: infeasible
-      }
-    }
-    if (!std::isfinite(V[0][s0])) throw InputError("no joint trajectory brings every UAV home by trajectory.t_max without a collision");
-    // Recover the maximiser and its true objective.
-    path.assign(1, s0);
-    std::vector<std::vector<int>> actions;
-    int t = 1;
-    while (!all_home(path.back())) {
-      const std::size_t s = path.back();
-      double best = kNegInf;
-      std::size_t best_s = s;
-      std::vector<int> best_a;
-      for (long j = 0; j < joint; ++j) {
-        const auto a = joint_action(j, N, A);
-        std::size_t s2 = s;
-        bool ok = true;
-        double c_move = 0;
-        for (int n = 0; n < N && ok; ++n) {
-          const int c = cell(s, n);
-          const int act = c == d_cell[static_cast<std::size_t>(n)] ? hover : a[static_cast<std::size_t>(n)];
-          if (act != a[static_cast<std::size_t>(n)]) { ok = false; break; }  // arrived UAVs: hover only
-          c_move += cost[static_cast<std::size_t>(act)];
-          const int c2 = neighbour[static_cast<std::size_t>(c * A + act)];
-          if (act != hover && c2 < 0) ok = false;
-          else if (act != hover) s2 = s2 + stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(c2) - stride[static_cast<std::size_t>(n)] * static_cast<std::size_t>(c);
-        }
-        if (!ok) continue;
-        const double v = g != 0 ? V[static_cast<std::size_t>(t)][s2] - c_move : V[static_cast<std::size_t>(t)][s2];
-        if (v > best) best = v, best_s = s2, best_a = a;
-      }
-      if (best_a.empty()) throw std::logic_error("optimal planner: no successor on the optimal path");
-      actions.push_back(best_a);
-      path.push_back(best_s);
-      ++t;
-    }
-    double total = 0, energy = 0;
-    for (std::size_t s : path) total += R[s];
-    for (const auto& a : actions)
-      for (const int x : a) energy += move_energy[static_cast<std::size_t>(x)];
-    const double next = env.objective_of(total, static_cast<int>(path.size()), energy);
-    plan.objective = next;
-    plan.sum_rate_objective = total / static_cast<double>(path.size());
-    plan.energy_j = energy;
-    plan.T = static_cast<int>(path.size());
-    plan.actions = actions;
-    if (progress)
-      *progress << "optimal: iteration " << iter << "  lambda " << format_double(lambda) << " -> " << format_double(next)
-                << "  T = " << plan.T << "\n" << std::flush;
-    if (kind == Objective::Energy) break;  // no ratio: one pass is the optimum
-    // Dinkelbach's lambda rises from the ratio of a feasible plan: lambda = 0 before the first
-    // iteration is none when the optimum is negative (weighted with a large w), so always go on once.
-    if (iter > 1 && next <= (lambda >= 0 ? lambda * (1 + 1e-12) : lambda + 1e-12 * -lambda)) break;
-    lambda = next;
-  }
-  // Arrived UAVs in the plan STAY (their recorded action is whatever index matched: normalise).
-  for (std::size_t k = 0; k < plan.actions.size(); ++k)
-    for (int n = 0; n < N; ++n)
-      if (cell(path[k], n) == d_cell[static_cast<std::size_t>(n)]) plan.actions[k][static_cast<std::size_t>(n)] = hover;
-  plan.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-  env.reset();
-  return plan;
 }
 
 void OptimalPlanner::reset(UavEnv& env) {
@@ -560,7 +267,7 @@ std::vector<int> replay(const std::vector<std::vector<int>>& actions, const UavE
 std::vector<int> OptimalPlanner::act(UavEnv& env) { return replay(plan_.actions, env); }
 
 double brute_force_optimum(UavEnv& env) {
-  require_lattice(env, "the brute-force optimum");
+  const LatticeDynamics& lattice = require_lattice(env, "the brute-force optimum");
   env.reset();
   const int N = env.uavs();
   double best = kNegInf;
@@ -578,7 +285,7 @@ double brute_force_optimum(UavEnv& env) {
   const long joint = joint_count(A, N);
   std::vector<double> move_energy(static_cast<std::size_t>(A));
   for (int a = 0; a < A; ++a)
-    move_energy[static_cast<std::size_t>(a)] = env.propulsion().slot_energy(env.mobility().speed(a), 0.0, env.mobility().slot_s());
+    move_energy[static_cast<std::size_t>(a)] = env.propulsion().slot_energy(lattice.speed(a), 0.0, lattice.slot_s());
   const Positions dest = env.destinations();
   auto is_home = [&](const Positions& p, int n) {
     return std::abs(p(n, 0) - dest(n, 0)) < 1e-6 && std::abs(p(n, 1) - dest(n, 1)) < 1e-6;
@@ -608,9 +315,11 @@ double brute_force_optimum(UavEnv& env) {
           ok = a[static_cast<std::size_t>(n)] == hover;
           continue;
         }
-        double nx, ny;
-        ok = env.move(f.pos(n, 0), f.pos(n, 1), a[static_cast<std::size_t>(n)], nx, ny);
-        next(n, 0) = nx, next(n, 1) = ny;
+        Flight from;
+        from.x = f.pos(n, 0), from.y = f.pos(n, 1);
+        const Flight to = lattice.fly(n, from, a[static_cast<std::size_t>(n)], env.mission());
+        ok = to.inside;
+        next(n, 0) = to.x, next(n, 1) = to.y;
       }
       if (!ok || env.collisions(next) > 0) continue;
       Frame g{next, f.home, f.sum + env.oracle().sum_rate(next), f.t + 1, f.energy + e};
@@ -628,7 +337,7 @@ EpisodeRecord run_episode(UavEnv& env, Planner& planner) {
   planner.reset(env);
   EpisodeRecord r;
   r.planner = planner.name();
-  r.action_names = env.mobility().actions();
+  r.action_names = env.dynamics().actions();
   r.positions.push_back(env.positions());
   while (!env.done()) {
     std::vector<int> a;

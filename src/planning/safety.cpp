@@ -174,7 +174,7 @@ int towards_home(const UavEnv& env, int n, ActionSet set) {
 
 /// Whether the UAVs at or below safety.reserve slack reserve their ways home (lattice models).
 bool reserving(const UavEnv& env, const SafetyOptions& safety) {
-  return safety.reserve >= 0 && !env.mobility().continuous();
+  return safety.reserve >= 0 && env.dynamics().lattice();
 }
 
 /// The order in which the UAVs choose when the UAVs with at most safety.reserve slack reserve

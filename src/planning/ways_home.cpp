@@ -34,7 +34,7 @@ Scratch& scratch() {
 }  // namespace
 
 WaysHome::WaysHome(const UavEnv& env) : env_(env) {
-  if (env.mobility().continuous()) throw std::logic_error("WaysHome: ways home are planned on the lattice (grid or headings mobility)");
+  if (!env.dynamics().lattice()) throw std::logic_error("WaysHome: ways home are planned on the lattice (" + lattice_dynamics_names() + ")");
   // The search's scratch: three stamps per lattice point and slot left (at most T_max + 1 layers).
   const LatticeFrame f(env.starts()(0, 0), env.starts()(0, 1), env.area_x(), env.area_y(), env.d_fly());
   const double bytes = 12.0 * (env.t_max() + 1.0) * f.cells();
@@ -95,7 +95,7 @@ ActionSet WaysHome::moves(int n) {
   while (free_from > 1 && !blocked(free_from - 1, dest_)) --free_from;
   const int needed_max = layers_;
   auto needed = [&](int c) { return env_.min_moves(n, frame_.x(c), frame_.y(c)); };
-  const MobilityModel& mob = env_.mobility();
+  const LatticeDynamics& mob = *env_.dynamics().lattice();
   const int actions = mob.count();
   auto next = [&](int c, int a) {
     const LatticeStep st = mob.step(a);
@@ -154,7 +154,7 @@ void WaysHome::reserve(int n, int a) {
   int c = frame_.cell(l.x, l.y);
   if (!l.inside || !valid(1, c)) return;
   const int t0 = env_.t();
-  const MobilityModel& mob = env_.mobility();
+  const LatticeDynamics& mob = *env_.dynamics().lattice();
   ways_.erase(std::remove_if(ways_.begin(), ways_.end(), [n](const ReservedPoint& p) { return p.uav == n; }), ways_.end());
   for (int k = 1; k <= layers_; ++k) {
     ways_.push_back({n, t0 + k, frame_.x(c), frame_.y(c)});

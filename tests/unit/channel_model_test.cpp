@@ -13,6 +13,7 @@
 
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/channel/channel_model.hpp"
+#include "skyloop/channel/fading.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/channel/system_model.hpp"
 #include "skyloop/core/error.hpp"
@@ -202,9 +203,14 @@ TEST(ChannelModel, LargeKApproachesThePapersChannelAndNlosLinksAreRayleigh) {
   c.channel.rician_k = "elevation";
   c.channel.rician_k_min_db = 5, c.channel.rician_k_max_db = 15;
   const ChannelModel m(c);
-  EXPECT_NEAR(10 * std::log10(m.k_factor(0)), 5, 1e-12);
-  EXPECT_NEAR(10 * std::log10(m.k_factor(45)), 10, 1e-12);
-  EXPECT_NEAR(10 * std::log10(m.k_factor(90)), 15, 1e-12);
+  auto k_at = [&](double elevation_deg) {  // a LoS link's K at this elevation (dB)
+    LinkState s;
+    s.geometry.elevation_deg = elevation_deg;
+    return m.fading().k_factor_db(s);
+  };
+  EXPECT_NEAR(k_at(0), 5, 1e-12);
+  EXPECT_NEAR(k_at(45), 10, 1e-12);
+  EXPECT_NEAR(k_at(90), 15, 1e-12);
   // Under a 3GPP model the NLoS links carry K = 0 (-infinity dB).
   Config u = air("3gpp-uma-av");
   u.channel.fading = "rician";

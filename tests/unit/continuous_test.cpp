@@ -10,7 +10,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/env/energy.hpp"
-#include "skyloop/env/mobility.hpp"
+#include "skyloop/env/continuous.hpp"
 #include "skyloop/planning/planners.hpp"
 #include "skyloop/planning/safety.hpp"
 
@@ -39,7 +39,7 @@ std::unique_ptr<UavEnv> make_env(const Config& cfg, std::uint64_t seed = 1) {
 Positions random_commands(const UavEnv& env, Rng& rng) {
   Positions v(env.uavs(), 2);
   for (int n = 0; n < env.uavs(); ++n)
-    env.mobility().velocity(2 * rng.uniform() - 1, 2 * rng.uniform() - 1, v(n, 0), v(n, 1));
+    static_cast<const ContinuousDynamics&>(env.dynamics()).velocity(2 * rng.uniform() - 1, 2 * rng.uniform() - 1, v(n, 0), v(n, 1));
   return v;
 }
 
@@ -47,8 +47,8 @@ Positions random_commands(const UavEnv& env, Rng& rng) {
 
 TEST(Continuous, CommandsMapOneToOneOntoTheDisc) {
   const Config c = continuous();
-  const MobilityModel m(c);
-  ASSERT_TRUE(m.continuous());
+  const ContinuousDynamics m(c);
+  ASSERT_TRUE(m.commands_velocities());
   EXPECT_EQ(m.actions().dims, 2);
   EXPECT_EQ(m.actions().names.back(), "HOVER");
   EXPECT_EQ(m.actions().names[static_cast<std::size_t>(m.home())], "HOME");
@@ -80,9 +80,9 @@ TEST(Continuous, CommandsMapOneToOneOntoTheDisc) {
 
 TEST(Continuous, PolarCommandsAreASpeedAndATurnTheUavCanMake) {
   Config c = continuous();  // v_max 20 m/s, a_max 5 m/s^2 x 2 s: dv_max 10 m/s
-  ASSERT_EQ(MobilityModel(c).command(), "velocity");
+  ASSERT_EQ(ContinuousDynamics(c).command(), "velocity");
   c.trajectory.command = "polar";
-  const MobilityModel polar(c);
+  const ContinuousDynamics polar(c);
   ASSERT_EQ(polar.command(), "polar");
   double vx, vy;
   // Flying north-east at 10 m/s. u = 0 cruises straight on at v_max / 2; u1 turns by u1 times the
@@ -128,7 +128,7 @@ TEST(Continuous, PolarCommandsAreASpeedAndATurnTheUavCanMake) {
       EXPECT_NEAR(fy, vy, 1e-9);
     }
     double wx, wy, ux, uy;
-    MobilityModel(continuous()).commanded_velocity(u0, u1, px, py, 40, 40, wx, wy);
+    ContinuousDynamics(continuous()).commanded_velocity(u0, u1, px, py, 40, 40, wx, wy);
     polar.velocity(u0, u1, ux, uy);
     EXPECT_EQ(wx, ux);
     EXPECT_EQ(wy, uy);
@@ -149,7 +149,7 @@ TEST(Continuous, ProjectionIsTheNearestVelocityTheUavCanFly) {
   // The nearest point of {|V| <= v_max} n {|V - V_prev| <= a_max delta_t} (v_max = 20, a_max
   // delta_t = 10 m/s), against a search over a fine grid of the feasible set.
   const Config c = continuous();
-  const MobilityModel m(c);
+  const ContinuousDynamics m(c);
   Rng rng(5);
   for (int i = 0; i < 300; ++i) {
     const double r = 20 * std::sqrt(rng.uniform()), th = 6.283185307179586 * rng.uniform();
@@ -186,7 +186,7 @@ TEST(Continuous, HomeFliesInTheSlotsReachabilityCounts) {
     EXPECT_GE(need[static_cast<std::size_t>(n)], static_cast<int>(std::ceil(d / 40.0 - 1e-9)));
     EXPECT_LT(need[static_cast<std::size_t>(n)], c.trajectory.t_max);
   }
-  const std::vector<int> home(static_cast<std::size_t>(N), env->mobility().home());
+  const std::vector<int> home(static_cast<std::size_t>(N), static_cast<const ContinuousDynamics&>(env->dynamics()).home());
   while (!env->done()) {
     for (int n = 0; n < N; ++n) {
       if (!env->arrived(n)) {

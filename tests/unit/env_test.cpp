@@ -43,8 +43,7 @@ TEST(Env, BoundariesAreNeverCrossedAndCounted) {
       std::vector<int> a(3);
       for (auto& x : a) x = static_cast<int>(rng.below(5));
       for (int n = 0; n < 3; ++n) {
-        double nx, ny;
-        attempted += !env->arrived(n) && !env->move(env->positions()(n, 0), env->positions()(n, 1), a[n], nx, ny);
+        attempted += !env->arrived(n) && !env->landing(n, a[n]).inside;
       }
       env->step(a);
       const auto& p = env->positions();

@@ -9,7 +9,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/env/energy.hpp"
-#include "skyloop/env/mobility.hpp"
+#include "skyloop/env/dynamics.hpp"
 #include "skyloop/planning/planners.hpp"
 #include "skyloop/planning/safety.hpp"
 
@@ -77,7 +77,8 @@ TEST(Energy, SlotEnergyAndTheKineticTerm) {
 
 TEST(Mobility, GridIsThePapersFiveMoves) {
   const Config c;
-  const MobilityModel m(c);
+  const auto model = make_dynamics(c);
+  const LatticeDynamics& m = *model->lattice();
   ASSERT_EQ(m.count(), 5);
   EXPECT_EQ(m.actions().names, (std::vector<std::string>{"UP", "DOWN", "LEFT", "RIGHT", "STAY"}));
   EXPECT_EQ(m.hover(), kStay);
@@ -89,7 +90,8 @@ TEST(Mobility, GridIsThePapersFiveMoves) {
 
 TEST(Mobility, HeadingsAreEightPerSpeedAndHover) {
   const Config c = headings({0, 10, 20});
-  const MobilityModel m(c);
+  const auto model = make_dynamics(c);
+  const LatticeDynamics& m = *model->lattice();
   ASSERT_EQ(m.count(), 17);
   EXPECT_EQ(m.actions().names.front(), "E@10");
   EXPECT_EQ(m.actions().names[9], "NE@20");
@@ -113,8 +115,8 @@ TEST(Mobility, HeadingsAreEightPerSpeedAndHover) {
 
 TEST(Mobility, SlotsToDestinationAreExact) {
   // Grid: Manhattan distance; headings with one speed of one step: Chebyshev distance (king moves).
-  const MobilityModel grid{Config{}};
-  const MobilityModel king{headings({10})};
+  const auto grid_model = make_dynamics(Config{}), king_model = make_dynamics(headings({10}));
+  const LatticeDynamics &grid = *grid_model->lattice(), &king = *king_model->lattice();
   const int nx = 7, ny = 5, to = 2 * nx + 3;
   const auto g = grid.slots_to(nx, ny, to), k = king.slots_to(nx, ny, to);
   for (int c = 0; c < nx * ny; ++c) {
@@ -123,7 +125,8 @@ TEST(Mobility, SlotsToDestinationAreExact) {
     EXPECT_EQ(k[static_cast<std::size_t>(c)], std::max(dx, dy));
   }
   // Two steps per slot only: cells of odd offset along an axis need a detour; the search knows.
-  const MobilityModel two{headings({20})};
+  const auto two_model = make_dynamics(headings({20}));
+  const LatticeDynamics& two = *two_model->lattice();
   const auto t = two.slots_to(5, 1, 0);
   EXPECT_EQ(t, (std::vector<int>{0, -1, 1, -1, 2}));  // a 5 x 1 strip: odd cells unreachable
 }
@@ -320,7 +323,7 @@ TEST(Mobility, LeastEnergyCruiseIsTheMaximumRangeSpeed) {
     if (best_v == 0 || p.power(v) / v < p.power(best_v) / best_v) best_v = v;
   EXPECT_EQ(best_v, 18.0);
   EXPECT_LT(std::abs(best_v - p.max_range_speed()), 1.0);
-  const MobilityModel& m = env->mobility();
+  const LatticeDynamics& m = *env->dynamics().lattice();
   for (const auto& a : plan.actions) EXPECT_DOUBLE_EQ(m.speed(a[0]), best_v) << m.actions().name(a[0]);
   EXPECT_NEAR(plan.energy_j, 396.0 / best_v * p.power(best_v), 1e-6);
 }

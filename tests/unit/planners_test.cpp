@@ -290,9 +290,11 @@ TEST(Planners, RolloutFliesTheContinuousModel) {
     bool commands_velocities() const override { return true; }
     Positions act_velocities(UavEnv& env) override {
       Positions v = Positions::Zero(env.uavs(), 2);
+      const auto& names = env.dynamics().actions().names;
+      const int home = static_cast<int>(std::find(names.begin(), names.end(), "HOME") - names.begin());
       for (int n = 0; n < env.uavs(); ++n) {
         const auto now = env.current(n);
-        if (env.min_moves(n, now) + 2 >= env.t_max() - env.t()) env.home_velocity(n, v(n, 0), v(n, 1));
+        if (env.min_moves(n, now) + 2 >= env.t_max() - env.t()) env.primitive_velocity(n, home, v(n, 0), v(n, 1));
       }
       return v;
     }

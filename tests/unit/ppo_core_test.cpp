@@ -677,7 +677,7 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
       // A fresh oracle per run: its memo's hits and misses must not differ between the runs.
       VecEnv vec = cfg.env.resample_users ? VecEnv(cfg, beamformer, 5, 7)
                                           : VecEnv(cfg, std::make_shared<RateOracle>(cfg, beamformer, make_users(cfg, 6, 3)), 5);
-      const int dims = vec.env(0).mobility().actions().dims;
+      const int dims = vec.env(0).dynamics().actions().dims;
       Rollout r(30, 5, 2, enc.width(vec.env(0)), critic.width(vec.env(0)), dims > 0 ? 0 : vec.env(0).actions(), dims,
                 critic.observation_width(vec.env(0)));
       auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1,

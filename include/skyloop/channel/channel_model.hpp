@@ -9,8 +9,8 @@
 //   beta        = 10^(-(PL_state(d) + S) / 10)     (free-space: beta0 (d0 / d_3D)^2, as the paper)
 //   a           = steering vector of cos(theta_z)  [L]
 //   h(m)        = sqrt(beta) (sqrt(K / (K + 1)) a + sqrt(1 / (K + 1)) g(m)),  g(m) ~ CN(0, I_L)
-//                 fading "none": h = sqrt(beta) a (K = infinity; the paper's channel exactly);
-//                 an NLoS link under "rician" is Rayleigh (K = 0: its direct path is blocked).
+//                 (the fading seam, channel/fading.hpp: "none" is h = sqrt(beta) a, K = infinity,
+//                 the paper's channel exactly; an NLoS link under "rician" is Rayleigh, K = 0)
 //
 // Randomness is a fixed map of the city, so a position's channel is a pure function of the
 // positions and channel.seed (the rate oracle's memo stays exact, the DP stays the optimum of the
@@ -32,6 +32,8 @@
 #include "skyloop/core/types.hpp"
 
 namespace skyloop {
+
+class FadingModel;
 
 /// Geometry of one link.
 struct LinkGeometry {
@@ -75,10 +77,12 @@ class ChannelModel {
   explicit ChannelModel(const Config& cfg);
 
   /// The paper's channel: free-space, no fading.
-  bool paper() const { return free_space_ && !rician_; }
-  /// Fast slots per trajectory slot: channel.fast_slots under Rician fading, else 1 (without
-  /// small-scale fading every fast slot sees the same channel).
-  int fast_slots() const { return rician_ ? fast_slots_ : 1; }
+  bool paper() const;
+  /// Fast slots per trajectory slot: channel.fast_slots under a random fading model, else 1
+  /// (without small-scale fading every fast slot sees the same channel).
+  int fast_slots() const;
+  /// The fading model (skyloop/channel/fading.hpp).
+  const FadingModel& fading() const { return *fading_; }
   int antennas() const { return antennas_; }
 
   /// d_3D from a UAV at (ux, uy, H) to the user at (x, y, h_u) (the association's distance).
@@ -99,17 +103,15 @@ class ChannelModel {
 
   /// The fields' values at a UAV position for a user (unit-variance Gaussians; exposed for tests).
   double field(int which, double ux, double uy, double x, double y) const;
-  /// Rician K (linear) of a LoS link at the given elevation (degrees).
-  double k_factor(double elevation_deg) const;
 
  private:
   int antennas_;
   double spacing_, altitude_, user_height_, beta0_, d0_;
-  bool free_space_, rician_, shadowing_, k_elevation_;
-  double k_db_, k_min_db_, k_max_db_, correlation_;
-  int fast_slots_;
+  bool free_space_, shadowing_;
+  double correlation_;
   std::uint64_t seed_;
   std::shared_ptr<const PathLossModel> path_loss_;
+  std::shared_ptr<const FadingModel> fading_;
 };
 
 }  // namespace skyloop

@@ -112,7 +112,7 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   int t_max = 24;                   // mission horizon in slots
   std::string layout = "given";     // given (starts, destinations above) | generated (scenario.uavs UAVs from layout_seed)
   std::uint64_t layout_seed = 1;    // seed of a generated layout
-  // Mobility (skyloop/env/mobility.hpp; beyond the paper but the grid model, which is the paper's).
+  // Mobility (skyloop/env/dynamics.hpp; beyond the paper but the grid model, which is the paper's).
   std::string mobility = "grid";    // grid (the paper's five moves of D_fly) | headings (8 headings x speeds_mps) | continuous
   std::vector<double> speeds_mps{0.0, 10.0, 20.0};  // headings: axis speeds (0 = hover); speed x slot_s a multiple of D_fly
   double slot_s = 2.0;              // slot duration delta_t (s); the grid model flies V = D_fly / delta_t
@@ -277,9 +277,6 @@ void set_field(Config& cfg, const Field& field, const FieldValue& value);
 constexpr int kMaxActions = 64;
 /// Lattice steps per slot at axis speed v (m/s), or -1 if v slot_s is not a whole multiple of pitch.
 long lattice_steps(double speed, double slot_s, double pitch);
-/// The mobility settings (trajectory.mobility, speeds_mps, slot_s against D_fly and the power
-/// model's range); throws InputError naming the field, the value and what is allowed.
-void validate_mobility(const Config& cfg);
 
 /// Cross-field rules (starts and destinations in the area, same count, R_c >= H, ...).
 /// Throws InputError naming the fields.

@@ -66,8 +66,7 @@ class RateOracle {
   bool joint() const { return model_.spectrum() == Spectrum::Shared; }
 
  private:
-  friend std::vector<double> batch_sum_rates(const std::vector<RateOracle*>& oracles,
-                                             const std::vector<const Positions*>& uavs);
+  friend class RateBatch;  // batch_sum_rates' work (rate_oracle.cpp)
   /// A cluster: its UAV's position and its user set as a bit mask (inline up to 256 users).
   struct Key {
     double x = 0, y = 0;

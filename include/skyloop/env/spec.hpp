@@ -53,13 +53,13 @@ struct ArraySpec {
 };
 
 /// The paper's grid moves (the grid mobility model's actions; every other reader takes the action
-/// space of the environment's mobility model, skyloop/env/mobility.hpp).
+/// space of the environment's dynamics, skyloop/env/dynamics.hpp).
 enum Action : int { kUp = 0, kDown = 1, kLeft = 2, kRight = 3, kStay = 4 };
 constexpr int kGridActions = 5;
 
 /// The action space. Discrete models: `names.size()` actions, index = action. The continuous model
 /// (dims = 2): a command in [-1, 1]^dims, and `names` its primitives, the discrete actions of
-/// planners that choose among a few (skyloop/env/mobility.hpp).
+/// planners that choose among a few (skyloop/env/dynamics.hpp).
 struct ActionSpec {
   std::vector<std::string> names;
   int hover = kStay;  // the action that stays in place (grid: STAY; headings: HOVER, the last)

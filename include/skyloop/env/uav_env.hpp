@@ -1,7 +1,7 @@
 #pragma once
 // The outer loop's world (Sections III-A and V-B): N UAVs fly from their starts to their
-// destinations over fixed ground users, one move per slot of the mobility model
-// (skyloop/env/mobility.hpp; the paper's: D_fly along x or y, or stay), and R[t] comes from a
+// destinations over fixed ground users, one move per slot of the dynamics
+// (skyloop/env/dynamics.hpp; the paper's: D_fly along x or y, or stay), and R[t] comes from a
 // beamformer behind a RateOracle. Every slot each UAV spends propulsion energy at its ground speed
 // (skyloop/env/energy.hpp); arrived UAVs hover until the mission ends.
 //
@@ -41,7 +41,7 @@
 #include <vector>
 
 #include "skyloop/env/energy.hpp"
-#include "skyloop/env/mobility.hpp"
+#include "skyloop/env/dynamics.hpp"
 #include "skyloop/env/rate_oracle.hpp"
 #include "skyloop/env/spec.hpp"
 
@@ -76,6 +76,9 @@ class UavEnv {
  public:
   /// `oracle` holds the users; the environment takes the trajectory and reward settings of cfg.
   UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle);
+  /// The same flying `dynamics` in place of cfg's trajectory.mobility (a model of your own:
+  /// docs/extending/mobility-model.md); cfg's other trajectory settings stay.
+  UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, std::shared_ptr<const Dynamics> dynamics);
   /// An environment of `like`'s configuration over the users of `oracle`, reset: the same as one
   /// made from that configuration, without making its lattice tables again (it shares like's).
   UavEnv(const UavEnv& like, std::shared_ptr<RateOracle> oracle);
@@ -91,13 +94,16 @@ class UavEnv {
   int t_max() const { return t_max_; }
   bool done() const { return done_; }
   const Positions& positions() const { return pos_; }
-  const Positions& starts() const { return start_; }
-  const Positions& destinations() const { return dest_; }
+  const Positions& starts() const { return mission_.starts; }
+  const Positions& destinations() const { return mission_.destinations; }
   bool arrived(int n) const { return arrived_[static_cast<std::size_t>(n)]; }
-  /// The mobility model: the action space (actions().count()), moves, speeds.
-  const MobilityModel& mobility() const { return *mobility_; }
-  int actions() const { return mobility_->count(); }
-  int hover() const { return mobility_->hover(); }
+  /// The dynamics (trajectory.mobility): the action space (actions().count()), what a move does,
+  /// reachability. Ask it, never which model it is.
+  const Dynamics& dynamics() const { return *dynamics_; }
+  /// The mission the dynamics flies: the area, starts, destinations, T_max.
+  const Mission& mission() const { return mission_; }
+  int actions() const { return dynamics_->count(); }
+  int hover() const { return dynamics_->hover(); }
   const PropulsionModel& propulsion() const { return propulsion_; }
   Objective objective_kind() const { return objective_kind_; }
   /// Active-agent mask m_n (0 once arrived).
@@ -105,35 +111,24 @@ class UavEnv {
   RateOracle& oracle() { return *oracle_; }
   double d_fly() const { return d_fly_; }
   double d_min() const { return d_min_; }
-  double area_x() const { return area_x_; }
-  double area_y() const { return area_y_; }
+  double area_x() const { return mission_.area_x; }
+  double area_y() const { return mission_.area_y; }
 
-  /// Where a UAV ends a slot: position, velocity (m/s) and whether the move stayed in the area
-  /// (a move that would leave it is cancelled: the UAV hovers where it was, velocity 0).
-  struct Landing {
-    double x = 0, y = 0, vx = 0, vy = 0;
-    double speed = 0;  // ground speed (m/s): what the slot's energy is charged at
-    bool inside = true;
-  };
-  /// Position after lattice action `a` from (x, y), and whether it stays in the area (grid and
-  /// headings only).
-  bool move(double x, double y, int a, double& nx, double& ny) const;
+  /// Where a UAV ends a slot: position, velocity (m/s), ground speed and whether the move stayed
+  /// in the area (skyloop/env/dynamics.hpp's Flight).
+  using Landing = Flight;
   /// UAV n as it is now: its position and its velocity (and speed) in the last slot.
   Landing current(int n) const;
-  /// Where UAV n ends this slot under action a (continuous: primitive a, projected); arrived UAVs
-  /// hover where they are.
+  /// Where UAV n ends this slot under action a (Dynamics::fly; a commanding model: primitive a);
+  /// arrived UAVs hover where they are.
   Landing landing(int n, int a) const;
-  /// Where UAV n ends this slot under velocity command (vx, vy) m/s (continuous model only):
-  /// projected onto what it can fly (MobilityModel::project), moved, cancelled if it would leave
-  /// the area, placed on its destination if it ends within trajectory.arrival_m of it.
+  /// Where UAV n ends this slot under velocity command (vx, vy) m/s (models that take commands:
+  /// Dynamics::fly_command).
   Landing landing_velocity(int n, double vx, double vy) const;
-  /// The HOME command of UAV n (m/s) from its current state (continuous model).
-  void home_velocity(int n, double& vx, double& vy) const;
-  /// Fewest slots from (x, y) to UAV n's destination under the mobility model (grid: Manhattan on
-  /// the D_fly grid; headings: breadth-first over UAV n's lattice, (x, y) on it; continuous: the
-  /// HOME simulation from (x, y) at UAV n's current velocity). t_max + 1 when out of reach.
+  /// Fewest slots from (x, y) to UAV n's destination under the dynamics (Reachability::slots, at
+  /// UAV n's current velocity); more than t_max when out of reach.
   int min_moves(int n, double x, double y) const;
-  /// The same from a landing (continuous: its velocity too).
+  /// The same from a landing (its velocity too).
   int min_moves(int n, const Landing& l) const;
   /// What min_moves_around keeps clear of: the lattice points within D_min of every other UAV's
   /// destination (where each will hover once it arrives, until the mission ends), or of the UAVs
@@ -141,29 +136,31 @@ class UavEnv {
   enum class ClearOf { Destinations, Parked };
   /// min_moves over the lattice points clear of `what` (UAV n's own destination stays open), for
   /// the safety layer (skyloop/planning/safety.hpp); t_max + 1 where (x, y) is not clear or cut off.
-  /// Equal to min_moves for the continuous model and while nothing is to be kept clear of.
+  /// Equal to min_moves off the lattice and while nothing is to be kept clear of.
   /// Breadth-first over UAV n's lattice: once per environment (Destinations) or once per arrival
   /// (Parked), made when first asked.
   int min_moves_around(int n, const Landing& l, ClearOf what) const;
   /// Refuses (InputError, one line naming the fields) `envs` environments of `cfg` whose
-  /// distance tables would not fit in memory (skyloop/core/memory.hpp): the headings lattices and
-  /// the Destinations tables once (copies share them), a Parked table per UAV per environment where
-  /// marl.mask_clearance asks for them, and one breadth-first search's scratch per copy.
+  /// distance tables would not fit in memory (skyloop/core/memory.hpp): the dynamics' reachability
+  /// tables and the Destinations tables once (copies share them), a Parked table per UAV per
+  /// environment where marl.mask_clearance asks for them, and one breadth-first search's scratch
+  /// per copy.
   static void require_table_memory(const Config& cfg, int envs);
+  static void require_table_memory(const Config& cfg, const Dynamics& dynamics, int envs);
   /// True if `a` keeps UAV n in the area and its destination reachable in the moves left after
   /// it (T_max - (t + 1)). An arrived UAV may only hover (STAY).
   bool feasible(int n, int a) const;
   /// Positions after a joint action (boundary moves cancelled), without stepping.
   Positions next_positions(const std::vector<int>& actions) const;
-  /// Continuous model: one slot under velocity commands v (row n: UAV n's, m/s; arrived UAVs
-  /// hover whatever their row says). The discrete step() above flies the primitives' commands.
+  /// Models that take commands: one slot under velocity commands v (row n: UAV n's, m/s; arrived
+  /// UAVs hover whatever their row says). The discrete step() above flies the primitives' commands.
   StepInfo step_velocities(const Positions& v);
-  /// Continuous model: the velocity commands (m/s) of a joint action of primitives.
+  /// Models that take commands: the velocity commands (m/s) of a joint action of primitives.
   Positions primitive_velocities(const std::vector<int>& actions) const;
-  /// Continuous model: the velocity (m/s) UAV n's command u in [-1, 1]^2 asks for
-  /// (trajectory.command; MobilityModel::commanded_velocity from its last velocity).
+  /// Models that take commands: the velocity (m/s) UAV n's command u in [-1, 1]^2 asks for
+  /// (trajectory.command; Dynamics::command_velocity from its last velocity).
   void command_velocity(int n, double u0, double u1, double& vx, double& vy) const;
-  /// Continuous model: UAV n's velocity command (m/s) for primitive a.
+  /// Models that take commands: UAV n's velocity command (m/s) for primitive a.
   void primitive_velocity(int n, int a, double& vx, double& vy) const;
   /// UAV n's velocity in the last slot (m/s; 0 before the first step).
   double velocity_x(int n) const { return vel_(n, 0); }
@@ -180,8 +177,8 @@ class UavEnv {
   /// the users / area, displacement to the destination / area, one-hot previous action (as wide
   /// as the action space: 5 under the grid model).
   void write_observation(int n, float* out) const;
-  /// The observations' previous-action field: one-hot (discrete models) or the last velocity /
-  /// v_max (continuous, 2 reals).
+  /// The observations' previous-action field (Dynamics::write_previous_action: one-hot, or a
+  /// commanding model's last velocity / v_max).
   void write_previous_action(int n, float* out) const;
   std::vector<float> observation(int n) const;
   int observation_size() const { return spec_->paper_obs.size; }
@@ -289,12 +286,6 @@ class UavEnv {
   /// Phase 1's bookkeeping of UAV n landing at l (its energy, speed, velocity).
   void land(int n, const Landing& l, StepInfo& info);
   void check_step(std::size_t count) const;
-  /// Slots the HOME command takes from (x, y) at velocity (vx, vy) to UAV n's destination, or
-  /// limit + 1 when more or when HOME would meet the boundary (then *blocked, when given, is true).
-  int home_slots(int n, double x, double y, double vx, double vy, int limit, bool* blocked = nullptr) const;
-  /// Why UAV n cannot arrive within T_max: its true count of moves (or slots of the HOME flight,
-  /// uncapped) and the settings that decide it.
-  std::string unreachable_message(int n, const Config& cfg) const;
   /// Phase 2: arrival, R, reward, termination, given R at the new positions.
   void end_step(const Positions& next, double rate, StepInfo& info);
   /// Whether UAV n at `p` is at its destination (end_step's arrival rule).
@@ -309,20 +300,18 @@ class UavEnv {
   double objective_at() const;
 
   int n_, t_max_;
-  double d_fly_, d_min_, area_x_, area_y_;
-  // A lattice (origin, size) and the fewest slots from each of its points to a UAV's destination:
-  // headings mobility's reachability (every point open), and min_moves_around's tables (the points
-  // of `what` closed) with the version they were made for (-1: none yet).
+  double d_fly_, d_min_;
+  // A lattice (origin, size) and the fewest slots from each of its points to a UAV's destination
+  // with the points of min_moves_around's `what` closed, and the version it was made for (-1: none yet).
   struct DistanceTable {
     int version = -1;
     LatticeFrame frame;
     std::vector<int> slots;
   };
   // The tables every copy of an environment shares, a pure function of its configuration (the
-  // VecEnv's environments are copies of its first): UAV n's headings lattice, and its Destinations
-  // table of min_moves_around, made when first asked (once, whichever thread asks).
+  // VecEnv's environments are copies of its first): UAV n's Destinations table of
+  // min_moves_around, made when first asked (once, whichever thread asks).
   struct SharedTables {
-    std::vector<DistanceTable> headings;
     std::vector<DistanceTable> destinations;
     std::unique_ptr<std::once_flag[]> made;  // destinations[n] made
   };
@@ -333,7 +322,9 @@ class UavEnv {
   Positions vel_;  // velocity in the last slot (m/s)
   double energy_total_ = 0;
   double w_rate_, w_arr_, w_bud_, w_col_, w_fea_;
-  std::shared_ptr<const MobilityModel> mobility_;
+  std::shared_ptr<const Dynamics> dynamics_;
+  Mission mission_;  // the area, starts, destinations and T_max the dynamics flies
+  std::shared_ptr<const Reachability> reach_;  // the dynamics' reachability of mission_ (copies share it)
   PropulsionModel propulsion_;
   Objective objective_kind_ = Objective::SumRate;
   double bandwidth_hz_ = 1e6, w_energy_ = 0, budget_j_ = 0;
@@ -341,7 +332,7 @@ class UavEnv {
   bool objective_reward_ = false;  // env.reward = "objective"
   SpecParams spec_params_;  // what spec_ is made from (N, K, area, horizon, env.state, marl.encoder)
   std::shared_ptr<const EnvSpec> spec_;
-  Positions start_, dest_, pos_;
+  Positions pos_;
   Positions seen_;             // pos_ with the decided landings (show_decided) in place
   bool any_decided_ = false;   // seen_ differs from pos_
   std::shared_ptr<RateOracle> oracle_;

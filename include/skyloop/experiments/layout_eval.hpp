@@ -64,12 +64,13 @@ struct LayoutSummary {
 /// of environment i, in the order the environments started them (i fastest).
 std::vector<std::uint64_t> training_layouts_of(const Config& run, int count);
 
-/// The reference planner for a scenario: "optimal" where the joint DP fits, else "bestknown";
-/// "optimal-headings" under the continuous model (the optimum of lattice_twin).
+/// The reference planner for a scenario on the lattice: "optimal" where the joint DP fits, else
+/// "bestknown". Dynamics off the lattice are measured against their lattice twin's reference,
+/// labelled with the twin's model ("optimal-headings").
 std::string layout_reference(const UavEnv& env);
-/// The continuous model's lattice twin: trajectory.mobility = headings at speeds 0, v_max / 2
-/// and v_max (no acceleration limit), the reference that evaluations of continuous missions
-/// measure against (refused in one line where those speeds leave the D_fly lattice).
+/// The lattice twin of dynamics off the lattice (Dynamics::reference_twin; continuous: headings at
+/// speeds 0, v_max / 2 and v_max, no acceleration limit), the reference that evaluations of their
+/// missions measure against (refused in one line where those speeds leave the D_fly lattice).
 Config lattice_twin(const Config& cfg);
 
 /// Refuses (InputError) flying policies as rollout bases with marl.reserve_slack >= 0: a rollout

@@ -198,7 +198,7 @@ std::string optimum_key(const Config& cfg);
 bool fits_optimal(const UavEnv& env);
 /// Refuses (InputError, naming `who`) the continuous mobility model, which the lattice searches
 /// (the optimal, brute-force and best-known planners) cannot represent.
-void require_lattice(const UavEnv& env, const std::string& who);
+const LatticeDynamics& require_lattice(const UavEnv& env, const std::string& who);
 
 struct BestKnownPlan {
   double objective = 0;                     // (1/T) sum_{t=1}^T R[t]

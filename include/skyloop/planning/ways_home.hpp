@@ -26,7 +26,7 @@
 // states from which a way exists, over (slot, lattice point) pairs within reach of both.
 #include <vector>
 
-#include "skyloop/env/mobility.hpp"
+#include "skyloop/env/dynamics.hpp"
 #include "skyloop/env/uav_env.hpp"
 #include "skyloop/planning/safety.hpp"
 

@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 import tomllib
+import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -35,7 +36,19 @@ TIMING = re.compile(r"(^|[/_.])(seconds|wall_s|time_s|elapsed_s|ms|us)$|_seconds
 # Not compared: files that record wall clock or the order in which parallel work finished (logs,
 # timings), seals (checksums of files that hold timings), and last.pt (a resume point: LibTorch
 # writes Adam's state in the order of its tensors' addresses; model.pt and policy.pt are compared).
-VOLATILE = re.compile(r"(^|/)(timings\.csv|seals/[^/]*|[^/]*\.log|last\.pt)$")
+VOLATILE = re.compile(r"(^|/)(timings\.csv|seals/[^/]*|locks/[^/]*|[^/]*\.log|last\.pt)$")
+# Cache keys: reproduce names a model's or a run's folder by a 12-digit hash of its resolved
+# configuration ("gnn-a12ef2003955"), so a configuration field added to the table renames every
+# folder. Folder names and the paths written into outputs are compared with the hash masked.
+HASHED = re.compile(r"(?<=-)[0-9a-f]{12}(?![0-9a-f])")
+
+
+# Files named by a 16-digit hash of their key (the optimum cache): compared by contents.
+KEYED = re.compile(r"(^|/)[0-9a-f]{16}\.[a-z]+$")
+
+
+def unhashed(v):
+    return HASHED.sub("<hash>", v) if isinstance(v, str) else v
 
 
 class GoldenError(Exception):
@@ -142,7 +155,7 @@ def compare_csv(old, new, rel):
         for c in cols:
             x = a[io[c]] if io[c] < len(a) else ""
             y = b[inew[c]] if inew[c] < len(b) else ""
-            if x == y:
+            if x == y or unhashed(x) == unhashed(y):
                 continue
             count += 1
             first = first or (i + 2, c, x, y)
@@ -174,7 +187,7 @@ def compare_json(old, new, rel):
     except (ValueError, UnicodeDecodeError) as e:
         return [f"{rel}: not JSON ({e})"]
     keys = [k for k in sorted(set(a) | set(b)) if not TIMING.search(k.rsplit(".", 1)[-1])]
-    diff = [k for k in keys if a.get(k, "<absent>") != b.get(k, "<absent>")]
+    diff = [k for k in keys if unhashed(a.get(k, "<absent>")) != unhashed(b.get(k, "<absent>"))]
     if not diff:
         return []
     k = diff[0]
@@ -202,8 +215,56 @@ def compare_toml(old, new, rel):
     except tomllib.TOMLDecodeError as e:
         return [f"{rel}: not TOML ({e})"], []
     problems = [f"{rel}: {k} = {a[k]!r} -> {b[k]!r}" if k in b else f"{rel}: {k} removed"
-                for k in a if b.get(k, object()) != a[k]]
+                for k in a if unhashed(b.get(k, object())) != unhashed(a[k])]
     return problems, sorted(set(b) - set(a))
+
+
+def untimed(path):
+    """A file's contents with a CSV's wall-clock columns left out."""
+    if path.suffix != ".csv":
+        return path.read_bytes()
+    head, rows = read_csv(path)
+    keep = [i for i, c in enumerate(head) if not TIMING.search(c)]
+    return repr([[r[i] for i in keep if i < len(r)] for r in [head] + rows]).encode()
+
+
+def compare_pt(old, new, rel):
+    """A LibTorch archive: every tensor the same bytes; its metadata (data.pkl) the same but for
+    the resolved configuration it embeds as TOML, compared as a config.toml is (keys added noted)."""
+    try:
+        za, zb = zipfile.ZipFile(old), zipfile.ZipFile(new)
+    except zipfile.BadZipFile:
+        return ([] if old.read_bytes() == new.read_bytes() else [f"{rel}: differs"]), []
+    na, nb = za.namelist(), zb.namelist()
+    if [x.split("/", 1)[-1] for x in na] != [x.split("/", 1)[-1] for x in nb]:
+        return [f"{rel}: its entries differ"], []
+    problems, added = [], []
+    for x, y in zip(na, nb):
+        a, b = za.read(x), zb.read(y)
+        if a == b:
+            continue
+        if not x.endswith("data.pkl"):
+            return [f"{rel}: {x} differs"], []
+        sa, sb = re.findall(rb"[ -~\n]{20,}", a), re.findall(rb"[ -~\n]{20,}", b)
+        # A JSON string's pickled length may read as text: each piece from its first '{"' on.
+        cut = lambda t: t[t.find(b'{"'):] if b'{"' in t else t  # noqa: E731
+        sa, sb = [cut(t) for t in sa], [cut(t) for t in sb]
+        if len(sa) != len(sb):
+            return [f"{rel}: {x} differs"], []
+        for u, v in zip(sa, sb):
+            if u == v:
+                continue
+            try:
+                ju, jv = json.JSONDecoder().raw_decode(u.decode())[0], json.JSONDecoder().raw_decode(v.decode())[0]
+                cu, cv = tomllib.loads(ju.pop("config")), tomllib.loads(jv.pop("config"))
+            except (ValueError, KeyError, tomllib.TOMLDecodeError, AttributeError):
+                return [f"{rel}: {x} differs"], []
+            if ju != jv:
+                return [f"{rel}: its metadata differs"], []
+            fa, fb = flatten(cu), flatten(cv)
+            problems += [f"{rel}: config {k} = {fa[k]!r} -> {fb.get(k)!r}" for k in fa if unhashed(fb.get(k, object())) != unhashed(fa[k])]
+            added += sorted(set(fb) - set(fa))
+    return problems, added
 
 
 def outputs(folder):
@@ -220,24 +281,41 @@ def compare_dirs(old, new, names):
         if not o.is_dir():
             problems.append(f"{name}: not recorded in {old} (record again with this commands file)")
             continue
-        of, nf = outputs(o), outputs(n)
-        problems += [f"{name}/{p}: recorded, not written now" for p in sorted(of - nf)]
-        notes += [f"{name}/{p}: new file" for p in sorted(nf - of)]
-        for p in sorted(of & nf):
-            rel = f"{name}/{p}"
+        of = {Path(unhashed(p.as_posix())): p for p in outputs(o)}
+        nf = {Path(unhashed(p.as_posix())): p for p in outputs(n)}
+        # Files named by a hash of their key alone (the optimum cache): the same contents, in any names.
+        keyed = lambda files: sorted(p for p in files if KEYED.search(p.as_posix()))  # noqa: E731
+        gone, fresh = keyed(of.keys() - nf.keys()), keyed(nf.keys() - of.keys())
+        if gone and len(gone) == len(fresh) and \
+                sorted(untimed(o / of[p]) for p in gone) == sorted(untimed(n / nf[p]) for p in fresh):
+            files += len(gone)
+            for p in gone:
+                del of[p]
+            for p in fresh:
+                del nf[p]
+        problems += [f"{name}/{of[p]}: recorded, not written now" for p in sorted(of.keys() - nf.keys())]
+        notes += [f"{name}/{nf[p]}: new file" for p in sorted(nf.keys() - of.keys())]
+        for key in sorted(of.keys() & nf.keys()):
+            p, q = of[key], nf[key]
+            rel = f"{name}/{q}"
             if VOLATILE.search(p.as_posix()):
                 continue
             files += 1
             if p.suffix == ".csv":
-                problems += compare_csv(o / p, n / p, rel)
+                problems += compare_csv(o / p, n / q, rel)
             elif p.suffix == ".json":
-                problems += compare_json(o / p, n / p, rel)
+                problems += compare_json(o / p, n / q, rel)
             elif p.name.endswith(".toml"):
-                diff, added = compare_toml(o / p, n / p, rel)
+                diff, added = compare_toml(o / p, n / q, rel)
                 problems += diff
                 if added:
                     notes.append(f"{rel}: keys added: {', '.join(added)}")
-            elif (o / p).read_bytes() != (n / p).read_bytes():
+            elif p.suffix == ".pt":
+                diff, added = compare_pt(o / p, n / q, rel)
+                problems += diff
+                if added:
+                    notes.append(f"{rel}: configuration keys added: {', '.join(added)}")
+            elif (o / p).read_bytes() != (n / q).read_bytes():
                 problems.append(f"{rel}: differs")
     return problems, notes, files
 

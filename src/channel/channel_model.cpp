@@ -185,17 +185,17 @@ bool ChannelModel::paper() const { return free_space_ && !fading_->random(); }
 
 int ChannelModel::fast_slots() const { return fading_->fast_slots(); }
 
-double ChannelModel::distance(double ux, double uy, double x, double y) const {
-  const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
+double ChannelModel::distance(double ux, double uy, double uz, double x, double y) const {
+  const double dx = ux - x, dy = uy - y, dz = uz - user_height_;
   return std::sqrt(dx * dx + dy * dy + dz * dz);
 }
 
-LinkGeometry ChannelModel::geometry(double ux, double uy, double x, double y) const {
-  const double dx = ux - x, dy = uy - y, dz = altitude_ - user_height_;
+LinkGeometry ChannelModel::geometry(double ux, double uy, double uz, double x, double y) const {
+  const double dx = ux - x, dy = uy - y, dz = uz - user_height_;
   LinkGeometry g;
   g.horizontal_m = std::sqrt(dx * dx + dy * dy);
-  g.distance_m = distance(ux, uy, x, y);
-  g.height_m = altitude_;
+  g.distance_m = distance(ux, uy, uz, x, y);
+  g.height_m = uz;
   g.elevation_deg = std::asin(std::min(1.0, dz / g.distance_m)) * 180.0 / kPi;
   return g;
 }
@@ -217,9 +217,9 @@ double ChannelModel::field(int which, double ux, double uy, double x, double y) 
   return sum / std::sqrt(weights);
 }
 
-LinkState ChannelModel::link(double ux, double uy, double x, double y) const {
+LinkState ChannelModel::link(double ux, double uy, double uz, double x, double y) const {
   LinkState s;
-  s.geometry = geometry(ux, uy, x, y);
+  s.geometry = geometry(ux, uy, uz, x, y);
   if (free_space_) {
     s.gain = free_space_gain(s.geometry.distance_m);  // the paper's beta, bit for bit
     s.path_loss_db = -linear_to_db(s.gain);
@@ -242,20 +242,21 @@ VectorXcd ChannelModel::steering(double cos_theta) const {
   return a;
 }
 
-VectorXcd ChannelModel::channel(double ux, double uy, double x, double y, int slot) const {
+VectorXcd ChannelModel::channel(double ux, double uy, double uz, double x, double y, int slot) const {
   if (slot < 0 || slot >= fast_slots())
     throw InputError("slot = " + std::to_string(slot) + " is out of range: allowed 0 <= slot < fast_slots = " +
                      std::to_string(fast_slots()) + " (channel.fast_slots; 1 without fading)");
   if (paper()) {
     // The paper's h = sqrt(beta) a(theta), computed exactly as before the seam existed.
-    const double d = distance(ux, uy, x, y);
-    return std::sqrt(free_space_gain(d)) * steering(height_above_users() / d);
+    const double d = distance(ux, uy, uz, x, y);
+    return std::sqrt(free_space_gain(d)) * steering((uz - user_height_) / d);
   }
-  const LinkState s = link(ux, uy, x, y);
-  const VectorXcd a = steering(height_above_users() / s.geometry.distance_m);
+  const LinkState s = link(ux, uy, uz, x, y);
+  const VectorXcd a = steering((uz - user_height_) / s.geometry.distance_m);
   if (!fading_->random()) return fading_->realise(s, a, 0);
   // The slot's draws: a pure function of (channel.seed, the UAV's position, the user's, the slot).
   std::uint64_t h = key_of(seed_, 2, ux, uy);
+  if (uz != altitude_) h = hash_bytes(&uz, sizeof uz, h);  // at H: the draws of the fixed-altitude channel
   h = hash_bytes(&x, sizeof x, h);
   h = hash_bytes(&y, sizeof y, h);
   const auto m = static_cast<std::uint64_t>(slot);

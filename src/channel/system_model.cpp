@@ -60,14 +60,17 @@ void SystemModel::associate(const Positions& uavs, const Positions& users, Assoc
       if (nearest) (*nearest)[static_cast<std::size_t>(k)] = best_d;
     }
   };
-  const double dz = channel_->height_above_users();
+  // The horizontal reach of the lowest UAV (the farthest any UAV covers).
+  double lowest = n_uav > 0 ? altitude_of(uavs, 0) : altitude_;
+  for (int n = 1; n < n_uav; ++n) lowest = std::min(lowest, altitude_of(uavs, n));
+  const double dz = lowest - scenario_.user_height_m;
   const double reach2 = coverage_ * coverage_ - dz * dz;  // horizontal reach squared
   if (n_uav <= kAssociationGridFrom || reach2 <= 0) {
     for (int k = 0; k < n_user; ++k) {
       int best = -1;
       double best_d = std::numeric_limits<double>::infinity();
       for (int n = 0; n < n_uav; ++n) {
-        const double d = distance(uavs(n, 0), uavs(n, 1), users(k, 0), users(k, 1));
+        const double d = distance(uavs, n, users(k, 0), users(k, 1));
         if (d < best_d) best_d = d, best = n;
       }
       serve(k, best, best_d);
@@ -111,7 +114,7 @@ void SystemModel::associate(const Positions& uavs, const Positions& users, Assoc
         const auto c = static_cast<std::size_t>(jy * cx + jx);
         for (int i = head[c]; i < head[c + 1]; ++i) {
           const int n = order[static_cast<std::size_t>(i)];
-          const double d = distance(uavs(n, 0), uavs(n, 1), users(k, 0), users(k, 1));
+          const double d = distance(uavs, n, users(k, 0), users(k, 1));
           if (d < best_d || (d == best_d && n < best)) best_d = d, best = n;
         }
       }
@@ -127,7 +130,7 @@ void SystemModel::reassociate(const Positions& uavs, const Positions& users, int
   if (moved < 0 || moved >= n_uav || a.serving.size() != static_cast<std::size_t>(n_user) ||
       a.users.size() != static_cast<std::size_t>(n_uav) || nearest.size() != static_cast<std::size_t>(n_user))
     throw std::invalid_argument("SystemModel::reassociate: no association of these positions to update");
-  const double mx = uavs(moved, 0), my = uavs(moved, 1);
+
   for (int k = 0; k < n_user; ++k) {
     const auto kk = static_cast<std::size_t>(k);
     const int was = a.serving[kk];
@@ -135,7 +138,7 @@ void SystemModel::reassociate(const Positions& uavs, const Positions& users, int
       int best = -1;
       double best_d = std::numeric_limits<double>::infinity();
       for (int n = 0; n < n_uav; ++n) {
-        const double d = distance(uavs(n, 0), uavs(n, 1), users(k, 0), users(k, 1));
+        const double d = distance(uavs, n, users(k, 0), users(k, 1));
         if (d < best_d) best_d = d, best = n;
       }
       const bool served = best_d <= coverage_;
@@ -145,7 +148,7 @@ void SystemModel::reassociate(const Positions& uavs, const Positions& users, int
     }
     // Served by another UAV (its distance is the nearest of all) or by none (none within R_c, the
     // moved UAV's old place included): only the moved UAV's new distance can change that.
-    const double d = distance(mx, my, users(k, 0), users(k, 1));
+    const double d = distance(uavs, moved, users(k, 0), users(k, 1));
     if (was >= 0 ? (d < nearest[kk] || (d == nearest[kk] && moved < was)) : d <= coverage_) {
       a.serving[kk] = moved;
       nearest[kk] = d;
@@ -156,7 +159,7 @@ void SystemModel::reassociate(const Positions& uavs, const Positions& users, int
     if (const int n = a.serving[static_cast<std::size_t>(k)]; n >= 0) a.users[static_cast<std::size_t>(n)].push_back(k);
 }
 
-Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions& users_xy,
+Cluster SystemModel::make_cluster(int uav, double ux, double uy, double uz, const Positions& users_xy,
                                   const std::vector<int>& users, int uavs, int slot) const {
   Cluster c;
   c.uav = uav;
@@ -169,7 +172,7 @@ Cluster SystemModel::make_cluster(int uav, double ux, double uy, const Positions
   }
   c.G.resize(static_cast<Eigen::Index>(users.size()), antennas_);
   for (std::size_t i = 0; i < users.size(); ++i)
-    c.G.row(static_cast<Eigen::Index>(i)) = channel(ux, uy, users_xy(users[i], 0), users_xy(users[i], 1), slot).adjoint();
+    c.G.row(static_cast<Eigen::Index>(i)) = channel_->channel(ux, uy, uz, users_xy(users[i], 0), users_xy(users[i], 1), slot).adjoint();
   return c;
 }
 
@@ -177,7 +180,7 @@ std::vector<Cluster> SystemModel::clusters(const Snapshot& s, const Association&
   std::vector<Cluster> out;
   for (int n = 0; n < static_cast<int>(a.users.size()); ++n)
     if (!a.users[n].empty())
-      out.push_back(make_cluster(n, s.uavs(n, 0), s.uavs(n, 1), s.users, a.users[n], static_cast<int>(s.uavs.rows())));
+      out.push_back(make_cluster(n, s.uavs(n, 0), s.uavs(n, 1), altitude_of(s.uavs, n), s.users, a.users[n], static_cast<int>(s.uavs.rows())));
   return out;
 }
 
@@ -189,7 +192,7 @@ Network SystemModel::network(const Positions& uavs, const Positions& users_xy,
   net.offset.push_back(0);
   for (int n = 0; n < net.uavs; ++n) {
     if (members[static_cast<std::size_t>(n)].empty()) continue;
-    net.clusters.push_back(make_cluster(n, uavs(n, 0), uavs(n, 1), users_xy, members[static_cast<std::size_t>(n)], net.uavs, slot));
+    net.clusters.push_back(make_cluster(n, uavs(n, 0), uavs(n, 1), altitude_of(uavs, n), users_xy, members[static_cast<std::size_t>(n)], net.uavs, slot));
     for (int k : members[static_cast<std::size_t>(n)]) net.served.push_back(k);
     net.offset.push_back(static_cast<int>(net.served.size()));
   }
@@ -198,7 +201,7 @@ Network SystemModel::network(const Positions& uavs, const Positions& users_xy,
     MatrixXcd H(ks, antennas_);
     for (Eigen::Index r = 0; r < ks; ++r) {
       const int k = net.served[static_cast<std::size_t>(r)];
-      H.row(r) = channel(uavs(c.uav, 0), uavs(c.uav, 1), users_xy(k, 0), users_xy(k, 1), slot).adjoint();
+      H.row(r) = channel_->channel(uavs(c.uav, 0), uavs(c.uav, 1), altitude_of(uavs, c.uav), users_xy(k, 0), users_xy(k, 1), slot).adjoint();
     }
     net.cross.push_back(std::move(H));
   }

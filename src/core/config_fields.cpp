@@ -229,6 +229,12 @@ void add_trajectory_and_energy_fields(std::vector<Field>& f) {
                    {"velocity", "polar"}, [](Config& c) -> std::string& { return c.trajectory.command; }));
   f.push_back(real("trajectory.arrival_m", "continuous: a UAV this close to its destination at a slot's end has arrived (m)", 0.001,
                    1000, [](Config& c) -> double& { return c.trajectory.arrival_m; }));
+  f.push_back(real("trajectory.climb_m", "grid-3d: the altitude one climb or descent changes in a slot (m)", 0.1, 1000,
+                   [](Config& c) -> double& { return c.trajectory.climb_m; }));
+  f.push_back(real("trajectory.altitude_min_m", "grid-3d: the lowest altitude a UAV may fly at (m); scenario.altitude_m, where missions start and end, on its levels",
+                   1, 1e4, [](Config& c) -> double& { return c.trajectory.altitude_min_m; }));
+  f.push_back(real("trajectory.altitude_max_m", "grid-3d: the highest altitude a UAV may fly at (m); levels of climb_m from altitude_min_m",
+                   1, 1e4, [](Config& c) -> double& { return c.trajectory.altitude_max_m; }));
   // [energy]
   f.push_back(text("energy.model", "propulsion power: rotary-wing (Zeng, Xu, Zhang, IEEE TWC 2019, eq. (12)) or none",
                    {"rotary-wing", "none"}, [](Config& c) -> std::string& { return c.energy.model; }));

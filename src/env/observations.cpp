@@ -113,7 +113,7 @@ void UavEnv::write_set_observation(int n, float* o) const {
   *o++ = static_cast<float>(y / mission_.area_y);
   *o++ = static_cast<float>((mission_.destinations(n, 0) - x) / mission_.area_x);
   *o++ = static_cast<float>((mission_.destinations(n, 1) - y) / mission_.area_y);
-  *o++ = static_cast<float>(left - min_moves(n, x, y)) / static_cast<float>(t_max_);
+  *o++ = static_cast<float>(left - min_moves(n, x, y, pos_(n, 2))) / static_cast<float>(t_max_);
   *o++ = static_cast<float>(t_) / static_cast<float>(t_max_);
   write_previous_action(n, o);
   o += spec_->action.continuous() ? spec_->action.dims : actions();
@@ -166,11 +166,11 @@ void UavEnv::write_set_observation(int n, float* o) const {
   if (spec_params_.rate_map > 0) write_rate_map(n, o);
 }
 
-void UavEnv::show_decided(int m, double x, double y) {
+void UavEnv::show_decided(int m, double x, double y, double z) {
   if (m < 0 || m >= n_) throw std::out_of_range("UavEnv::show_decided: no UAV " + std::to_string(m));
   if (!any_decided_) seen_ = pos_;
   any_decided_ = true;
-  seen_(m, 0) = x, seen_(m, 1) = y;
+  seen_(m, 0) = x, seen_(m, 1) = y, seen_(m, 2) = z;
 }
 
 void UavEnv::clear_decided() { any_decided_ = false; }
@@ -212,9 +212,7 @@ void UavEnv::write_move_gains(int n, float* o) const {
   // reassociates for that UAV alone (RateOracle::keys_of).
   std::vector<Positions> sets(static_cast<std::size_t>(A) + 1, seen_positions());
   for (int a = 0; a < A; ++a) {
-    const Landing l = landing(n, a);
-    sets[static_cast<std::size_t>(a) + 1](n, 0) = l.x;
-    sets[static_cast<std::size_t>(a) + 1](n, 1) = l.y;
+    place(sets[static_cast<std::size_t>(a) + 1], n, landing(n, a));
   }
   const auto r = oracle_->sum_rates(sets);
   const double now = r[0];

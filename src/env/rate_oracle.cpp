@@ -17,6 +17,7 @@ namespace skyloop {
 std::size_t RateOracle::KeyHash::operator()(const Key& k) const {
   std::uint64_t h = hash_bytes(&k.x, sizeof k.x);
   h = hash_bytes(&k.y, sizeof k.y, h);
+  h = hash_bytes(&k.z, sizeof k.z, h);
   h = hash_bytes(k.small.data(), sizeof(std::uint64_t) * k.small.size(), h);
   return static_cast<std::size_t>(k.big.empty() ? h : hash_bytes(k.big.data(), sizeof(std::uint64_t) * k.big.size(), h));
 }
@@ -52,7 +53,9 @@ void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vec
   if (last.oracle == id_ && last.uavs.rows() == uavs.rows()) {
     changed = 0;
     for (Eigen::Index u = 0; u < uavs.rows() && changed < 2; ++u)
-      if (!(uavs(u, 0) == last.uavs(u, 0) && uavs(u, 1) == last.uavs(u, 1))) ++changed, moved = static_cast<int>(u);
+      if (!(uavs(u, 0) == last.uavs(u, 0) && uavs(u, 1) == last.uavs(u, 1) &&
+            model_.altitude_of(uavs, u) == model_.altitude_of(last.uavs, u)))
+        ++changed, moved = static_cast<int>(u);
   }
   if (changed == 1) model_.reassociate(uavs, users_, moved, last.a, last.nearest);
   else if (changed > 1) model_.associate(uavs, users_, last.a, &last.nearest);
@@ -63,7 +66,8 @@ void RateOracle::keys_of(const Positions& uavs, std::vector<Key>& keys, std::vec
   const std::size_t words = (static_cast<std::size_t>(users_.rows()) + 63) / 64;
   for (std::size_t i = 0; i < n; ++i) {
     Key& key = keys[i];
-    key.x = uavs(static_cast<Eigen::Index>(i), 0), key.y = uavs(static_cast<Eigen::Index>(i), 1);
+    const auto row = static_cast<Eigen::Index>(i);
+    key.x = uavs(row, 0), key.y = uavs(row, 1), key.z = model_.altitude_of(uavs, row);
     key.small.fill(0);
     if (words > key.small.size()) key.big.assign(words, 0);
     else key.big.clear();
@@ -78,10 +82,17 @@ std::size_t RateOracle::JointHash::operator()(const std::vector<double>& k) cons
   return static_cast<std::size_t>(hash_bytes(k.data(), sizeof(double) * k.size()));
 }
 
-std::vector<double> RateOracle::joint_key(const Positions& uavs) {
-  std::vector<double> key(static_cast<std::size_t>(2 * uavs.rows()));
-  for (Eigen::Index n = 0; n < uavs.rows(); ++n)
-    key[static_cast<std::size_t>(2 * n)] = uavs(n, 0), key[static_cast<std::size_t>(2 * n + 1)] = uavs(n, 1);
+void RateOracle::joint_key(const Positions& uavs, std::vector<double>& key) const {
+  key.resize(static_cast<std::size_t>(3 * uavs.rows()));
+  for (Eigen::Index n = 0; n < uavs.rows(); ++n) {
+    const auto i = static_cast<std::size_t>(3 * n);
+    key[i] = uavs(n, 0), key[i + 1] = uavs(n, 1), key[i + 2] = model_.altitude_of(uavs, n);
+  }
+}
+
+std::vector<double> RateOracle::joint_key(const Positions& uavs) const {
+  std::vector<double> key;
+  joint_key(uavs, key);
   return key;
 }
 
@@ -191,7 +202,7 @@ std::size_t RateBatch::group_of(const Beamformer* bf) {
 
 void RateBatch::add_network(std::size_t s, RateOracle& o) {
   prev_oracle_ = nullptr;
-  jkeys_[s] = RateOracle::joint_key(*uavs_[s]);
+  jkeys_[s] = o.joint_key(*uavs_[s]);
   auto& mine = joint_pending_[&o];
   if (o.joint_cache_.count(jkeys_[s]) || mine.count(jkeys_[s])) {
     ++o.stats_.hits;
@@ -242,7 +253,7 @@ void RateBatch::add_clusters(std::size_t s, RateOracle& o) {
     const int slots = o.model_.fast_slots();
     misses_[g].push_back({&o, key, clusters_[g].size(), slots});
     for (int slot = 0; slot < slots; ++slot)
-      clusters_[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, o.users_, members_[i],
+      clusters_[g].push_back(o.model_.make_cluster(static_cast<int>(i), key.x, key.y, key.z, o.users_, members_[i],
                                                    static_cast<int>(uavs_[s]->rows()), slot));
   }
   prev_oracle_ = &o;
@@ -348,9 +359,7 @@ std::optional<double> RateOracle::cached_sum_rate(const Positions& uavs, double*
   // No allocation of the batch machinery: the common case once the memo is warm.
   if (joint()) {
     thread_local std::vector<double> key;
-    key.resize(static_cast<std::size_t>(2 * uavs.rows()));
-    for (Eigen::Index n = 0; n < uavs.rows(); ++n)
-      key[static_cast<std::size_t>(2 * n)] = uavs(n, 0), key[static_cast<std::size_t>(2 * n + 1)] = uavs(n, 1);
+    joint_key(uavs, key);
     const auto it = joint_cache_.find(key);
     if (it == joint_cache_.end()) {
       if (miss_cost) *miss_cost = static_cast<double>(users_.rows() + uavs.rows());

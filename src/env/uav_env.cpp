@@ -59,8 +59,16 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, std::share
       objective_reward_(cfg.env.reward == "objective"),
       spec_params_(spec_params(cfg, n_, 0)),
       oracle_(std::move(oracle)) {
-  mission_.starts = positions_in_area(cfg.trajectory.starts, cfg, "trajectory.starts");
-  mission_.destinations = positions_in_area(cfg.trajectory.destinations, cfg, "trajectory.destinations");
+  // Every UAV starts and ends at the scenario's altitude H (the third column; dynamics that
+  // choose the altitude fly other levels in between).
+  auto at_altitude = [&](const Positions& xy) {
+    Positions p(xy.rows(), 3);
+    p.leftCols(2) = xy;
+    p.col(2).setConstant(cfg.scenario.altitude_m);
+    return p;
+  };
+  mission_.starts = at_altitude(positions_in_area(cfg.trajectory.starts, cfg, "trajectory.starts"));
+  mission_.destinations = at_altitude(positions_in_area(cfg.trajectory.destinations, cfg, "trajectory.destinations"));
   mission_.area_x = cfg.scenario.area_x_m, mission_.area_y = cfg.scenario.area_y_m;
   mission_.t_max = t_max_;
   spec_params_.users = users();
@@ -73,7 +81,7 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, std::share
   tables_->made = std::make_unique<std::once_flag[]>(static_cast<std::size_t>(n_));
   reach_ = dynamics_->reachability(mission_);  // InputError where a destination is out of the model's reach
   for (int n = 0; n < n_; ++n)
-    if (min_moves(n, mission_.starts(n, 0), mission_.starts(n, 1)) > t_max_ - 1) throw InputError(dynamics_->unreachable(n, mission_, *reach_));
+    if (min_moves(n, mission_.starts(n, 0), mission_.starts(n, 1), mission_.starts(n, 2)) > t_max_ - 1) throw InputError(dynamics_->unreachable(n, mission_, *reach_));
   reset();
 }
 
@@ -113,7 +121,8 @@ void UavEnv::reset(double start_rate) {
   prev_tmin_.assign(static_cast<std::size_t>(n_), 0);
   bool all = true;
   for (int n = 0; n < n_; ++n) {
-    arrived_[static_cast<std::size_t>(n)] = dynamics_->arrived(pos_(n, 0), pos_(n, 1), mission_.destinations(n, 0), mission_.destinations(n, 1));
+    arrived_[static_cast<std::size_t>(n)] =
+        dynamics_->arrived(pos_(n, 0), pos_(n, 1), mission_.destinations(n, 0), mission_.destinations(n, 1)) && same(pos_(n, 2), mission_.destinations(n, 2));
     all = all && arrived_[static_cast<std::size_t>(n)];
     parked_ += arrived_[static_cast<std::size_t>(n)] ? 1 : 0;
     const double d = std::hypot(mission_.destinations(n, 0) - pos_(n, 0), mission_.destinations(n, 1) - pos_(n, 1));
@@ -129,7 +138,7 @@ void UavEnv::reset(double start_rate) {
 UavEnv::Landing UavEnv::landing(int n, int a) const {
   if (arrived(n)) {
     Landing l;
-    l.x = pos_(n, 0), l.y = pos_(n, 1);
+    l.x = pos_(n, 0), l.y = pos_(n, 1), l.z = pos_(n, 2);
     return l;
   }
   return dynamics_->fly(n, current(n), a, mission_);
@@ -146,9 +155,9 @@ void UavEnv::command_velocity(int n, double u0, double u1, double& vx, double& v
   dynamics_->command_velocity(n, current(n), u0, u1, mission_, vx, vy);
 }
 
-int UavEnv::min_moves(int n, double x, double y) const {
+int UavEnv::min_moves(int n, double x, double y, double z) const {
   Landing from;  // at UAV n's current velocity
-  from.x = x, from.y = y, from.vx = vel_(n, 0), from.vy = vel_(n, 1);
+  from.x = x, from.y = y, from.z = z, from.vx = vel_(n, 0), from.vy = vel_(n, 1);
   return reach_->slots(n, from, t_max_);
 }
 
@@ -156,7 +165,7 @@ int UavEnv::min_moves(int n, const Landing& l) const { return reach_->slots(n, l
 
 UavEnv::Landing UavEnv::current(int n) const {
   Landing l;
-  l.x = pos_(n, 0), l.y = pos_(n, 1), l.vx = vel_(n, 0), l.vy = vel_(n, 1);
+  l.x = pos_(n, 0), l.y = pos_(n, 1), l.z = pos_(n, 2), l.vx = vel_(n, 0), l.vy = vel_(n, 1);
   l.speed = speed_[static_cast<std::size_t>(n)];
   return l;
 }
@@ -165,24 +174,29 @@ UavEnv::DistanceTable UavEnv::clear_table(int n, ClearOf what) const {
   const bool parked = what == ClearOf::Parked;
   DistanceTable table;
   table.version = parked ? parked_ : 0;
-  table.frame = LatticeFrame(mission_.starts(n, 0), mission_.starts(n, 1), mission_.area_x, mission_.area_y, d_fly_);
+  table.frame = dynamics_->lattice()->frame(mission_, n);
   const LatticeFrame& f = table.frame;
   std::vector<char> closed(static_cast<std::size_t>(f.cells()), 0);
   // The lattice points strictly within D_min of the other UAVs' destinations or parked
-  // positions (collisions()' rule).
+  // positions (collisions()' rule), on every altitude level.
   const int r = static_cast<int>(std::ceil(d_min_ / d_fly_)) + 1;
   for (int m = 0; m < n_; ++m) {
     if (m == n || (parked && !arrived(m))) continue;
-    const double px = parked ? pos_(m, 0) : mission_.destinations(m, 0), py = parked ? pos_(m, 1) : mission_.destinations(m, 1);
+    const Positions& at = parked ? pos_ : mission_.destinations;
+    const double px = at(m, 0), py = at(m, 1), pz = at(m, 2);
     const long cx = std::lround((px - f.ox) / d_fly_), cy = std::lround((py - f.oy) / d_fly_);
-    for (long iy = std::max(0L, cy - r); iy <= std::min<long>(f.ny - 1, cy + r); ++iy)
-      for (long ix = std::max(0L, cx - r); ix <= std::min<long>(f.nx - 1, cx + r); ++ix)
-        if (std::hypot(f.ox + d_fly_ * static_cast<double>(ix) - px, f.oy + d_fly_ * static_cast<double>(iy) - py) < d_min_ - 1e-9)
-          closed[static_cast<std::size_t>(iy * f.nx + ix)] = 1;
+    for (int iz = 0; iz < f.nz; ++iz) {
+      const double dz = f.nz > 1 ? f.oz + f.pz * iz - pz : 0.0;
+      for (long iy = std::max(0L, cy - r); iy <= std::min<long>(f.ny - 1, cy + r); ++iy)
+        for (long ix = std::max(0L, cx - r); ix <= std::min<long>(f.nx - 1, cx + r); ++ix) {
+          const double dx = f.ox + d_fly_ * static_cast<double>(ix) - px, dy = f.oy + d_fly_ * static_cast<double>(iy) - py;
+          if (separation(dx, dy, dz) < d_min_ - 1e-9) closed[static_cast<std::size_t>((iz * f.ny + iy) * f.nx + ix)] = 1;
+        }
+    }
   }
-  const int to = f.cell(mission_.destinations(n, 0), mission_.destinations(n, 1));
+  const int to = f.cell(mission_.destinations(n, 0), mission_.destinations(n, 1), mission_.destinations(n, 2));
   closed[static_cast<std::size_t>(to)] = 0;
-  table.slots = dynamics_->lattice()->slots_to(f.nx, f.ny, to, &closed);
+  table.slots = dynamics_->lattice()->slots_to(f, to, &closed);
   return table;
 }
 
@@ -199,7 +213,7 @@ int UavEnv::min_moves_around(int n, const Landing& l, ClearOf what) const {
     std::call_once(tables_->made[i], [&] { tables_->destinations[i] = clear_table(n, what); });
     table = &tables_->destinations[i];
   }
-  const int c = table->frame.find(l.x, l.y);
+  const int c = table->frame.find(l.x, l.y, l.z);
   const int d = c < 0 ? -1 : table->slots[static_cast<std::size_t>(c)];
   return d < 0 ? t_max_ + 1 : d;
 }
@@ -213,7 +227,8 @@ void UavEnv::require_table_memory(const Config& cfg, const Dynamics& dynamics, i
   const auto& t = cfg.trajectory;
   double cells = 0, most = 0;  // every UAV's lattice points, and the largest lattice's
   for (const Point2& s : t.starts) {
-    const double c = LatticeFrame(s.x, s.y, cfg.scenario.area_x_m, cfg.scenario.area_y_m, t.d_fly_m).cells();
+    const double levels = dynamics.lattice() ? dynamics.lattice()->levels() : 1;
+    const double c = LatticeFrame(s.x, s.y, cfg.scenario.area_x_m, cfg.scenario.area_y_m, t.d_fly_m).cells() * levels;
     cells += c, most = std::max(most, c);
   }
   const double table = sizeof(int);  // bytes a lattice point takes in one distance table
@@ -249,8 +264,7 @@ bool UavEnv::feasible(int n, int a) const {
 Positions UavEnv::next_positions(const std::vector<int>& actions) const {
   Positions next = pos_;
   for (int n = 0; n < n_; ++n) {
-    const Landing l = landing(n, arrived(n) ? hover() : actions[static_cast<std::size_t>(n)]);
-    next(n, 0) = l.x, next(n, 1) = l.y;
+    place(next, n, landing(n, arrived(n) ? hover() : actions[static_cast<std::size_t>(n)]));
   }
   return next;
 }
@@ -269,11 +283,16 @@ int UavEnv::collisions(const Positions& p) const {
   int count = 0;
   for (int n = 0; n < n_; ++n)
     for (int m = 0; m < n_; ++m)
-      if (m != n && std::hypot(p(n, 0) - p(m, 0), p(n, 1) - p(m, 1)) < d_min_ - 1e-9) {
+      if (m != n && separation(p, n, m) < d_min_ - 1e-9) {
         ++count;
         break;
       }
   return count;
+}
+
+double UavEnv::separation(const Positions& p, Eigen::Index n, Eigen::Index m) {
+  const double dx = p(n, 0) - p(m, 0), dy = p(n, 1) - p(m, 1);
+  return separation(dx, dy, p.cols() > 2 ? p(n, 2) - p(m, 2) : 0.0);
 }
 
 void UavEnv::check_step(std::size_t count) const {
@@ -285,7 +304,7 @@ void UavEnv::check_step(std::size_t count) const {
 void UavEnv::land(int n, const Landing& l, StepInfo& info) {
   const auto i = static_cast<std::size_t>(n);
   if (!l.inside) ++info.boundary;  // cancelled: the UAV hovers
-  const double e = propulsion_.slot_energy(l.speed, speed_[i], dynamics_->slot_s());
+  const double e = propulsion_.slot_energy(l.speed, speed_[i], dynamics_->slot_s()) + propulsion_.climb_energy(l.z - pos_(n, 2));
   speed_[i] = l.speed;
   power_[i] = e / dynamics_->slot_s();
   energy_[i] += e;
@@ -305,7 +324,7 @@ Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
                                   dynamics_->name() + ")");
     const int a = arrived(n) ? hover() : requested;  // arrival-aware: arrived UAVs are locked
     const Landing l = landing(n, a);
-    next(n, 0) = l.x, next(n, 1) = l.y;
+    place(next, n, l);
     prev_action_[static_cast<std::size_t>(n)] = a;
     land(n, l, info);
   }
@@ -324,7 +343,7 @@ Positions UavEnv::begin_step_velocities(const Positions& v, StepInfo& info) {
     if (!std::isfinite(v(n, 0)) || !std::isfinite(v(n, 1)))
       throw std::invalid_argument("UavEnv::step_velocities: the command of UAV " + std::to_string(n) + " is not finite");
     const Landing l = arrived(n) ? landing(n, hover()) : landing_velocity(n, v(n, 0), v(n, 1));
-    next(n, 0) = l.x, next(n, 1) = l.y;
+    place(next, n, l);
     prev_action_[static_cast<std::size_t>(n)] = hover();
     land(n, l, info);
   }
@@ -332,7 +351,9 @@ Positions UavEnv::begin_step_velocities(const Positions& v, StepInfo& info) {
   return next;
 }
 
-bool UavEnv::at_destination(const Positions& p, int n) const { return same(p(n, 0), mission_.destinations(n, 0)) && same(p(n, 1), mission_.destinations(n, 1)); }
+bool UavEnv::at_destination(const Positions& p, int n) const {
+  return same(p(n, 0), mission_.destinations(n, 0)) && same(p(n, 1), mission_.destinations(n, 1)) && same(p(n, 2), mission_.destinations(n, 2));
+}
 
 bool UavEnv::ends_episode(const Positions& next) const {
   if (t_ + 1 >= t_max_) return true;
@@ -429,7 +450,7 @@ double UavEnv::step_energy(const std::vector<int>& actions) const {
   double e = 0;
   for (int n = 0; n < n_; ++n) {
     const Landing l = landing(n, arrived(n) ? hover() : actions[static_cast<std::size_t>(n)]);
-    e += propulsion_.slot_energy(l.speed, speed_[static_cast<std::size_t>(n)], dynamics_->slot_s());
+    e += propulsion_.slot_energy(l.speed, speed_[static_cast<std::size_t>(n)], dynamics_->slot_s()) + propulsion_.climb_energy(l.z - pos_(n, 2));
   }
   return e;
 }

@@ -30,7 +30,7 @@ SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Bea
     u.serving_uav = a.serving[static_cast<std::size_t>(k)];
     double nearest = INFINITY;
     for (Eigen::Index n = 0; n < s.uavs.rows(); ++n) {
-      u.links.push_back(model.channel_model().link(s.uavs(n, 0), s.uavs(n, 1), u.x, u.y));
+      u.links.push_back(model.channel_model().link(s.uavs(n, 0), s.uavs(n, 1), model.altitude_of(s.uavs, n), u.x, u.y));
       if (u.links.back().geometry.distance_m < nearest) {  // the serving UAV is the nearest one
         nearest = u.links.back().geometry.distance_m;
         u.path_loss_db = u.links.back().path_loss_db;
@@ -40,7 +40,7 @@ SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Bea
   }
   for (Eigen::Index k = 0; k < s.users.rows(); ++k)
     for (Eigen::Index n = 0; n < s.uavs.rows(); ++n)
-      r.users[static_cast<std::size_t>(k)].cross.push_back(model.channel(s.uavs(n, 0), s.uavs(n, 1), s.users(k, 0), s.users(k, 1)));
+      r.users[static_cast<std::size_t>(k)].cross.push_back(model.channel_model().channel(s.uavs(n, 0), s.uavs(n, 1), model.altitude_of(s.uavs, n), s.users(k, 0), s.users(k, 1)));
   const Network net = model.network(s, a);
   const std::vector<MatrixXcd> W = bf.design_network(net);
   check_network_output(bf, net, W);

@@ -74,7 +74,7 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
   std::vector<int> order(static_cast<std::size_t>(n)), slack(static_cast<std::size_t>(n));
   for (int i = 0; i < n; ++i) {
     order[static_cast<std::size_t>(i)] = i;
-    slack[static_cast<std::size_t>(i)] = left - env.min_moves(i, env.positions()(i, 0), env.positions()(i, 1));
+    slack[static_cast<std::size_t>(i)] = left - env.min_moves(i, env.positions()(i, 0), env.positions()(i, 1), env.altitude(i));
   }
   std::stable_sort(order.begin(), order.end(),
                    [&](int a, int b) { return slack[static_cast<std::size_t>(a)] < slack[static_cast<std::size_t>(b)]; });
@@ -102,12 +102,10 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
     for (int k = 0; k < env.actions(); ++k) {
       if (!may(i, k)) continue;
       Positions p = placed;
-      const UavEnv::Landing l = env.landing(i, k);
-      const double nx = l.x, ny = l.y;
-      p(i, 0) = nx, p(i, 1) = ny;
+      place(p, i, env.landing(i, k));
       bool ok = true;
       for (int m = 0; m < n && ok; ++m)
-        if (m != i && std::hypot(nx - p(m, 0), ny - p(m, 1)) < dmin) ok = false;
+        if (m != i && UavEnv::separation(p, i, m) < dmin) ok = false;
       options.push_back(k);
       next.push_back(std::move(p));
       clear.push_back(ok ? 1 : 0);
@@ -137,16 +135,13 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
   // The pass left a collision (a UAV met a move chosen before it with no clear move of its own).
   // Search the UAVs' ranked moves depth-first, in the same order, for a collision-free joint move:
   // the first found deviates least from the greedy choices. Bounded; the greedy move otherwise.
-  std::vector<double> x(static_cast<std::size_t>(n)), y(static_cast<std::size_t>(n));
+  std::vector<double> x(static_cast<std::size_t>(n)), y(static_cast<std::size_t>(n)), z(static_cast<std::size_t>(n));
   for (int i = 0; i < n; ++i)  // after its ranked moves, the ones that spend margin
     for (int k = 0; k < env.actions(); ++k)
       if (spend[static_cast<std::size_t>(i)] >> k & 1u) ranked[static_cast<std::size_t>(i)].push_back(k);
-  std::vector<std::vector<std::pair<double, double>>> target(static_cast<std::size_t>(n));
+  std::vector<std::vector<UavEnv::Landing>> target(static_cast<std::size_t>(n));
   for (int i = 0; i < n; ++i)
-    for (int k : ranked[static_cast<std::size_t>(i)]) {
-      const UavEnv::Landing l = env.landing(i, k);
-      target[static_cast<std::size_t>(i)].emplace_back(l.x, l.y);
-    }
+    for (int k : ranked[static_cast<std::size_t>(i)]) target[static_cast<std::size_t>(i)].push_back(env.landing(i, k));
   std::vector<std::size_t> pick(static_cast<std::size_t>(n), 0);
   long budget = kSearchBudget;
   int depth = 0;
@@ -165,17 +160,17 @@ std::vector<int> SequentialGreedyPlanner::act(UavEnv& env) {
       if (--depth >= 0) ++pick[static_cast<std::size_t>(depth)];
       continue;
     }
-    const auto [nx, ny] = target[static_cast<std::size_t>(i)][k];
+    const UavEnv::Landing& to = target[static_cast<std::size_t>(i)][k];
     bool ok = true;
     for (int d = 0; d < depth && ok; ++d) {
-      const int m = order[static_cast<std::size_t>(d)];
-      ok = std::hypot(nx - x[static_cast<std::size_t>(m)], ny - y[static_cast<std::size_t>(m)]) >= dmin;
+      const auto m = static_cast<std::size_t>(order[static_cast<std::size_t>(d)]);
+      ok = UavEnv::separation(to.x - x[m], to.y - y[m], to.z - z[m]) >= dmin;
     }
     if (!ok) {
       ++k;
       continue;
     }
-    x[static_cast<std::size_t>(i)] = nx, y[static_cast<std::size_t>(i)] = ny;
+    x[static_cast<std::size_t>(i)] = to.x, y[static_cast<std::size_t>(i)] = to.y, z[static_cast<std::size_t>(i)] = to.z;
     ++depth;
     if (depth < n) pick[static_cast<std::size_t>(depth)] = 0;
   }
@@ -216,9 +211,8 @@ std::string optimum_key(const Config& cfg) {
 
 bool fits_optimal(const UavEnv& env) {
   if (!env.dynamics().lattice()) return false;
-  const double d = env.d_fly();
-  const LatticeFrame f(env.starts()(0, 0), env.starts()(0, 1), env.area_x(), env.area_y(), d);
-  const double G = static_cast<double>(f.nx) * static_cast<double>(f.ny);
+  const LatticeFrame f = env.dynamics().lattice()->frame(env.mission(), 0);
+  const double G = static_cast<double>(f.nx) * static_cast<double>(f.ny) * static_cast<double>(f.nz);
   const double states = std::pow(G, env.uavs());
   return states <= 5e6 && states * env.t_max() <= 134217728.0;
 }
@@ -285,10 +279,10 @@ double brute_force_optimum(UavEnv& env) {
   const long joint = joint_count(A, N);
   std::vector<double> move_energy(static_cast<std::size_t>(A));
   for (int a = 0; a < A; ++a)
-    move_energy[static_cast<std::size_t>(a)] = env.propulsion().slot_energy(lattice.speed(a), 0.0, lattice.slot_s());
+    move_energy[static_cast<std::size_t>(a)] = lattice.move_energy(a, env.propulsion());
   const Positions dest = env.destinations();
   auto is_home = [&](const Positions& p, int n) {
-    return std::abs(p(n, 0) - dest(n, 0)) < 1e-6 && std::abs(p(n, 1) - dest(n, 1)) < 1e-6;
+    return std::abs(p(n, 0) - dest(n, 0)) < 1e-6 && std::abs(p(n, 1) - dest(n, 1)) < 1e-6 && std::abs(p(n, 2) - dest(n, 2)) < 1e-6;
   };
   std::vector<Frame> stack;
   Frame f0{env.positions(), std::vector<bool>(static_cast<std::size_t>(N)), env.rates().front(), 1, 0.0};
@@ -316,10 +310,10 @@ double brute_force_optimum(UavEnv& env) {
           continue;
         }
         Flight from;
-        from.x = f.pos(n, 0), from.y = f.pos(n, 1);
+        from.x = f.pos(n, 0), from.y = f.pos(n, 1), from.z = f.pos(n, 2);
         const Flight to = lattice.fly(n, from, a[static_cast<std::size_t>(n)], env.mission());
         ok = to.inside;
-        next(n, 0) = to.x, next(n, 1) = to.y;
+        place(next, n, to);
       }
       if (!ok || env.collisions(next) > 0) continue;
       Frame g{next, f.home, f.sum + env.oracle().sum_rate(next), f.t + 1, f.energy + e};

@@ -14,14 +14,8 @@ namespace skyloop {
 
 namespace {
 
-bool too_close(double ax, double ay, double bx, double by, double d_min) {
-  return std::hypot(ax - bx, ay - by) < d_min - 1e-9;
-}
-
-/// Where UAV n ends after action a (a move out of the area is cancelled, as in step()).
-void landing(const UavEnv& env, int n, int a, double& x, double& y) {
-  const UavEnv::Landing l = env.landing(n, a);
-  x = l.x, y = l.y;
+bool too_close(double ax, double ay, double az, double bx, double by, double bz, double d_min) {
+  return UavEnv::separation(ax - bx, ay - by, az - bz) < d_min - 1e-9;
 }
 
 /// The counts of the moves still needed under a clearance, strictest first.
@@ -51,19 +45,25 @@ int slack_after(const UavEnv& env, int n, int a, Clearance clearance) {
 
 /// Placed UAVs' end positions for the shield.
 struct Placed {
-  std::vector<double> x, y;
-  bool clear(double px, double py, double d_min) const {
+  std::vector<double> x, y, z;
+  bool clear(double px, double py, double pz, double d_min) const {
     for (std::size_t i = 0; i < x.size(); ++i)
-      if (too_close(px, py, x[i], y[i], d_min)) return false;
+      if (too_close(px, py, pz, x[i], y[i], z[i], d_min)) return false;
     return true;
   }
+  bool clear(const UavEnv::Landing& l, double d_min) const { return clear(l.x, l.y, l.z, d_min); }
+  void add(double px, double py, double pz) { x.push_back(px), y.push_back(py), z.push_back(pz); }
+  void add(const UavEnv::Landing& l) { add(l.x, l.y, l.z); }
+  void pop() { x.pop_back(), y.pop_back(), z.pop_back(); }
+  std::size_t size() const { return x.size(); }
+  void resize(std::size_t k) { x.resize(k), y.resize(k), z.resize(k); }
 };
 
 /// Arrived UAVs stay where they are: placed before anyone chooses.
 Placed arrived_uavs(const UavEnv& env) {
   Placed p;
   for (int n = 0; n < env.uavs(); ++n)
-    if (env.arrived(n)) p.x.push_back(env.positions()(n, 0)), p.y.push_back(env.positions()(n, 1));
+    if (env.arrived(n)) p.add(env.current(n));
   return p;
 }
 
@@ -72,9 +72,7 @@ ActionSet clear_moves(const UavEnv& env, int n, ActionSet allowed, const Placed&
   ActionSet safe = 0;
   for (int a = 0; a < env.actions(); ++a) {
     if (!(allowed >> a & 1u)) continue;
-    double x, y;
-    landing(env, n, a, x, y);
-    if (placed.clear(x, y, env.d_min())) safe |= action_bit(a);
+    if (placed.clear(env.landing(n, a), env.d_min())) safe |= action_bit(a);
   }
   return safe;
 }
@@ -328,9 +326,7 @@ void SafeTurns::choose(int a) {
   if (s.way) s.ways->reserve(n, a);
   s.actions[static_cast<std::size_t>(n)] = a;
   s.allowed_sets[static_cast<std::size_t>(n)] = s.allowed;
-  double x, y;
-  landing(s.env, n, a, x, y);
-  s.placed.x.push_back(x), s.placed.y.push_back(y);
+  s.placed.add(s.env.landing(n, a));
   ++s.i;
   begin_turn();
 }
@@ -356,18 +352,18 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
   // that would leave the area turned by growing angles (a slide along the boundary); then the
   // allowed primitives by how near their flown velocity is to the one asked for.
   struct Candidate {
-    double vx, vy, x, y;
+    double vx, vy, x, y, z;
   };
   const auto order = shield_order(env, safety.clearance);
   std::vector<std::vector<Candidate>> candidates;
   const int left_after = env.t_max() - (env.t() + 1);
   for (const int n : order) {
     const UavEnv::Landing want = env.landing_velocity(n, wanted(n, 0), wanted(n, 1));
-    const int slack_now = left_after + 1 - env.min_moves(n, env.positions()(n, 0), env.positions()(n, 1));
+    const int slack_now = left_after + 1 - env.min_moves(n, env.current(n));
     const int keep = std::max(0, std::min(safety.margin, slack_now));
     const bool reach = !safety.mask || (want.inside && env.min_moves(n, want) <= left_after - keep);
     std::vector<Candidate> c;
-    if (reach) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y});
+    if (reach) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y, want.z});
     if (safety.mask && !want.inside && (wanted(n, 0) != 0 || wanted(n, 1) != 0)) {
       // The command turned by growing angles, each side, at its speed where a_max allows: a UAV
       // that meets the boundary slides along it instead of stopping at hover power (of the
@@ -378,7 +374,7 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
           const double r = sign * deg * std::acos(-1.0) / 180.0, cs = std::cos(r), sn = std::sin(r);
           const double vx = cs * wanted(n, 0) - sn * wanted(n, 1), vy = sn * wanted(n, 0) + cs * wanted(n, 1);
           const UavEnv::Landing l = env.landing_velocity(n, vx, vy);
-          if (l.inside && env.min_moves(n, l) <= left_after - keep) c.push_back({vx, vy, l.x, l.y});
+          if (l.inside && env.min_moves(n, l) <= left_after - keep) c.push_back({vx, vy, l.x, l.y, l.z});
         }
     }
     if (!reach || safety.shield) {
@@ -395,11 +391,11 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
         Candidate k{};
         env.primitive_velocity(n, a, k.vx, k.vy);
         const UavEnv::Landing l = env.landing(n, a);
-        k.x = l.x, k.y = l.y;
+        k.x = l.x, k.y = l.y, k.z = l.z;
         c.push_back(k);
       }
     }
-    if (c.empty()) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y});  // nothing allowed: as asked
+    if (c.empty()) c.push_back({wanted(n, 0), wanted(n, 1), want.x, want.y, want.z});  // nothing allowed: as asked
     candidates.push_back(std::move(c));
   }
   Positions out = Positions::Zero(env.uavs(), 2);
@@ -408,32 +404,33 @@ Positions safe_velocities(const UavEnv& env, const SafetyOptions& safety, const 
     // Depth first over the UAVs in shield order, each its candidates best first: the first joint
     // choice in which no two UAVs end within D_min (bounded; else each UAV its first candidate).
     Placed placed = arrived_uavs(env);
-    const std::size_t base = placed.x.size();
+    const std::size_t base = placed.size();
     long nodes = 0;
     std::function<bool(std::size_t)> dfs = [&](std::size_t i) {
       if (i == order.size()) return true;
       for (std::size_t k = 0; k < candidates[i].size(); ++k) {
         if (++nodes > kShieldNodes) return false;
         const Candidate& c = candidates[i][k];
-        if (!placed.clear(c.x, c.y, env.d_min())) continue;
-        placed.x.push_back(c.x), placed.y.push_back(c.y);
+        if (!placed.clear(c.x, c.y, c.z, env.d_min())) continue;
+        placed.add(c.x, c.y, c.z);
         pick[i] = k;
         if (dfs(i + 1)) return true;
-        placed.x.pop_back(), placed.y.pop_back();
+        placed.pop();
       }
       return false;
     };
     if (!dfs(0)) {
       std::fill(pick.begin(), pick.end(), 0);
-      placed.x.resize(base), placed.y.resize(base);
+      placed.resize(base);
       // Sequentially: each UAV its first candidate clear of those placed, else its first.
       for (std::size_t i = 0; i < order.size(); ++i) {
         for (std::size_t k = 0; k < candidates[i].size(); ++k)
-          if (placed.clear(candidates[i][k].x, candidates[i][k].y, env.d_min())) {
+          if (placed.clear(candidates[i][k].x, candidates[i][k].y, candidates[i][k].z, env.d_min())) {
             pick[i] = k;
             break;
           }
-        placed.x.push_back(candidates[i][pick[i]].x), placed.y.push_back(candidates[i][pick[i]].y);
+        const Candidate& c = candidates[i][pick[i]];
+        placed.add(c.x, c.y, c.z);
       }
     }
   }
@@ -466,13 +463,12 @@ struct Search {
     const int n = order[i];
     for (const int a : candidates[i]) {
       if (++nodes > kShieldNodes) return false;
-      double x, y;
-      landing(env, n, a, x, y);
-      if (!placed.clear(x, y, env.d_min())) continue;
-      placed.x.push_back(x), placed.y.push_back(y);
+      const UavEnv::Landing l = env.landing(n, a);
+      if (!placed.clear(l, env.d_min())) continue;
+      placed.add(l);
       actions[static_cast<std::size_t>(n)] = a;
       if (dfs(i + 1)) return true;
-      placed.x.pop_back(), placed.y.pop_back();
+      placed.pop();
     }
     return false;
   }
@@ -591,7 +587,7 @@ void TurnPasses::choose(int a) {
   const int n = uav();
   s.turns->choose(a);  // std::out_of_range for no such move, before anything changes
   const UavEnv::Landing l = s.env.landing(n, a);
-  s.env.show_decided(n, l.x, l.y);
+  s.env.show_decided(n, l.x, l.y, l.z);
   settle();
 }
 
@@ -608,7 +604,7 @@ void TurnPasses::settle() {
     return;
   }
   const int n = s.turns->uav();
-  if (s.p > 0) s.env.show_decided(n, s.env.positions()(n, 0), s.env.positions()(n, 1));  // itself where it is
+  if (s.p > 0) s.env.show_decided(n, s.env.positions()(n, 0), s.env.positions()(n, 1), s.env.altitude(n));  // itself where it is
 }
 
 std::vector<int> take_turns(UavEnv& env, const SafetyOptions& safety, int passes,

@@ -36,7 +36,7 @@ Scratch& scratch() {
 WaysHome::WaysHome(const UavEnv& env) : env_(env) {
   if (!env.dynamics().lattice()) throw std::logic_error("WaysHome: ways home are planned on the lattice (" + lattice_dynamics_names() + ")");
   // The search's scratch: three stamps per lattice point and slot left (at most T_max + 1 layers).
-  const LatticeFrame f(env.starts()(0, 0), env.starts()(0, 1), env.area_x(), env.area_y(), env.d_fly());
+  const LatticeFrame f = env.dynamics().lattice()->frame(env.mission(), 0);
   const double bytes = 12.0 * (env.t_max() + 1.0) * f.cells();
   if (bytes > memory_limit_bytes())  // checked before the message is built: one of these per slot
     require_memory(bytes,
@@ -50,7 +50,7 @@ WaysHome::WaysHome(const UavEnv& env, const WaysMemory& memory) : WaysHome(env) 
   std::vector<char> kept(static_cast<std::size_t>(env.uavs()), 0);
   for (const ReservedPoint& p : memory.points)
     if (p.tau == env.t() && p.uav >= 0 && p.uav < env.uavs() && !env.arrived(p.uav) &&
-        std::hypot(env.positions()(p.uav, 0) - p.x, env.positions()(p.uav, 1) - p.y) < 1e-6)
+        std::hypot(env.positions()(p.uav, 0) - p.x, env.positions()(p.uav, 1) - p.y) < 1e-6 && std::abs(env.altitude(p.uav) - p.z) < 1e-6)
       kept[static_cast<std::size_t>(p.uav)] = 1;
   for (const ReservedPoint& p : memory.points)
     if (p.uav >= 0 && p.uav < env.uavs() && kept[static_cast<std::size_t>(p.uav)] && p.tau > env.t()) ways_.push_back(p);
@@ -66,7 +66,7 @@ ActionSet WaysHome::moves(int n) {
   const int t0 = env_.t();
   layers_ = env_.t_max() - t0;  // layer k: the position at the end of slot t0 + k
   if (env_.arrived(n) || layers_ < 1) return 0;
-  frame_ = LatticeFrame(env_.starts()(n, 0), env_.starts()(n, 1), env_.area_x(), env_.area_y(), env_.d_fly());
+  frame_ = env_.dynamics().lattice()->frame(env_.mission(), n);
   const int cells = frame_.cells();
   const auto at = [cells](int k, int c) { return static_cast<std::size_t>(k) * static_cast<std::size_t>(cells) + static_cast<std::size_t>(c); };
   s.begin(static_cast<std::size_t>(layers_ + 1) * static_cast<std::size_t>(cells), layers_);
@@ -76,36 +76,36 @@ ActionSet WaysHome::moves(int n) {
   // reserved way's position in that layer (the environment's collision rule).
   const double d_min = env_.d_min(), pitch = frame_.pitch;
   const int r = static_cast<int>(std::ceil(d_min / pitch)) + 1;
-  auto mark = [&](int k0, int k1, double px, double py) {
+  auto mark = [&](int k0, int k1, double px, double py, double pz) {
     const long cx = std::lround((px - frame_.ox) / pitch), cy = std::lround((py - frame_.oy) / pitch);
-    for (long iy = std::max(0L, cy - r); iy <= std::min<long>(frame_.ny - 1, cy + r); ++iy)
-      for (long ix = std::max(0L, cx - r); ix <= std::min<long>(frame_.nx - 1, cx + r); ++ix)
-        if (std::hypot(frame_.ox + pitch * static_cast<double>(ix) - px, frame_.oy + pitch * static_cast<double>(iy) - py) < d_min - 1e-9)
-          for (int k = k0; k <= k1; ++k) s.blocked[at(k, static_cast<int>(iy * frame_.nx + ix))] = stamp;
+    for (int iz = 0; iz < frame_.nz; ++iz) {
+      const double dz = frame_.nz > 1 ? frame_.oz + frame_.pz * iz - pz : 0.0;
+      for (long iy = std::max(0L, cy - r); iy <= std::min<long>(frame_.ny - 1, cy + r); ++iy)
+        for (long ix = std::max(0L, cx - r); ix <= std::min<long>(frame_.nx - 1, cx + r); ++ix)
+          if (UavEnv::separation(frame_.ox + pitch * static_cast<double>(ix) - px, frame_.oy + pitch * static_cast<double>(iy) - py, dz) <
+              d_min - 1e-9)
+            for (int k = k0; k <= k1; ++k) s.blocked[at(k, static_cast<int>((iz * frame_.ny + iy) * frame_.nx + ix))] = stamp;
+    }
   };
   for (int m = 0; m < env_.uavs(); ++m)
-    if (m != n && env_.arrived(m)) mark(1, layers_, env_.positions()(m, 0), env_.positions()(m, 1));
+    if (m != n && env_.arrived(m)) mark(1, layers_, env_.positions()(m, 0), env_.positions()(m, 1), env_.altitude(m));
   for (const ReservedPoint& p : ways_)
-    if (p.uav != n && p.tau > t0 && p.tau <= t0 + layers_) mark(p.tau - t0, p.tau - t0, p.x, p.y);
+    if (p.uav != n && p.tau > t0 && p.tau <= t0 + layers_) mark(p.tau - t0, p.tau - t0, p.x, p.y, p.z);
   auto blocked = [&](int k, int c) { return s.blocked[at(k, c)] == stamp; };
 
-  dest_ = frame_.cell(env_.destinations()(n, 0), env_.destinations()(n, 1));
+  dest_ = frame_.cell(env_.destinations()(n, 0), env_.destinations()(n, 1), env_.destinations()(n, 2));
   // Parked from layer k on, the destination must stay clear until the mission ends.
   int free_from = layers_ + 1;
   while (free_from > 1 && !blocked(free_from - 1, dest_)) --free_from;
   const int needed_max = layers_;
-  auto needed = [&](int c) { return env_.min_moves(n, frame_.x(c), frame_.y(c)); };
+  auto needed = [&](int c) { return env_.min_moves(n, frame_.x(c), frame_.y(c), frame_.z(c)); };
   const LatticeDynamics& mob = *env_.dynamics().lattice();
   const int actions = mob.count();
-  auto next = [&](int c, int a) {
-    const LatticeStep st = mob.step(a);
-    const int jx = c % frame_.nx + st.dx, jy = c / frame_.nx + st.dy;
-    return jx < 0 || jy < 0 || jx >= frame_.nx || jy >= frame_.ny ? -1 : jy * frame_.nx + jx;
-  };
+  auto next = [&](int c, int a) { return frame_.move(c, mob.step(a)); };
 
   // Forward: the states the UAV can be in, clear of what is blocked, with its destination
   // still in reach (an arrived UAV stays where it is: no successors at the destination).
-  s.layer[0].assign(1, frame_.cell(env_.positions()(n, 0), env_.positions()(n, 1)));
+  s.layer[0].assign(1, frame_.cell(env_.positions()(n, 0), env_.positions()(n, 1), env_.altitude(n)));
   for (int k = 1; k <= layers_; ++k) {
     auto& layer = s.layer[static_cast<std::size_t>(k)];
     layer.clear();
@@ -138,7 +138,7 @@ ActionSet WaysHome::moves(int n) {
   ActionSet out = 0;
   for (int a = 0; a < actions; ++a) {
     const UavEnv::Landing l = env_.landing(n, a);
-    if (l.inside && s.valid[at(1, frame_.cell(l.x, l.y))] == stamp) out |= action_bit(a);
+    if (l.inside && s.valid[at(1, frame_.cell(l.x, l.y, l.z))] == stamp) out |= action_bit(a);
   }
   return out;
 }
@@ -151,27 +151,24 @@ void WaysHome::reserve(int n, int a) {
     return s.valid[static_cast<std::size_t>(k) * static_cast<std::size_t>(cells) + static_cast<std::size_t>(c)] == s.stamp;
   };
   const UavEnv::Landing l = env_.landing(n, a);
-  int c = frame_.cell(l.x, l.y);
+  int c = frame_.cell(l.x, l.y, l.z);
   if (!l.inside || !valid(1, c)) return;
   const int t0 = env_.t();
   const LatticeDynamics& mob = *env_.dynamics().lattice();
   ways_.erase(std::remove_if(ways_.begin(), ways_.end(), [n](const ReservedPoint& p) { return p.uav == n; }), ways_.end());
   for (int k = 1; k <= layers_; ++k) {
-    ways_.push_back({n, t0 + k, frame_.x(c), frame_.y(c)});
+    ways_.push_back({n, t0 + k, frame_.x(c), frame_.y(c), frame_.z(c)});
     if (c == dest_) {  // parked until the mission ends
-      for (int j = k + 1; j <= layers_; ++j) ways_.push_back({n, t0 + j, frame_.x(c), frame_.y(c)});
+      for (int j = k + 1; j <= layers_; ++j) ways_.push_back({n, t0 + j, frame_.x(c), frame_.y(c), frame_.z(c)});
       break;
     }
     if (k == layers_) break;
     // The move that keeps a way home and needs the fewest moves after it (lowest index on ties).
     int best = -1, best_needed = 0;
     for (int b = 0; b < mob.count(); ++b) {
-      const LatticeStep st = mob.step(b);
-      const int jx = c % frame_.nx + st.dx, jy = c / frame_.nx + st.dy;
-      if (jx < 0 || jy < 0 || jx >= frame_.nx || jy >= frame_.ny) continue;
-      const int j = jy * frame_.nx + jx;
-      if (!valid(k + 1, j)) continue;
-      const int d = env_.min_moves(n, frame_.x(j), frame_.y(j));
+      const int j = frame_.move(c, mob.step(b));
+      if (j < 0 || !valid(k + 1, j)) continue;
+      const int d = env_.min_moves(n, frame_.x(j), frame_.y(j), frame_.z(j));
       if (best < 0 || d < best_needed) best = j, best_needed = d;
     }
     if (best < 0) break;  // cannot happen: a valid state has a valid successor

@@ -180,7 +180,7 @@ TEST(Continuous, HomeFliesInTheSlotsReachabilityCounts) {
   const int N = env->uavs();
   std::vector<int> need(static_cast<std::size_t>(N));
   for (int n = 0; n < N; ++n) {
-    need[static_cast<std::size_t>(n)] = env->min_moves(n, env->positions()(n, 0), env->positions()(n, 1));
+    need[static_cast<std::size_t>(n)] = env->min_moves(n, env->current(n));
     // At least the straight-line distance at v_max (the paper scenario's 160 m at 40 m a slot: 4).
     const double d = std::hypot(env->destinations()(n, 0) - env->starts()(n, 0), env->destinations()(n, 1) - env->starts()(n, 1));
     EXPECT_GE(need[static_cast<std::size_t>(n)], static_cast<int>(std::ceil(d / 40.0 - 1e-9)));
@@ -190,7 +190,7 @@ TEST(Continuous, HomeFliesInTheSlotsReachabilityCounts) {
   while (!env->done()) {
     for (int n = 0; n < N; ++n) {
       if (!env->arrived(n)) {
-        EXPECT_EQ(env->min_moves(n, env->positions()(n, 0), env->positions()(n, 1)), need[static_cast<std::size_t>(n)] - (env->t() - 1));
+        EXPECT_EQ(env->min_moves(n, env->current(n)), need[static_cast<std::size_t>(n)] - (env->t() - 1));
       }
     }
     env->step(home);

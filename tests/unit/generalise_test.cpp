@@ -420,7 +420,7 @@ TEST(Env, DecidedLandingsAreWhatTheLaterAgentsSee) {
     env.write_set_observation(1, before.data());
     const auto l = env.landing(0, a);
     const Positions where = env.positions();
-    env.show_decided(0, l.x, l.y);
+    env.show_decided(0, l.x, l.y, l.z);
     EXPECT_EQ(env.positions(), where) << "the UAVs stay where they are";
     env.write_set_observation(1, shown.data());
     Positions there = env.positions();
@@ -445,13 +445,13 @@ TEST(Env, DecidedLandingsAreWhatTheLaterAgentsSee) {
   EXPECT_GT(changed, 0) << "UAV 0's landing shows in UAV 1's grid of the UAVs around it";
   // A step and a reset show the UAVs where they are.
   const auto l = env.landing(0, env.hover());
-  env.show_decided(0, l.x + 10, l.y);
+  env.show_decided(0, l.x + 10, l.y, l.z);
   env.step(std::vector<int>(static_cast<std::size_t>(env.uavs()), env.hover()));
   EXPECT_EQ(env.seen_positions(), env.positions());
-  env.show_decided(1, 3, 4);
+  env.show_decided(1, 3, 4, env.altitude(1));
   env.reset();
   EXPECT_EQ(env.seen_positions(), env.positions());
-  EXPECT_THROW(env.show_decided(env.uavs(), 0, 0), std::out_of_range);
+  EXPECT_THROW(env.show_decided(env.uavs(), 0, 0, 100), std::out_of_range);
   // The paper's observation shows no other UAV; the value-decomposition learners and continuous
   // commands choose at once: each refused in one line naming marl.sequential.
   for (const auto& bad : std::vector<std::pair<const char*, std::function<void(Config&)>>>{
@@ -647,7 +647,7 @@ TEST(Safety, MovesAroundAParkedUavCountTheDetour) {
     return l;
   };
   using C = UavEnv::ClearOf;
-  EXPECT_EQ(env.min_moves(0, 0, 100), 10);
+  EXPECT_EQ(env.min_moves(0, 0, 100, env.altitude(0)), 10);
   EXPECT_EQ(env.min_moves_around(0, at(0, 100), C::Parked), 10) << "nobody has arrived yet";
   EXPECT_EQ(env.min_moves_around(0, at(0, 100), C::Destinations), 14);
   EXPECT_EQ(env.min_moves_around(0, at(80, 100), C::Destinations), 16) << "a closed point: out of reach (t_max + 1)";

@@ -772,7 +772,7 @@ TEST(PpoCore, SequentialAgentsReadTheLandingsChosenBeforeThem) {
         if (plain != want) ++differs;
       }
       const auto l = replay.landing(n, act[static_cast<std::size_t>(n)]);
-      replay.show_decided(n, l.x, l.y);
+      replay.show_decided(n, l.x, l.y, l.z);
       ++shown;
     }
     shown = 0;

@@ -4,8 +4,10 @@
 // owns one; clusters, networks, the rate oracle, the DP, snapshot reports and Python ask it. The
 // path-loss models are listed in channel/path_loss.hpp.
 //
-// Signal model (shapes as in system_model.hpp). UAV at (x_n, y_n, H), user at (x_k, y_k, h_u):
-//   d_2D, d_3D, cos(theta_z) = (H - h_u) / d_3D, elevation theta = asin((H - h_u) / d_3D)
+// Signal model (shapes as in system_model.hpp). UAV at (x_n, y_n, z_n), user at (x_k, y_k, h_u);
+// z_n = H = scenario.altitude_m unless the dynamics choose the altitude (trajectory.mobility =
+// grid-3d):
+//   d_2D, d_3D, cos(theta_z) = (z_n - h_u) / d_3D, elevation theta = asin((z_n - h_u) / d_3D)
 //   beta        = 10^(-(PL_state(d) + S) / 10)     (free-space: beta0 (d0 / d_3D)^2, as the paper)
 //   a           = steering vector of cos(theta_z)  [L]
 //   h(m)        = sqrt(beta) (sqrt(K / (K + 1)) a + sqrt(1 / (K + 1)) g(m)),  g(m) ~ CN(0, I_L)
@@ -20,7 +22,8 @@
 //     user's position, the lattice point), interpolated bilinearly and renormalised to unit variance
 //     (continuous, correlated over about one pitch). LoS iff Phi(z_1) < P_LoS(geometry), so the
 //     state is LoS with probability exactly P_LoS; S = sigma_state * z_2.
-//   - small-scale g(m): i.i.d. per (seed, UAV position, user position, fast slot m, antenna), as
+//   - small-scale g(m): i.i.d. per (seed, UAV position (with its altitude where it is not H), user
+//     position, fast slot m, antenna), as
 //     multipath decorrelates within a wavelength. Revisiting a cell sees the same realisations.
 #include <memory>
 #include <string>
@@ -39,8 +42,8 @@ class FadingModel;
 struct LinkGeometry {
   double horizontal_m = 0;  // d_2D
   double distance_m = 0;    // d_3D
-  double height_m = 0;      // H, the UAV's altitude (TR 36.777's h_UT)
-  double elevation_deg = 0; // asin((H - h_u) / d_3D) in degrees: 90 right above the user
+  double height_m = 0;      // z_n, the UAV's altitude (TR 36.777's h_UT)
+  double elevation_deg = 0; // asin((z_n - h_u) / d_3D) in degrees: 90 right above the user
 };
 
 /// P_LoS and the mean path loss and shadowing spread of each state, for one path-loss model.
@@ -85,19 +88,29 @@ class ChannelModel {
   const FadingModel& fading() const { return *fading_; }
   int antennas() const { return antennas_; }
 
-  /// d_3D from a UAV at (ux, uy, H) to the user at (x, y, h_u) (the association's distance).
-  double distance(double ux, double uy, double x, double y) const;
-  /// H - h_u: the height of the UAVs above the users' antennas.
+  /// d_3D from a UAV at (ux, uy, uz) to the user at (x, y, h_u) (the association's distance).
+  double distance(double ux, double uy, double uz, double x, double y) const;
+  /// The same at the scenario's altitude H (uz = scenario.altitude_m).
+  double distance(double ux, double uy, double x, double y) const { return distance(ux, uy, altitude_, x, y); }
+  /// H - h_u: the height of the UAVs above the users' antennas at the scenario's altitude.
   double height_above_users() const { return altitude_ - user_height_; }
+  /// The scenario's altitude H (scenario.altitude_m): where a UAV flies unless its dynamics
+  /// choose another.
+  double altitude() const { return altitude_; }
   /// The paper's beta0 (d0 / d)^2.
   double free_space_gain(double d) const {
     const double r = d0_ / d;
     return beta0_ * r * r;
   }
-  LinkGeometry geometry(double ux, double uy, double x, double y) const;
-  LinkState link(double ux, double uy, double x, double y) const;
-  /// h of the link in fast slot `slot` (0 <= slot < fast_slots()): [L] complex.
-  VectorXcd channel(double ux, double uy, double x, double y, int slot = 0) const;
+  /// The link of a UAV at (ux, uy, uz) to the user at (x, y): its geometry (elevation, height),
+  /// large-scale state (P_LoS, path loss, shadowing, K) and its channel h in fast slot `slot`
+  /// (0 <= slot < fast_slots()): [L] complex. The overloads without uz fly at H.
+  LinkGeometry geometry(double ux, double uy, double uz, double x, double y) const;
+  LinkState link(double ux, double uy, double uz, double x, double y) const;
+  VectorXcd channel(double ux, double uy, double uz, double x, double y, int slot = 0) const;
+  LinkGeometry geometry(double ux, double uy, double x, double y) const { return geometry(ux, uy, altitude_, x, y); }
+  LinkState link(double ux, double uy, double x, double y) const { return link(ux, uy, altitude_, x, y); }
+  VectorXcd channel(double ux, double uy, double x, double y, int slot = 0) const { return channel(ux, uy, altitude_, x, y, slot); }
   /// Steering vector of cos(theta_z): [L].
   VectorXcd steering(double cos_theta) const;
 

@@ -5,10 +5,11 @@
 // (eq:cluster_association), and the clusters that the beamformers see.
 //
 // Conventions
-//   UAV n at (x_n, y_n, H), user k at (x_k, y_k, 0); d_{n,k} the 3-D distance.
+//   UAV n at (x_n, y_n, z_n), user k at (x_k, y_k, 0); d_{n,k} the 3-D distance. z_n = H (the
+//   paper) unless the UAV positions carry a third column (the altitude, types.hpp's Positions).
 //   beta_{n,k}  = beta0 * (d0 / d_{n,k})^2          (the printed exponent -2 is a typo: path loss
 //                                                      must fall with distance)
-//   cos(theta)  = H / d_{n,k}
+//   cos(theta)  = z_n / d_{n,k}
 //   a_l         = exp(j 2 pi (d_a/lambda) l cos(theta)),  l = 0..L-1
 //   h_{n,k}     = sqrt(beta_{n,k}) a                   [L] complex
 //   A cluster's channel matrix G is [K_n x L] complex with row k = h_k^H, so the received
@@ -28,7 +29,7 @@ struct Network;  // channel/network.hpp
 
 /// Positions of one network snapshot.
 struct Snapshot {
-  Positions uavs;   // [N x 2]
+  Positions uavs;   // [N x 2], or [N x 3] with each UAV's altitude
   Positions users;  // [K x 2]
 };
 
@@ -71,6 +72,12 @@ class SystemModel {
 
   /// 3-D distance between a UAV at altitude H above (ux, uy) and a user at (x, y, h_u).
   double distance(double ux, double uy, double x, double y) const;
+  /// 3-D distance between UAV n of `uavs` (at its altitude) and a user at (x, y, h_u).
+  double distance(const Positions& uavs, Eigen::Index n, double x, double y) const {
+    return channel_->distance(uavs(n, 0), uavs(n, 1), skyloop::altitude_of(uavs, n, altitude_), x, y);
+  }
+  /// UAV n's altitude in `uavs` (H where they have two columns).
+  double altitude_of(const Positions& uavs, Eigen::Index n) const { return skyloop::altitude_of(uavs, n, altitude_); }
   /// beta0 * (d0 / d)^2 (the paper's model; other models: channel_model().link()).
   double path_loss(double d) const;
   /// Steering vector for cos(theta) = (H - h_u) / d: [L] complex.
@@ -84,7 +91,7 @@ class SystemModel {
 
   /// Nearest UAV by 3-D distance (lowest index on ties), served only if that distance <= R_c.
   Association associate(const Snapshot& s) const;
-  /// The same for UAV positions [N x 2] and user positions [K x 2]. Above kAssociationGridFrom
+  /// The same for UAV positions [N x 2] or [N x 3] and user positions [K x 2]. Above kAssociationGridFrom
   /// UAVs a spatial index (a grid of cells one horizontal coverage radius wide) visits only the
   /// UAVs around each user: O(K + N) for spread-out UAVs instead of O(K N), same result.
   Association associate(const Positions& uavs, const Positions& users) const;
@@ -101,10 +108,15 @@ class SystemModel {
   /// spectrum model; a per-cluster beamformer sees nothing else).
   std::vector<Cluster> clusters(const Snapshot& s) const;
   std::vector<Cluster> clusters(const Snapshot& s, const Association& a) const;
-  /// Cluster of UAV n at (ux, uy) serving the given users (of `users_xy`), in a network of
+  /// Cluster of UAV n at (ux, uy, uz) serving the given users (of `users_xy`), in a network of
   /// `uavs` UAVs (the orthogonal-split band is 1/uavs).
-  Cluster make_cluster(int uav, double ux, double uy, const Positions& users_xy, const std::vector<int>& users,
+  Cluster make_cluster(int uav, double ux, double uy, double uz, const Positions& users_xy, const std::vector<int>& users,
                        int uavs = 1, int slot = 0) const;
+  /// The same at the scenario's altitude H.
+  Cluster make_cluster(int uav, double ux, double uy, const Positions& users_xy, const std::vector<int>& users,
+                       int uavs = 1, int slot = 0) const {
+    return make_cluster(uav, ux, uy, altitude_, users_xy, users, uavs, slot);
+  }
   /// The whole network of a snapshot: clusters, cross channels and spectrum (channel/network.hpp).
   Network network(const Snapshot& s) const;
   Network network(const Snapshot& s, const Association& a) const;

@@ -120,6 +120,9 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   double a_max_mps2 = 5.0;          // continuous: |V[t] - V[t-1]| <= a_max slot_s (m/s^2)
   std::string command = "velocity";  // continuous: what u in [-1, 1]^2 commands: velocity | polar (speed, turn)
   double arrival_m = 1.0;           // continuous: a UAV within this distance of its destination has arrived (m)
+  double climb_m = 20.0;            // grid-3d: the altitude a climb or descent changes in one slot (m)
+  double altitude_min_m = 60.0;     // grid-3d: the lowest altitude a UAV may fly at (m)
+  double altitude_max_m = 140.0;    // grid-3d: the highest (m)
 };
 
 struct EnergyConfig {               // [energy] propulsion (skyloop/env/energy.hpp; beyond the paper)

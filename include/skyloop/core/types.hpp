@@ -11,9 +11,14 @@ using VectorXcd = Eigen::VectorXcd;
 using MatrixXcd = Eigen::MatrixXcd;
 using VectorXd = Eigen::VectorXd;
 
-/// Horizontal positions, one entity per row: [rows x 2] real, row i = (x_i, y_i) in metres.
-/// UAVs fly at the scenario altitude H; users stand on the ground (z = 0).
-using Positions = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;
+/// Positions, one entity per row, in metres: [rows x 2] (x_i, y_i) or [rows x 3] (x_i, y_i, z_i).
+/// Users stand on the ground (two columns; their antennas at scenario.user_height_m). UAVs: the
+/// environment's positions have three columns, z their altitude; two columns mean every UAV flies
+/// at the scenario altitude H (scenario.altitude_m). Read a UAV's altitude with altitude_of.
+using Positions = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+/// Row n's altitude: its third column, or `fixed` (H) where the positions have two.
+inline double altitude_of(const Positions& p, Eigen::Index n, double fixed) { return p.cols() > 2 ? p(n, 2) : fixed; }
 
 struct Point2 {
   double x = 0.0;

@@ -12,6 +12,11 @@
 //     k = v delta_t / D_fly lattice steps along each axis the heading uses: ground speed v along
 //     the axes and sqrt(2) v on the diagonals (king moves keep the lattice). k must be a whole
 //     number. src/env/dynamics/headings.cpp.
+//   grid-3d: the grid's five moves, each holding the altitude, climbing or descending by
+//     trajectory.climb_m within [trajectory.altitude_min_m, trajectory.altitude_max_m]: 15
+//     actions, the grid's five first under their names and indices (STAY = hover), then
+//     "UP+CLIMB" .. "STAY+CLIMB", then "UP+DESCEND" .. "STAY+DESCEND".
+//     src/env/dynamics/grid3d.cpp.
 //   continuous: the action is a velocity command u in [-1, 1]^2 (ActionSpec.dims = 2), stretched
 //     radially onto the disc of radius v_max, then projected onto what the UAV can fly this slot:
 //     the nearest velocity V[t] with |V[t]| <= v_max and |V[t] - V[t-1]| <= a_max delta_t. The UAV
@@ -28,7 +33,10 @@
 //    HOME command takes, an upper bound the UAV can always keep to, so masks and shield built on
 //    it keep every destination reachable);
 //  - collision: two UAVs closer than D_min at the end of a slot (positions are sampled per slot);
-//  - energy: the UAV's propulsion power at its ground speed (skyloop/env/energy.hpp) times delta_t.
+//  - energy: the UAV's propulsion power at its ground speed (skyloop/env/energy.hpp) times delta_t,
+//    plus m g dz for a climb of dz;
+//  - altitude: a UAV flies at scenario.altitude_m unless the model chooses it (grid-3d: levels of
+//    trajectory.climb_m in [altitude_min_m, altitude_max_m]); a move out of the band is cancelled.
 //
 // A model whose positions stay on the D_fly lattice through each UAV's start (lattice() non-null)
 // gets the exact optimum (the DP), the best-known planner, reserved ways home and the mask's
@@ -41,20 +49,28 @@
 
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/types.hpp"
+#include "skyloop/env/energy.hpp"
 #include "skyloop/env/spec.hpp"
 
 namespace skyloop {
 
-/// A UAV's state at the end of a slot: position, velocity (m/s) and ground speed (what the slot's
-/// energy is charged at); `inside` is false when the move was cancelled at the area's boundary
-/// (the UAV hovers where it was, velocity 0).
+/// A UAV's state at the end of a slot: position (z: its altitude), velocity (m/s) and ground
+/// speed (what the slot's energy is charged at); `inside` is false when the move was cancelled at
+/// the area's boundary or the altitude band's (the UAV hovers where it was, velocity 0).
 struct Flight {
-  double x = 0, y = 0, vx = 0, vy = 0;
+  double x = 0, y = 0, z = 0, vx = 0, vy = 0, vz = 0;
   double speed = 0;
   bool inside = true;
 };
 
-/// What the dynamics sees of a mission: the area, every UAV's start and destination, T_max.
+/// Writes a flight's position into row n of `p` (its altitude too where p has three columns).
+inline void place(Positions& p, Eigen::Index n, const Flight& f) {
+  p(n, 0) = f.x, p(n, 1) = f.y;
+  if (p.cols() > 2) p(n, 2) = f.z;
+}
+
+/// What the dynamics sees of a mission: the area, every UAV's start and destination ([N x 3]:
+/// x, y and altitude; the altitude is scenario.altitude_m unless the dynamics choose it), T_max.
 struct Mission {
   Positions starts, destinations;
   double area_x = 0, area_y = 0;
@@ -62,32 +78,48 @@ struct Mission {
   bool contains(double x, double y) const { return x >= -1e-9 && x <= area_x + 1e-9 && y >= -1e-9 && y <= area_y + 1e-9; }
   double dest_x(int n) const { return destinations(n, 0); }
   double dest_y(int n) const { return destinations(n, 1); }
+  double dest_z(int n) const { return destinations(n, 2); }
 };
 
-/// A move in lattice steps along x and y.
+/// A move in lattice steps along x, y and (models that choose the altitude) z.
 struct LatticeStep {
-  int dx = 0, dy = 0;
+  int dx = 0, dy = 0, dz = 0;
 };
 
 /// The most points a UAV's lattice may have (2^24: its distance tables are 64 MiB of int).
 constexpr double kMaxLatticeCells = 16777216.0;
 
 /// The lattice of pitch D_fly through a point, clipped to the area [0, area_x] x [0, area_y]:
-/// origin (ox, oy) in [0, pitch), nx x ny points, cell = iy * nx + ix. What the environment's
-/// reachability, the DP and the best-known planner index positions by. More than
+/// origin (ox, oy) in [0, pitch), nx x ny points; with nz altitude levels oz, oz + pz, ...,
+/// oz + (nz - 1) pz (one level, the UAV's altitude, unless the dynamics choose it). Cell =
+/// (iz * ny + iy) * nx + ix. What the environment's reachability, the DP and the best-known
+/// planner index positions by (LatticeDynamics::frame makes a UAV's). More than
 /// kMaxLatticeCells points is refused (InputError naming the area and trajectory.d_fly_m).
 struct LatticeFrame {
-  double ox = 0, oy = 0, pitch = 1;
-  int nx = 0, ny = 0;
+  double ox = 0, oy = 0, pitch = 1, oz = 0, pz = 1;
+  int nx = 0, ny = 0, nz = 1;
   LatticeFrame() = default;
-  LatticeFrame(double x, double y, double area_x, double area_y, double pitch);
-  int cells() const { return nx * ny; }
-  /// The cell of (x, y) rounded to the nearest lattice point (no range check).
-  int cell(double x, double y) const;
-  /// The cell of (x, y), or -1 off the frame.
-  int find(double x, double y) const;
+  /// One level at altitude z.
+  LatticeFrame(double x, double y, double area_x, double area_y, double pitch, double z = 0);
+  /// `levels` altitudes from `floor` in steps of `climb`.
+  LatticeFrame(double x, double y, double area_x, double area_y, double pitch, double floor, double climb, int levels);
+  int cells() const { return nx * ny * nz; }
+  /// The cell of (x, y, z) rounded to the nearest lattice point (no range check).
+  int cell(double x, double y, double z) const;
+  /// The cell of (x, y) on the lowest level (a one-level frame's only one).
+  int cell(double x, double y) const { return cell(x, y, oz); }
+  /// The cell of (x, y, z), or -1 off the frame.
+  int find(double x, double y, double z) const;
+  int find(double x, double y) const { return find(x, y, oz); }
+  /// The cell one step s from c, or -1 off the frame.
+  int move(int c, LatticeStep s) const {
+    const int ix = c % nx + s.dx, iy = c / nx % ny + s.dy, iz = c / (nx * ny) + s.dz;
+    if (ix < 0 || iy < 0 || iz < 0 || ix >= nx || iy >= ny || iz >= nz) return -1;
+    return (iz * ny + iy) * nx + ix;
+  }
   double x(int c) const { return ox + pitch * (c % nx); }
-  double y(int c) const { return oy + pitch * (c / nx); }
+  double y(int c) const { return oy + pitch * (c / nx % ny); }
+  double z(int c) const { return oz + pz * (c / (nx * ny)); }
 };
 
 /// The fewest slots home of one mission's UAVs, made once per environment (copies share it):
@@ -170,18 +202,32 @@ class Dynamics {
   double pitch_ = 1, slot_s_ = 1, reach_ = 1;
 };
 
-/// A model whose moves are lattice steps (grid, headings): each action's step and ground speed,
-/// and the breadth-first slots over a lattice. A new lattice move set is a list of steps and
-/// speeds (a subclass's constructor) and a line in the registry.
+/// A model whose moves are lattice steps (grid, headings, grid-3d): each action's step and
+/// ground speed, and the breadth-first slots over a lattice. A new lattice move set is a list of
+/// steps and speeds (a subclass's constructor) and a line in the registry; one that also climbs
+/// sets levels_, floor_ and climb_ (the altitude band).
 class LatticeDynamics : public Dynamics {
  public:
   const LatticeDynamics* lattice() const override { return this; }
   LatticeStep step(int a) const { return steps_[static_cast<std::size_t>(a)]; }
   /// Ground speed of action a (m/s).
   double speed(int a) const { return speeds_[static_cast<std::size_t>(a)]; }
-  /// Fewest slots from every cell of an nx x ny lattice to cell `to`, moving inside the lattice
-  /// (breadth-first over the moves; -1 where unreachable). Cell = iy * nx + ix. With `closed`
-  /// (one entry per cell, nonzero = closed), moves never land on a closed cell.
+  /// Altitude levels a UAV may fly at (1: it keeps its altitude), the lowest (m) and the step
+  /// between two (m).
+  int levels() const { return levels_; }
+  double floor_m() const { return floor_; }
+  double climb_m() const { return climb_; }
+  /// UAV n's lattice in mission m: through its start, over the model's altitude levels (its
+  /// start's altitude alone for a level model).
+  LatticeFrame frame(const Mission& m, int n) const;
+  /// Propulsion energy (J) of one slot of action a from the hover (PropulsionModel::slot_energy
+  /// at its ground speed, plus the climb's m g dz): what the planners price a move at.
+  double move_energy(int a, const PropulsionModel& propulsion) const;
+  /// Fewest slots from every cell of `frame` to cell `to`, moving inside the lattice
+  /// (breadth-first over the moves; -1 where unreachable). With `closed` (one entry per cell,
+  /// nonzero = closed), moves never land on a closed cell.
+  std::vector<int> slots_to(const LatticeFrame& frame, int to, const std::vector<char>* closed = nullptr) const;
+  /// The same on a one-level nx x ny lattice (cell = iy * nx + ix).
   std::vector<int> slots_to(int nx, int ny, int to, const std::vector<char>* closed = nullptr) const;
 
   Flight fly(int n, const Flight& now, int a, const Mission& m) const override;
@@ -198,6 +244,8 @@ class LatticeDynamics : public Dynamics {
   void add(const std::string& name, LatticeStep s, double speed);
   std::vector<LatticeStep> steps_;
   std::vector<double> speeds_;
+  int levels_ = 1;
+  double floor_ = 0, climb_ = 0;
 };
 
 /// One entry of the registry: trajectory.mobility's value, one line of help, the factory (which

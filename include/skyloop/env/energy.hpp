@@ -19,6 +19,11 @@
 // rotor must supply to speed up, max(0, m (V[t]^2 - V[t-1]^2) / 2), and recover nothing when
 // slowing down (no regenerative braking). It is small beside P(V) delta_t at these masses (2 kg
 // from 0 to 20 m/s: 408 J vs 2 x 168 J per 2 s slot is not small, which is why it is a setting).
+//
+// Climbing (dynamics that choose the altitude, trajectory.mobility = "grid-3d"): the work-energy
+// theorem's potential term m g dz for a climb of dz > 0, the term by which Zeng, Xu and Zhang
+// (Section II) extend the level-flight energy to altitude changes; a descent recovers nothing
+// (charged as level flight, as braking is). g = 9.80665 m/s^2, m = energy.mass_kg.
 #include <string>
 
 namespace skyloop {
@@ -38,6 +43,8 @@ class PropulsionModel {
   double max_range_speed() const;
   /// Energy (J) of one slot of `slot_s` seconds flown at v after a slot at v_prev.
   double slot_energy(double v, double v_prev, double slot_s) const;
+  /// Energy (J) a climb of dz metres adds: m g dz for dz > 0, else 0 (0 under energy.model = "none").
+  double climb_energy(double dz) const { return enabled_ && dz > 0 ? mass_ * 9.80665 * dz : 0.0; }
   bool enabled() const { return enabled_; }
   bool kinetic() const { return kinetic_; }
 

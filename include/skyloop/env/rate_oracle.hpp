@@ -67,12 +67,13 @@ class RateOracle {
 
  private:
   friend class RateBatch;  // batch_sum_rates' work (rate_oracle.cpp)
-  /// A cluster: its UAV's position and its user set as a bit mask (inline up to 256 users).
+  /// A cluster: its UAV's position (with its altitude) and its user set as a bit mask (inline up
+  /// to 256 users).
   struct Key {
-    double x = 0, y = 0;
+    double x = 0, y = 0, z = 0;
     std::array<std::uint64_t, 4> small{};
     std::vector<std::uint64_t> big;  // the mask when K > 256 (small stays zero)
-    bool operator==(const Key& o) const { return x == o.x && y == o.y && small == o.small && big == o.big; }
+    bool operator==(const Key& o) const { return x == o.x && y == o.y && z == o.z && small == o.small && big == o.big; }
   };
   struct KeyHash {
     std::size_t operator()(const Key& k) const;
@@ -80,7 +81,9 @@ class RateOracle {
   struct JointHash {
     std::size_t operator()(const std::vector<double>& k) const;
   };
-  static std::vector<double> joint_key(const Positions& uavs);
+  /// The joint memo's key: every UAV's (x, y, z).
+  std::vector<double> joint_key(const Positions& uavs) const;
+  void joint_key(const Positions& uavs, std::vector<double>& key) const;
   /// Association of `uavs`: for each UAV its key; fills `members`.
   void keys_of(const Positions& uavs, std::vector<Key>& keys, std::vector<std::vector<int>>& members) const;
 

@@ -34,6 +34,7 @@
 //    needs every UAV home within T_max and within its budget); moves are not masked by it.
 #include <cstdint>
 #include <functional>
+#include <cmath>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -125,9 +126,9 @@ class UavEnv {
   /// Where UAV n ends this slot under velocity command (vx, vy) m/s (models that take commands:
   /// Dynamics::fly_command).
   Landing landing_velocity(int n, double vx, double vy) const;
-  /// Fewest slots from (x, y) to UAV n's destination under the dynamics (Reachability::slots, at
-  /// UAV n's current velocity); more than t_max when out of reach.
-  int min_moves(int n, double x, double y) const;
+  /// Fewest slots from (x, y) at altitude z to UAV n's destination under the dynamics
+  /// (Reachability::slots, at UAV n's current velocity); more than t_max when out of reach.
+  int min_moves(int n, double x, double y, double z) const;
   /// The same from a landing (its velocity too).
   int min_moves(int n, const Landing& l) const;
   /// What min_moves_around keeps clear of: the lattice points within D_min of every other UAV's
@@ -165,8 +166,17 @@ class UavEnv {
   /// UAV n's velocity in the last slot (m/s; 0 before the first step).
   double velocity_x(int n) const { return vel_(n, 0); }
   double velocity_y(int n) const { return vel_(n, 1); }
-  /// Number of UAVs closer than D_min to another.
+  /// Number of UAVs closer than D_min to another (separation).
   int collisions(const Positions& p) const;
+  /// The distance between UAVs n and m of `p`: horizontal where they fly at one altitude, 3-D where
+  /// their altitudes differ (positions with a third column).
+  static double separation(const Positions& p, Eigen::Index n, Eigen::Index m);
+  /// The same for an offset (dx, dy, dz): hypot(dx, dy) where dz = 0.
+  static double separation(double dx, double dy, double dz) {
+    return dz == 0 ? std::hypot(dx, dy) : std::sqrt(dx * dx + dy * dy + dz * dz);
+  }
+  /// UAV n's altitude (m).
+  double altitude(int n) const { return pos_(n, 2); }
 
   // ---- observations and states: the layouts are skyloop/env/spec.hpp's ---------------------
   /// Every array this environment exposes, field by field (sizes, offsets, bounds).
@@ -225,7 +235,7 @@ class UavEnv {
   /// UAV grids, and its position in the move gains' and the radio map's position sets), so an agent
   /// choosing later sees the slot's joint rate with the earlier choices made. Cleared by
   /// clear_decided, reset and every step; nothing else reads it.
-  void show_decided(int m, double x, double y);
+  void show_decided(int m, double x, double y, double z);
   void clear_decided();
   /// Where the set observation sees the UAVs: positions(), with the decided landings in place.
   const Positions& seen_positions() const { return any_decided_ ? seen_ : pos_; }

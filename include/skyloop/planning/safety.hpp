@@ -84,7 +84,7 @@ std::vector<int> shield_order(const UavEnv& env, Clearance clearance = Clearance
 /// A point of a way home reserved (ways_home.hpp): UAV `uav` at (x, y) in slot tau.
 struct ReservedPoint {
   int uav, tau;
-  double x, y;
+  double x, y, z;
 };
 /// The ways home reserved in one slot (marl.reserve_slack), carried to the next by a caller that
 /// plans a whole episode (a deployed policy): a UAV that followed its way keeps it, and the UAVs

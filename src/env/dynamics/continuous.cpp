@@ -124,6 +124,7 @@ void ContinuousDynamics::home_command(double dx, double dy, double& vx, double& 
 
 Flight ContinuousDynamics::step(const Flight& now, double cx, double cy, double dx, double dy, const Mission& m) const {
   Flight l;
+  l.z = now.z;  // the altitude is kept
   project(cx, cy, now.vx, now.vy, l.vx, l.vy);
   l.x = now.x + l.vx * slot_s_, l.y = now.y + l.vy * slot_s_;
   if (!m.contains(l.x, l.y)) {

@@ -16,12 +16,15 @@ namespace skyloop {
 std::shared_ptr<const Dynamics> make_grid_dynamics(const Config& cfg);
 std::shared_ptr<const Dynamics> make_headings_dynamics(const Config& cfg);
 std::shared_ptr<const Dynamics> make_continuous_dynamics(const Config& cfg);
+std::shared_ptr<const Dynamics> make_grid3d_dynamics(const Config& cfg);
 
 const std::vector<DynamicsInfo>& dynamics_models() {
   static const std::vector<DynamicsInfo> models = {
       {"grid", "the paper's five moves of D_fly", make_grid_dynamics},
       {"headings", "8 headings x trajectory.speeds_mps on the D_fly lattice", make_headings_dynamics},
       {"continuous", "a velocity in the disc of v_max_mps, its change bounded by a_max_mps2", make_continuous_dynamics},
+      {"grid-3d", "the grid's moves, each holding, climbing or descending by climb_m in [altitude_min_m, altitude_max_m]",
+       make_grid3d_dynamics},
   };
   return models;
 }
@@ -81,10 +84,19 @@ void Dynamics::write_previous_action(int last_action, const Flight&, float* o) c
 
 // ---- the lattice ---------------------------------------------------------------------------------
 
-LatticeFrame::LatticeFrame(double x, double y, double area_x, double area_y, double d)
-    : ox(std::fmod(x, d)), oy(std::fmod(y, d)), pitch(d) {
+LatticeFrame::LatticeFrame(double x, double y, double area_x, double area_y, double d, double z)
+    : LatticeFrame(x, y, area_x, area_y, d, z, 1.0, 1) {}
+
+LatticeFrame::LatticeFrame(double x, double y, double area_x, double area_y, double d, double floor, double climb, int levels)
+    : ox(std::fmod(x, d)), oy(std::fmod(y, d)), pitch(d), oz(floor), pz(climb), nz(levels) {
   const double fx = std::floor((area_x - ox) / d + 1e-9) + 1, fy = std::floor((area_y - oy) / d + 1e-9) + 1;
-  if (fx * fy > kMaxLatticeCells) {
+  if (fx * fy * levels > kMaxLatticeCells) {
+    if (levels > 1)
+      throw InputError("the lattice of the " + format_double(area_x) + " x " + format_double(area_y) +
+                       " m area (scenario.area_x_m x scenario.area_y_m) at trajectory.d_fly_m = " + format_double(d) + " over " +
+                       std::to_string(levels) + " altitude levels (trajectory.altitude_min_m .. altitude_max_m by climb_m) has " +
+                       format_double(fx * fy * levels) + " points: allowed at most 2^24 (16,777,216): a coarser lattice, "
+                       "fewer levels or a smaller area");
     // The finest pitch within the limit: (area_x / d + 1) (area_y / d + 1) <= kMaxLatticeCells.
     const double a = kMaxLatticeCells - 1, b = -(area_x + area_y), c = -area_x * area_y;
     const double finest = (-b + std::sqrt(b * b - 4 * a * c)) / (2 * a);
@@ -98,14 +110,16 @@ LatticeFrame::LatticeFrame(double x, double y, double area_x, double area_y, dou
   ny = static_cast<int>(fy);
 }
 
-int LatticeFrame::cell(double x, double y) const {
-  return static_cast<int>(std::lround((y - oy) / pitch)) * nx + static_cast<int>(std::lround((x - ox) / pitch));
+int LatticeFrame::cell(double x, double y, double z) const {
+  const int iz = nz > 1 ? static_cast<int>(std::lround((z - oz) / pz)) : 0;  // one level: whatever z
+  return (iz * ny + static_cast<int>(std::lround((y - oy) / pitch))) * nx + static_cast<int>(std::lround((x - ox) / pitch));
 }
 
-int LatticeFrame::find(double x, double y) const {
+int LatticeFrame::find(double x, double y, double z) const {
   const long ix = std::lround((x - ox) / pitch), iy = std::lround((y - oy) / pitch);
-  if (ix < 0 || iy < 0 || ix >= nx || iy >= ny) return -1;
-  return static_cast<int>(iy * nx + ix);
+  const long iz = nz > 1 ? std::lround((z - oz) / pz) : 0;
+  if (ix < 0 || iy < 0 || iz < 0 || ix >= nx || iy >= ny || iz >= nz) return -1;
+  return static_cast<int>((iz * ny + iy) * nx + ix);
 }
 
 void LatticeDynamics::add(const std::string& name, LatticeStep s, double speed) {
@@ -114,39 +128,56 @@ void LatticeDynamics::add(const std::string& name, LatticeStep s, double speed) 
   speeds_.push_back(speed);
 }
 
-std::vector<int> LatticeDynamics::slots_to(int nx, int ny, int to, const std::vector<char>* closed) const {
-  std::vector<int> dist(static_cast<std::size_t>(nx) * static_cast<std::size_t>(ny), -1);
+std::vector<int> LatticeDynamics::slots_to(const LatticeFrame& f, int to, const std::vector<char>* closed) const {
+  std::vector<int> dist(static_cast<std::size_t>(f.cells()), -1);
   std::deque<int> queue{to};
   dist[static_cast<std::size_t>(to)] = 0;
   // The move set is symmetric (every step has its opposite), so distances to `to` are distances from it.
   while (!queue.empty()) {
     const int c = queue.front();
     queue.pop_front();
-    const int ix = c % nx, iy = c / nx;
     for (const auto& s : steps_) {
-      const int jx = ix + s.dx, jy = iy + s.dy;
-      if ((s.dx == 0 && s.dy == 0) || jx < 0 || jy < 0 || jx >= nx || jy >= ny) continue;
-      auto& d = dist[static_cast<std::size_t>(jy * nx + jx)];
-      if (closed && (*closed)[static_cast<std::size_t>(jy * nx + jx)]) continue;
-      if (d < 0) d = dist[static_cast<std::size_t>(c)] + 1, queue.push_back(jy * nx + jx);
+      if (s.dx == 0 && s.dy == 0 && s.dz == 0) continue;
+      const int j = f.move(c, s);
+      if (j < 0) continue;
+      auto& d = dist[static_cast<std::size_t>(j)];
+      if (closed && (*closed)[static_cast<std::size_t>(j)]) continue;
+      if (d < 0) d = dist[static_cast<std::size_t>(c)] + 1, queue.push_back(j);
     }
   }
   return dist;
 }
 
+std::vector<int> LatticeDynamics::slots_to(int nx, int ny, int to, const std::vector<char>* closed) const {
+  LatticeFrame f;
+  f.nx = nx, f.ny = ny;
+  return slots_to(f, to, closed);
+}
+
+LatticeFrame LatticeDynamics::frame(const Mission& m, int n) const {
+  if (levels_ > 1) return LatticeFrame(m.starts(n, 0), m.starts(n, 1), m.area_x, m.area_y, pitch_, floor_, climb_, levels_);
+  return LatticeFrame(m.starts(n, 0), m.starts(n, 1), m.area_x, m.area_y, pitch_, m.starts.cols() > 2 ? m.starts(n, 2) : 0.0);
+}
+
+double LatticeDynamics::move_energy(int a, const PropulsionModel& propulsion) const {
+  return propulsion.slot_energy(speed(a), 0.0, slot_s_) + propulsion.climb_energy(step(a).dz * climb_);
+}
+
 Flight LatticeDynamics::fly(int, const Flight& now, int a, const Mission& m) const {
   const LatticeStep s = step(a);
   Flight f;
-  f.x = now.x, f.y = now.y;
-  double nx = now.x, ny = now.y;
+  f.x = now.x, f.y = now.y, f.z = now.z;
+  double nx = now.x, ny = now.y, nz = now.z;
   if (s.dx) nx += s.dx * pitch_;
   if (s.dy) ny += s.dy * pitch_;
-  if (!m.contains(nx, ny)) {
+  if (s.dz) nz = floor_ + climb_ * (std::lround((now.z - floor_) / climb_) + s.dz);  // on the levels, no drift
+  const bool band = !s.dz || (nz >= floor_ - 1e-9 && nz <= floor_ + climb_ * (levels_ - 1) + 1e-9);
+  if (!band || !m.contains(nx, ny)) {
     f.inside = false;
     return f;
   }
-  f.x = nx, f.y = ny;
-  f.vx = s.dx * pitch_ / slot_s_, f.vy = s.dy * pitch_ / slot_s_;
+  f.x = nx, f.y = ny, f.z = nz;
+  f.vx = s.dx * pitch_ / slot_s_, f.vy = s.dy * pitch_ / slot_s_, f.vz = s.dz * climb_ / slot_s_;
   f.speed = speed(a);
   return f;
 }
@@ -158,14 +189,14 @@ class LatticeReachability : public Reachability {
   LatticeReachability(const LatticeDynamics& d, const Mission& m) {
     for (int n = 0; n < static_cast<int>(m.starts.rows()); ++n) {
       Table t;
-      t.frame = LatticeFrame(m.starts(n, 0), m.starts(n, 1), m.area_x, m.area_y, d.pitch());
-      t.slots = d.slots_to(t.frame.nx, t.frame.ny, t.frame.cell(m.dest_x(n), m.dest_y(n)));
+      t.frame = d.frame(m, n);
+      t.slots = d.slots_to(t.frame, t.frame.cell(m.dest_x(n), m.dest_y(n), m.destinations.cols() > 2 ? m.dest_z(n) : 0.0));
       tables_.push_back(std::move(t));
     }
   }
   int slots(int n, const Flight& from, int limit) const override {
     const Table& t = tables_[static_cast<std::size_t>(n)];
-    const int c = t.frame.find(from.x, from.y);
+    const int c = t.frame.find(from.x, from.y, from.z);
     const int d = c < 0 ? -1 : t.slots[static_cast<std::size_t>(c)];
     return d < 0 ? limit + 1 : d;  // off the lattice or cut off: never reachable in time
   }
@@ -190,7 +221,7 @@ std::shared_ptr<const Reachability> LatticeDynamics::reachability(const Mission&
 
 std::string LatticeDynamics::unreachable(int n, const Mission& m, const Reachability& r) const {
   Flight start;
-  start.x = m.starts(n, 0), start.y = m.starts(n, 1);
+  start.x = m.starts(n, 0), start.y = m.starts(n, 1), start.z = m.starts.cols() > 2 ? m.starts(n, 2) : 0.0;
   const int moves = r.slots(n, start, m.t_max);
   return "trajectory: UAV " + std::to_string(n) + " needs " + std::to_string(moves) + " moves from its start to its destination with " +
          moves_text() + " but trajectory.t_max = " + std::to_string(m.t_max) + " allows " + std::to_string(m.t_max - 1) +

@@ -182,7 +182,7 @@ class VecEnv:
                           d["truncated"], d["info"])
 
     def positions(self) -> dict:
-        """Current UAV positions and destinations [M, N, 2] (metres) and slots t [M]."""
+        """Current UAV positions and destinations [M, N, 3] (x, y and altitude z, metres) and slots t [M]."""
         return self._env.positions()
 
     def users(self, env: int = 0) -> np.ndarray:

@@ -13,6 +13,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <optional>
 #include <filesystem>
 #include <mutex>
 
@@ -78,9 +79,19 @@ Positions positions_from(const Array<double>& a, const Config& cfg, const std::s
 
 // ---- environment ----------------------------------------------------------------------------
 
-py::dict link_dict(const ChannelModel& model, double ux, double uy, double x, double y) {
+/// A link's coordinates: finite, the UAV above the users' antennas.
+void check_link(double ux, double uy, double uz, double x, double y) {
+  const char* names[5] = {"ux", "uy", "uz", "x", "y"};
+  const double v[5] = {ux, uy, uz, x, y};
+  for (int i = 0; i < 5; ++i)
+    if (!std::isfinite(v[i]))
+      throw InputError(std::string(names[i]) + " = " + format_double(v[i]) + " is not finite: allowed a finite position (m)");
+  if (!(uz > 0)) throw InputError("uz = " + format_double(uz) + " is not above the ground: allowed an altitude uz > 0 (m)");
+}
+
+py::dict link_dict(const ChannelModel& model, double ux, double uy, double uz, double x, double y) {
   py::dict d;
-  for (const auto& [name, value] : link_fields(model.link(ux, uy, x, y))) {
+  for (const auto& [name, value] : link_fields(model.link(ux, uy, uz, x, y))) {
     if (name == "los") d[name.c_str()] = value != 0.0;
     else d[name.c_str()] = value;
   }
@@ -92,10 +103,12 @@ py::dict link_dict(const ChannelModel& model, double ux, double uy, double x, do
 
 py::dict episode_dict(const EpisodeRecord& r) {
   const int T = r.T, N = r.positions.empty() ? 0 : static_cast<int>(r.positions.front().rows());
-  auto pos = Array<double>({T, N, 2});
+  auto pos = Array<double>({T, N, 3});  // (x, y, altitude z) of each UAV at each slot
   for (int t = 0; t < T; ++t)
-    for (int n = 0; n < N; ++n) pos.mutable_at(t, n, 0) = r.positions[static_cast<std::size_t>(t)](n, 0),
-                                pos.mutable_at(t, n, 1) = r.positions[static_cast<std::size_t>(t)](n, 1);
+    for (int n = 0; n < N; ++n) {
+      const Positions& p = r.positions[static_cast<std::size_t>(t)];
+      for (int c = 0; c < 3; ++c) pos.mutable_at(t, n, c) = c < p.cols() ? p(n, c) : std::nan("");
+    }
   auto act = Array<std::int32_t>({std::max(T - 1, 0), N});
   for (std::size_t t = 0; t < r.actions.size(); ++t)
     for (int n = 0; n < N; ++n) act.mutable_at(static_cast<py::ssize_t>(t), n) = r.actions[t][static_cast<std::size_t>(n)];
@@ -352,19 +365,23 @@ void bind_channel(py::module_& m) {
       .def("clusters", py::overload_cast<const Snapshot&>(&SystemModel::clusters, py::const_), py::arg("snapshot"))
       .def("network", py::overload_cast<const Snapshot&>(&SystemModel::network, py::const_), py::arg("snapshot"),
            "the whole network of a snapshot under channel.spectrum")
-      .def("channel", &SystemModel::channel, py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"), py::arg("slot") = 0,
-           "h of the link from a UAV at (ux, uy) to the user at (x, y) in fast slot `slot` (0 <= slot < fast_slots)")
-      .def_property_readonly("fast_slots", &SystemModel::fast_slots)
-      .def("link", [](const SystemModel& self, double ux, double uy, double x, double y) {
-             const char* names[4] = {"ux", "uy", "x", "y"};
-             const double v[4] = {ux, uy, x, y};
-             for (int i = 0; i < 4; ++i)
-               if (!std::isfinite(v[i]))
-                 throw InputError(std::string(names[i]) + " = " + format_double(v[i]) + " is not finite: allowed a finite position (m)");
-             return link_dict(self.channel_model(), ux, uy, x, y);
+      .def("channel", [](const SystemModel& self, double ux, double uy, double x, double y, int slot, std::optional<double> uz) {
+             const double z = uz.value_or(self.altitude());
+             check_link(ux, uy, z, x, y);
+             return self.channel_model().channel(ux, uy, z, x, y, slot);
            },
-           py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"),
-           "the link's large-scale state: p_los, los, path_loss_db, shadowing_db, k_factor_db, gain, distance_m, elevation_deg");
+           py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"), py::arg("slot") = 0, py::arg("uz") = py::none(),
+           "h of the link from a UAV at (ux, uy) and altitude uz (default scenario.altitude_m) to the user at (x, y) in "
+           "fast slot `slot` (0 <= slot < fast_slots)")
+      .def_property_readonly("fast_slots", &SystemModel::fast_slots)
+      .def("link", [](const SystemModel& self, double ux, double uy, double x, double y, std::optional<double> uz) {
+             const double z = uz.value_or(self.altitude());
+             check_link(ux, uy, z, x, y);
+             return link_dict(self.channel_model(), ux, uy, z, x, y);
+           },
+           py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"), py::arg("uz") = py::none(),
+           "the link's large-scale state from a UAV at altitude uz (default scenario.altitude_m): p_los, los, path_loss_db, "
+           "shadowing_db, k_factor_db, gain, distance_m, elevation_deg");
 }
 
 /// The beamformers by spec string, and the rates of any precoder.

@@ -224,8 +224,8 @@ class PyVecEnv {
 
   py::dict positions() {
     const int M = num_envs_, N = agents();
-    auto p = Array<double>({M, N, 2});
-    auto d = Array<double>({M, N, 2});
+    auto p = Array<double>({M, N, 3});  // (x, y, altitude z)
+    auto d = Array<double>({M, N, 3});
     auto t = Array<std::int32_t>({M});
     {
       double* pp = p.mutable_data();
@@ -237,9 +237,9 @@ class PyVecEnv {
         const UavEnv& e = vec_->env(i);
         pt[i] = e.t();
         for (int n = 0; n < N; ++n)
-          for (int c = 0; c < 2; ++c) {
-            pp[(static_cast<std::size_t>(i) * N + n) * 2 + c] = e.positions()(n, c);
-            pd[(static_cast<std::size_t>(i) * N + n) * 2 + c] = e.destinations()(n, c);
+          for (int c = 0; c < 3; ++c) {
+            pp[(static_cast<std::size_t>(i) * N + n) * 3 + c] = e.positions()(n, c);
+            pd[(static_cast<std::size_t>(i) * N + n) * 3 + c] = e.destinations()(n, c);
           }
       }
     }

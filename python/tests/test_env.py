@@ -120,7 +120,7 @@ def test_planners_from_python_equal_the_cli(skyloop_bin, tmp_path):
     results = {p: sl.plan(cfg, p, users_seed=3) for p in ("random", "greedy", "optimal")}
     for p, res in results.items():
         assert res["objective"] == float(rows[p]["objective"]), p
-        assert res["positions"].shape == (res["T"], 3, 2) and res["rates"].shape == (res["T"],)
+        assert res["positions"].shape == (res["T"], 3, 3) and res["rates"].shape == (res["T"],)
         assert np.isclose(res["rates"].mean(), res["objective"], rtol=1e-12)
     assert results["optimal"]["objective"] >= max(results["random"]["objective"], results["greedy"]["objective"])
     users = sl.VecEnv(cfg, 1, 9).users(0)
@@ -139,7 +139,7 @@ def test_trained_policy_from_python(skyloop_bin, tmp_path):
     assert r.returncode == 0, r.stderr
     small = sl.config(overrides=SQUARE)
     res = sl.plan(small, str(out), users_seed=3)
-    assert res["planner"] and res["positions"].shape[1:] == (3, 2)
+    assert res["planner"] and res["positions"].shape[1:] == (3, 3)
     # The policy as a rollout's base: never below its own mission on any layout (failures first).
     ev = sl.evaluate_layouts(small, [str(out)], planners=[], layouts=2, threads=1, rollout=True)
     rows = ev["rows"]

@@ -35,6 +35,8 @@ def check_against_reference(env, o):
 def check_fields(env, o):
     """Each named field holds what its name says, and every value lies in its field's bounds."""
     spec, pos = env.spec, env.positions()
+    assert pos["uavs"].shape[-1] == 3 and np.all(pos["uavs"][..., 2] == env.config["scenario.altitude_m"])
+    pos = {k: v[..., :2] if k != "t" else v for k, v in pos.items()}  # the fields below are horizontal
     side = float(env.config["scenario.area_x_m"])
     for name, arr in (("obs", o.obs), ("state", o.state), ("agent_state", o.agent_state)):
         fields = spec[name]["fields"]

@@ -18,7 +18,7 @@ def pick(rng, mask):
 
 def moves_needed(env):
     p = env.positions()
-    return np.rint(np.abs(p["uavs"] - p["destinations"]).sum(-1) / env.config["trajectory.d_fly_m"]).astype(int)
+    return np.rint(np.abs(p["uavs"][..., :2] - p["destinations"][..., :2]).sum(-1) / env.config["trajectory.d_fly_m"]).astype(int)
 
 
 def test_turns_follow_the_shield_order_and_step_as_step_does():

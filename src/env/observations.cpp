@@ -25,6 +25,12 @@ void UavEnv::write_observation(int n, float* o) const {
   o[4] = static_cast<float>((mission_.destinations(n, 0) - pos_(n, 0)) / mission_.area_x);
   o[5] = static_cast<float>((mission_.destinations(n, 1) - pos_(n, 1)) / mission_.area_y);
   write_previous_action(n, o + 6);
+  if (spec_params_.altitude) o[spec_->paper_obs.size - 1] = altitude_share(n);
+}
+
+float UavEnv::altitude_share(int n) const {
+  const LatticeDynamics& l = *dynamics_->lattice();
+  return static_cast<float>((pos_(n, 2) - l.floor_m()) / (l.climb_m() * (l.levels() - 1)));
 }
 
 void UavEnv::write_previous_action(int n, float* o) const {
@@ -163,7 +169,11 @@ void UavEnv::write_set_observation(int n, float* o) const {
     write_move_gains(n, o);
     o += actions();
   }
-  if (spec_params_.rate_map > 0) write_rate_map(n, o);
+  if (spec_params_.rate_map > 0) {
+    write_rate_map(n, o);
+    o += static_cast<int>(rate_map_offsets(spec_params_.rate_map).size());
+  }
+  if (spec_params_.altitude) *o = altitude_share(n);
 }
 
 void UavEnv::show_decided(int m, double x, double y, double z) {

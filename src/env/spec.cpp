@@ -76,12 +76,14 @@ const std::vector<std::array<int, 2>>& rate_map_offsets(int radius) {
   return tables[static_cast<std::size_t>(radius)];
 }
 
-ArraySpec paper_observation_spec(const ActionSpec& actions) {
+ArraySpec paper_observation_spec(const ActionSpec& actions, bool altitude) {
   ArraySpec s = named("obs", "paper", "float32", true);
   s.add("own_position", 2, 0, 1)                 // (x, y) / area side
       .add("users_mean_displacement", 2, -1, 1)   // mean over the users of (u - x) / area side
       .add("destination_displacement", 2, -1, 1);  // (destination - x) / area side
-  return add_previous_action(s, actions);
+  add_previous_action(s, actions);
+  if (altitude) s.add("altitude", 1, 0, 1);  // (z - altitude_min_m) / (altitude_max_m - altitude_min_m)
+  return s;
 }
 
 SpecParams spec_params(const Config& cfg, int agents, int users) {
@@ -91,9 +93,11 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.t_max = cfg.trajectory.t_max;
   p.state = parse_state_kind(cfg.env.state);
   p.observation = parse_observation_kind(cfg.marl.encoder);
-  p.action = make_dynamics(cfg)->actions();
+  const auto dynamics = make_dynamics(cfg);
+  p.action = dynamics->actions();
   p.lookahead = cfg.marl.lookahead;
   p.rate_map = cfg.marl.rate_map;
+  p.altitude = dynamics->lattice() && dynamics->lattice()->levels() > 1;
   return p;
 }
 
@@ -114,6 +118,7 @@ ArraySpec set_observation_spec(const SpecParams& p) {
   if (p.lookahead) s.add("move_gains", p.action.count(), -1, 1);  // one per action (continuous: per primitive)
   if (p.rate_map > 0)  // tanh(kGainScale (R_c - R) / R) at each cell c of rate_map_offsets; -1 outside the area
     s.add("rate_map", static_cast<int>(rate_map_offsets(p.rate_map).size()), -1, 1);
+  if (p.altitude) s.add("altitude", 1, 0, 1);  // (z - altitude_min_m) / (altitude_max_m - altitude_min_m)
   return s;
 }
 
@@ -151,7 +156,7 @@ EnvSpec make_env_spec(const SpecParams& p) {
   e.observation_kind = p.observation;
   e.state_kind = p.state;
   e.action = p.action;
-  e.paper_obs = paper_observation_spec(p.action);
+  e.paper_obs = paper_observation_spec(p.action, p.altitude);
   e.set_obs = set_observation_spec(p);
   e.compact_state = compact_state_spec();
   e.obs = e.observation_kind == ObservationKind::Set ? e.set_obs : e.paper_obs;

@@ -64,15 +64,17 @@ std::vector<EpisodeRecord> run_planners(const Config& cfg, const PlanOptions& op
 }
 
 std::string trajectory_csv(const std::vector<EpisodeRecord>& recs, std::uint64_t seed) {
-  // speed_mps and power_w: what UAV n flies and spends in slot t (empty at the last slot).
-  std::string s = "seed,planner,t,uav,x,y,action,speed_mps,power_w\n";
+  // z: UAV n's altitude (m); speed_mps and power_w: what UAV n flies and spends in slot t (empty
+  // at the last slot).
+  std::string s = "seed,planner,t,uav,x,y,z,action,speed_mps,power_w\n";
   for (const auto& r : recs)
     for (std::size_t t = 0; t < r.positions.size(); ++t)
       for (Eigen::Index n = 0; n < r.positions[t].rows(); ++n) {
         const auto i = static_cast<std::size_t>(n);
         const bool moved = t < r.actions.size();
-        s += fmt::format("{},{},{},{},{},{},{},{},{}\n", seed, r.planner, t + 1, n, format_double(r.positions[t](n, 0)),
-                         format_double(r.positions[t](n, 1)), !moved ? "END" : r.actions[t][i] < 0 ? "VELOCITY" : r.action_names.name(r.actions[t][i]),
+        const Positions& p = r.positions[t];
+        s += fmt::format("{},{},{},{},{},{},{},{},{},{}\n", seed, r.planner, t + 1, n, format_double(p(n, 0)), format_double(p(n, 1)),
+                         p.cols() > 2 ? format_double(p(n, 2)) : "", !moved ? "END" : r.actions[t][i] < 0 ? "VELOCITY" : r.action_names.name(r.actions[t][i]),
                          moved && t < r.speeds.size() ? format_double(r.speeds[t][i]) : "",
                          moved && t < r.powers.size() ? format_double(r.powers[t][i]) : "");
       }

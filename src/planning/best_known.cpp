@@ -17,24 +17,22 @@ namespace {
 
 constexpr double kNegInf = -std::numeric_limits<double>::infinity();
 
-/// One UAV's D_fly lattice through its start, clipped to the area.
+/// One UAV's D_fly lattice through its start, clipped to the area (over the dynamics' levels).
 struct Lattice : LatticeFrame {
   const LatticeDynamics* mob;
   std::vector<int> from_start, to_dest;  // fewest slots from the start / to the destination
-  Lattice(const UavEnv& env, int n)
-      : LatticeFrame(env.starts()(n, 0), env.starts()(n, 1), env.area_x(), env.area_y(), env.d_fly()), mob(env.dynamics().lattice()) {
+  Lattice(const UavEnv& env, int n) : LatticeFrame(env.dynamics().lattice()->frame(env.mission(), n)), mob(env.dynamics().lattice()) {
     auto fix = [&](std::vector<int> v) {
       for (int& x : v) x = x < 0 ? env.t_max() + 1 : x;
       return v;
     };
-    from_start = fix(mob->slots_to(nx, ny, cell(env.starts()(n, 0), env.starts()(n, 1))));
-    to_dest = fix(mob->slots_to(nx, ny, cell(env.destinations()(n, 0), env.destinations()(n, 1))));
+    from_start = fix(mob->slots_to(*this, at(env.starts(), n)));
+    to_dest = fix(mob->slots_to(*this, at(env.destinations(), n)));
   }
+  /// The cell of row n of p.
+  int at(const Positions& p, int n) const { return cell(p(n, 0), p(n, 1), p(n, 2)); }
   /// The cell after action a, or -1 outside the grid.
-  int step(int c, int a) const {
-    const int ix = c % nx + mob->step(a).dx, iy = c / nx + mob->step(a).dy;
-    return ix >= 0 && ix < nx && iy >= 0 && iy < ny ? iy * nx + ix : -1;
-  }
+  int step(int c, int a) const { return move(c, mob->step(a)); }
   int action(int from, int to) const {
     for (int a = 0; a < mob->count(); ++a)
       if (step(from, a) == to) return a;
@@ -116,8 +114,8 @@ BestResponses::BestResponses(UavEnv& env, std::ostream* progress)
                      std::to_string(static_cast<long long>(kMaxTableEntries / cells) - 1) + " on this lattice; use seqgreedy beyond");
   s_cell_.resize(static_cast<std::size_t>(N_)), d_cell_.resize(static_cast<std::size_t>(N_));
   for (int n = 0; n < N_; ++n) {
-    s_cell_[static_cast<std::size_t>(n)] = lat_[static_cast<std::size_t>(n)].cell(env_.starts()(n, 0), env_.starts()(n, 1));
-    d_cell_[static_cast<std::size_t>(n)] = lat_[static_cast<std::size_t>(n)].cell(env_.destinations()(n, 0), env_.destinations()(n, 1));
+    s_cell_[static_cast<std::size_t>(n)] = lat_[static_cast<std::size_t>(n)].at(env_.starts(), n);
+    d_cell_[static_cast<std::size_t>(n)] = lat_[static_cast<std::size_t>(n)].at(env_.destinations(), n);
   }
   greedy_start();
 }
@@ -129,7 +127,7 @@ void BestResponses::greedy_start() {
   for (int n = 0; n < N_; ++n) {
     auto& c = cur_.cell[static_cast<std::size_t>(n)];
     for (const auto& p : rec.positions) {
-      c.push_back(lat_[static_cast<std::size_t>(n)].cell(p(n, 0), p(n, 1)));
+      c.push_back(lat_[static_cast<std::size_t>(n)].at(p, n));
       if (c.back() == d_cell_[static_cast<std::size_t>(n)]) break;
     }
     if (c.back() != d_cell_[static_cast<std::size_t>(n)])
@@ -139,10 +137,11 @@ void BestResponses::greedy_start() {
 }
 
 Positions BestResponses::positions_at(const Trajectories& tr, int t) const {
-  Positions p(N_, 2);
+  Positions p(N_, 3);
   for (int n = 0; n < N_; ++n) {
     const int c = tr.at(n, t);
-    p(n, 0) = lat_[static_cast<std::size_t>(n)].x(c), p(n, 1) = lat_[static_cast<std::size_t>(n)].y(c);
+    const Lattice& L = lat_[static_cast<std::size_t>(n)];
+    p(n, 0) = L.x(c), p(n, 1) = L.y(c), p(n, 2) = L.z(c);
   }
   return p;
 }
@@ -188,12 +187,12 @@ void BestResponses::rate_table(int i, const Trajectories& tr, Response& r) const
       const bool on_path =
           t <= Tmax_ ? L.from_start[static_cast<std::size_t>(c)] <= t - 1 && L.to_dest[static_cast<std::size_t>(c)] <= Tmax_ - t : c == r.di;
       if (!on_path) continue;
-      const double x = L.x(c), y = L.y(c);
+      const double x = L.x(c), y = L.y(c), z = L.z(c);
       bool clear = true;
       for (int m = 0; m < N_ && clear; ++m)
-        if (m != i) clear = std::hypot(x - p(m, 0), y - p(m, 1)) >= dmin_;
+        if (m != i) clear = UavEnv::separation(x - p(m, 0), y - p(m, 1), z - p(m, 2)) >= dmin_;
       if (!clear) continue;
-      p(i, 0) = x, p(i, 1) = y;
+      p(i, 0) = x, p(i, 1) = y, p(i, 2) = z;
       batch.push_back(p);
       where.emplace_back(t, c);
     }

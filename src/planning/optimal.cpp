@@ -44,8 +44,13 @@ class JointDp {
   void recover(const std::vector<double>& cost, double g, OptimalPlan& plan);
 
   int cell(std::size_t s, int n) const { return static_cast<int>((s / stride_[static_cast<std::size_t>(n)]) % static_cast<std::size_t>(G_)); }
-  double cx(int c) const { return ox_ + d_ * (c % nx_); }
-  double cy(int c) const { return oy_ + d_ * (c / nx_); }
+  /// Row n of p: state s's cell of UAV n (its altitude too).
+  void place(Positions& p, std::size_t s) const {
+    for (int n = 0; n < N_; ++n) {
+      const int c = cell(s, n);
+      p(n, 0) = frame_.x(c), p(n, 1) = frame_.y(c), p(n, 2) = frame_.z(c);
+    }
+  }
   std::size_t state_of(const std::vector<int>& cells) const {
     std::size_t s = 0;
     for (int n = 0; n < N_; ++n) s += stride_[static_cast<std::size_t>(n)] * static_cast<std::size_t>(cells[static_cast<std::size_t>(n)]);
@@ -57,8 +62,9 @@ class JointDp {
   std::ostream* progress_;
   const LatticeDynamics& mob_;
   int N_, Tmax_, A_, hover_;
-  double d_, ox_ = 0, oy_ = 0;
-  int nx_ = 0, ny_ = 0, G_ = 0;
+  double d_;
+  LatticeFrame frame_;  // every UAV's lattice (the one through start 0, with the dynamics' levels)
+  int G_ = 0;
   std::size_t S_ = 0, s0_ = 0, s_home_ = 0;
   std::vector<int> s_cell_, d_cell_;
   std::vector<std::size_t> stride_;
@@ -101,23 +107,24 @@ void JointDp::check_settings() const {
 
 void JointDp::place_uavs() {
   const Positions start = env_.positions(), dest = env_.destinations();
-  // The D_fly lattice through start 0, clipped to the area.
-  const LatticeFrame frame(start(0, 0), start(0, 1), env_.area_x(), env_.area_y(), d_);
-  ox_ = frame.ox, oy_ = frame.oy, nx_ = frame.nx, ny_ = frame.ny, G_ = nx_ * ny_;
-  auto cell_of = [&](double x, double y, const std::string& what) {
-    const double fx = (x - ox_) / d_, fy = (y - oy_) / d_;
+  // The D_fly lattice through start 0, clipped to the area (over the dynamics' altitude levels).
+  frame_ = mob_.frame(env_.mission(), 0);
+  G_ = frame_.cells();
+  const int nx_ = frame_.nx, ny_ = frame_.ny;
+  auto cell_of = [&](const Positions& p, int n, const std::string& what) {
+    const double fx = (p(n, 0) - frame_.ox) / d_, fy = (p(n, 1) - frame_.oy) / d_;
     const long ix = std::lround(fx), iy = std::lround(fy);
     if (std::abs(fx - static_cast<double>(ix)) > 1e-6 || std::abs(fy - static_cast<double>(iy)) > 1e-6 || ix < 0 || iy < 0 ||
         ix >= nx_ || iy >= ny_)
-      throw InputError(what + " = [" + format_double(x) + ", " + format_double(y) +
+      throw InputError(what + " = [" + format_double(p(n, 0)) + ", " + format_double(p(n, 1)) +
                        "] is not on the D_fly grid of trajectory.starts[0]: the optimal planner needs every start and "
                        "destination on one grid of spacing trajectory.d_fly_m");
-    return static_cast<int>(iy * nx_ + ix);
+    return frame_.cell(p(n, 0), p(n, 1), p(n, 2));
   };
   s_cell_.resize(static_cast<std::size_t>(N_)), d_cell_.resize(static_cast<std::size_t>(N_));
   for (int n = 0; n < N_; ++n) {
-    s_cell_[static_cast<std::size_t>(n)] = cell_of(start(n, 0), start(n, 1), "trajectory.starts[" + std::to_string(n) + "]");
-    d_cell_[static_cast<std::size_t>(n)] = cell_of(dest(n, 0), dest(n, 1), "trajectory.destinations[" + std::to_string(n) + "]");
+    s_cell_[static_cast<std::size_t>(n)] = cell_of(start, n, "trajectory.starts[" + std::to_string(n) + "]");
+    d_cell_[static_cast<std::size_t>(n)] = cell_of(dest, n, "trajectory.destinations[" + std::to_string(n) + "]");
   }
   double Sd = 1;
   for (int n = 0; n < N_; ++n) Sd *= G_;
@@ -128,7 +135,8 @@ void JointDp::place_uavs() {
     const int max_cells = static_cast<int>(std::floor(std::pow(5e6, 1.0 / N_) + 1e-9));
     throw InputError("the optimal planner's joint grid has " + format_double(Sd) + " states (" + std::to_string(G_) +
                      " cells ^ " + std::to_string(N_) + " UAVs): allowed at most 5e6, i.e. at most " + std::to_string(max_uavs) +
-                     " UAVs on this " + std::to_string(nx_) + " x " + std::to_string(ny_) + " grid, or at most " +
+                     " UAVs on this " + std::to_string(nx_) + " x " + std::to_string(ny_) +
+                     (frame_.nz > 1 ? " x " + std::to_string(frame_.nz) + " levels" : std::string()) + " grid, or at most " +
                      std::to_string(max_cells) + " cells for " + std::to_string(N_) + " UAVs; use seqgreedy or a learned planner beyond");
   }
   // The value table holds T_max x states doubles: at most 2^27 of them (1 GiB).
@@ -150,10 +158,7 @@ void JointDp::make_moves() {
   // neighbour[c * A + a] = cell after action a, or -1 outside the grid.
   neighbour_.assign(static_cast<std::size_t>(G_ * A_), -1);
   for (int c = 0; c < G_; ++c)
-    for (int a = 0; a < A_; ++a) {
-      const int jx = c % nx_ + mob_.step(a).dx, jy = c / nx_ + mob_.step(a).dy;
-      if (jx >= 0 && jx < nx_ && jy >= 0 && jy < ny_) neighbour_[static_cast<std::size_t>(c * A_ + a)] = jy * nx_ + jx;
-    }
+    for (int a = 0; a < A_; ++a) neighbour_[static_cast<std::size_t>(c * A_ + a)] = frame_.move(c, mob_.step(a));
   // Fewest slots between each cell and each UAV's start and destination (the model's moves inside
   // the area; unreachable = a number past the horizon).
   auto fix = [&](std::vector<int> v) {
@@ -161,8 +166,8 @@ void JointDp::make_moves() {
     return v;
   };
   for (int n = 0; n < N_; ++n) {
-    from_start_.push_back(fix(mob_.slots_to(nx_, ny_, s_cell_[static_cast<std::size_t>(n)])));
-    to_dest_.push_back(fix(mob_.slots_to(nx_, ny_, d_cell_[static_cast<std::size_t>(n)])));
+    from_start_.push_back(fix(mob_.slots_to(frame_, s_cell_[static_cast<std::size_t>(n)])));
+    to_dest_.push_back(fix(mob_.slots_to(frame_, d_cell_[static_cast<std::size_t>(n)])));
   }
 }
 
@@ -178,7 +183,7 @@ void JointDp::make_weights() {
     case Objective::Energy: alpha_ = 0, beta_ = 0, gamma_ = 1e-3; break;
   }
   move_energy_.resize(static_cast<std::size_t>(A_));
-  for (int a = 0; a < A_; ++a) move_energy_[static_cast<std::size_t>(a)] = env_.propulsion().slot_energy(mob_.speed(a), 0.0, dt);
+  for (int a = 0; a < A_; ++a) move_energy_[static_cast<std::size_t>(a)] = mob_.move_energy(a, env_.propulsion());
 }
 
 void JointDp::evaluate_rates() {
@@ -191,12 +196,12 @@ void JointDp::evaluate_rates() {
           from_start_[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] + to_dest_[static_cast<std::size_t>(n)][static_cast<std::size_t>(c)] <= Tmax_ - 1;
   R_.assign(S_, std::numeric_limits<double>::quiet_NaN());
   std::vector<std::size_t> need;
-  Positions p(N_, 2);
+  Positions p(N_, 3);
   for (std::size_t s = 0; s < S_; ++s) {
     bool ok = true;
     for (int n = 0; n < N_ && ok; ++n) ok = useful[static_cast<std::size_t>(n)][static_cast<std::size_t>(cell(s, n))];
     if (!ok) continue;
-    for (int n = 0; n < N_; ++n) p(n, 0) = cx(cell(s, n)), p(n, 1) = cy(cell(s, n));
+    place(p, s);
     if (env_.collisions(p) > 0) continue;
     need.push_back(s);
   }
@@ -206,7 +211,7 @@ void JointDp::evaluate_rates() {
     std::vector<Positions> batch;
     const std::size_t last = std::min(need.size(), first + chunk);
     for (std::size_t i = first; i < last; ++i) {
-      for (int n = 0; n < N_; ++n) p(n, 0) = cx(cell(need[i], n)), p(n, 1) = cy(cell(need[i], n));
+      place(p, need[i]);
       batch.push_back(p);
     }
     const auto r = env_.oracle().sum_rates(batch);

@@ -53,9 +53,14 @@ def main(out):
                 for k in ("obs", "state", "agent_state", "action_mask", "reward", "terminated", "truncated"):
                     w.writerow([name, step, k, flat(getattr(r, k))])
                 write_info(w, name, step, "info", r.info)
-            write_info(w, name, 31, "positions", env.positions())
+            pos = env.positions()  # x, y here; the altitudes in a file of their own
+            write_info(w, name, 31, "positions", {k: v[..., :2] if k != "t" else v for k, v in pos.items()})
             for i in range(env.num_envs):
                 write_info(w, name, 31, f"users{i}", env.users(i))
+        with open(out / f"{name}-altitudes.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["case", "step", "field", "values"])
+            write_info(w, name, 31, "altitudes", {k: pos[k][..., 2] for k in ("uavs", "destinations")})
 
 
 if __name__ == "__main__":

@@ -99,7 +99,8 @@ const std::vector<std::array<int, 2>>& rate_map_offsets(int radius);
 const ActionSpec& grid_actions();
 /// The paper's observation layout (bounds for any scenario): 6 reals and the one-hot previous
 /// action (11 reals under the grid model).
-ArraySpec paper_observation_spec(const ActionSpec& actions = grid_actions());
+/// The paper's observation; with `altitude`, its own altitude in the band appended.
+ArraySpec paper_observation_spec(const ActionSpec& actions = grid_actions(), bool altitude = false);
 /// What an environment's spec depends on.
 struct SpecParams {
   int agents = 0, users = 0;
@@ -110,10 +111,11 @@ struct SpecParams {
   ActionSpec action = grid_actions();  // the mobility model's
   bool lookahead = false;              // marl.lookahead: the set observation's move_gains field
   int rate_map = 0;                    // marl.rate_map: the set observation's rate_map field (its radius)
+  bool altitude = false;               // the dynamics choose the altitude: the observations' altitude field
   bool operator==(const SpecParams& o) const {
     return agents == o.agents && users == o.users && area_x == o.area_x && area_y == o.area_y && d_fly == o.d_fly &&
            t_max == o.t_max && state == o.state && observation == o.observation && action == o.action &&
-           lookahead == o.lookahead && rate_map == o.rate_map;
+           lookahead == o.lookahead && rate_map == o.rate_map && altitude == o.altitude;
   }
 };
 SpecParams spec_params(const Config& cfg, int agents, int users);

@@ -236,6 +236,8 @@ class UavEnv {
   /// choosing later sees the slot's joint rate with the earlier choices made. Cleared by
   /// clear_decided, reset and every step; nothing else reads it.
   void show_decided(int m, double x, double y, double z);
+  /// UAV n's altitude within the dynamics' band, in [0, 1] (the observations' altitude field).
+  float altitude_share(int n) const;
   void clear_decided();
   /// Where the set observation sees the UAVs: positions(), with the decided landings in place.
   const Positions& seen_positions() const { return any_decided_ ? seen_ : pos_; }

@@ -516,8 +516,37 @@ def rate_energy(run, exp):
     return figs, [("front: the optimum at each weight; placed: flying the experiment's objective", head, body)]
 
 
+def altitude_profile(run, exp):
+    profile = read_csv(os.path.join(run, exp["files"][0]))
+    summary = read_csv(os.path.join(run, exp["files"][1]))
+    channels = list(dict.fromkeys(r["pathloss"] for r in summary))
+    fig, axes = plt.subplots(1, len(channels), figsize=(5.5 * len(channels), 3.8), squeeze=False)
+    colours = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd"]
+    objective = {(r["pathloss"], r["mobility"], r["planner"]): float(r["objective"]) for r in summary}
+    for ax, ch in zip(axes[0], channels):
+        for mobility, ls in (("grid-3d", "-"), ("grid", "--")):
+            rs = [r for r in profile if r["pathloss"] == ch and r["mobility"] == mobility and r["planner"] == "optimal"]
+            for n in sorted({int(r["uav"]) for r in rs}):
+                p = sorted((int(r["t"]), float(r["z"])) for r in rs if int(r["uav"]) == n)
+                ax.plot([q[0] for q in p], [q[1] for q in p], ls=ls, marker="." if mobility == "grid-3d" else None,
+                        color=colours[n % 4], label=f"UAV {n + 1}, {'chosen' if mobility == 'grid-3d' else 'fixed'} altitude")
+        j3, j2 = objective.get((ch, "grid-3d", "optimal")), objective.get((ch, "grid", "optimal"))
+        gain = f": {fnum(j3, 2)} vs {fnum(j2, 2)} bit/s/Hz ({100 * (j3 / j2 - 1):+.1f}%)" if j3 and j2 else ""
+        ax.set_title(f"{ch}{gain}", fontsize=8)
+        ax.set_xlabel("slot t")
+        ax.set_ylabel("altitude z (m)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6)
+    fig.suptitle(exp["title"] + " (solid: optimum choosing its altitude; dashed: optimum at H)", fontsize=9)
+    figs = save(fig, run, exp["name"])
+    head = ["channel", "altitude", "planner", "objective (bit/s/Hz)", "T", "complete", "energy (kJ)"]
+    body = [[r["pathloss"], "chosen (grid-3d)" if r["mobility"] == "grid-3d" else "fixed at H (grid)", style(r["planner"])[0],
+             fnum(r["objective"], 3), r["T"], r["success"], fnum(float(r["energy_j"]) / 1e3, 2)] for r in summary]
+    return figs, [("the exact optimum of the sum rate with each UAV's altitude chosen or fixed", head, body)]
+
+
 KINDS = {"generalisation": generalisation, "beamform_sweep": beamform_sweep, "marl_training": marl_training, "planning_users": planning_users,
-         "trajectories": trajectories, "models": models, "rate_energy": rate_energy}
+         "trajectories": trajectories, "models": models, "rate_energy": rate_energy, "altitude_profile": altitude_profile}
 
 
 # --- the paper's numbers beside skyloop's ------------------------------------------------------------

@@ -107,7 +107,7 @@ int bench_reference(const BenchCliOptions& o) {
     idx = sample_layouts(t.references.size(), parse_count("--sample", o.sample, 1, t.references.size()));
   }
   if (!shipped && !o.write) throw InputError("task " + t.id + " has no reference.csv yet: allowed --write to compute it");
-  const std::string fp = config_fingerprint(t.config);
+  const std::string fp = config_fingerprint(t.config, t.fixed_keys);
   std::cerr << fmt::format("bench reference {}: {} of {} layouts\n", t.id, idx.size(), t.references.size());
   const auto got = compute_references(t, idx, threads, &std::cerr);
   if (o.write) {

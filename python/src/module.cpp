@@ -368,7 +368,7 @@ void bind_channel(py::module_& m) {
       .def("channel", [](const SystemModel& self, double ux, double uy, double x, double y, int slot, std::optional<double> uz) {
              const double z = uz.value_or(self.altitude());
              check_link(ux, uy, z, x, y);
-             return self.channel_model().channel(ux, uy, z, x, y, slot);
+             return self.channel_model().channel_at(ux, uy, z, x, y, slot);
            },
            py::arg("ux"), py::arg("uy"), py::arg("x"), py::arg("y"), py::arg("slot") = 0, py::arg("uz") = py::none(),
            "h of the link from a UAV at (ux, uy) and altitude uz (default scenario.altitude_m) to the user at (x, y) in "

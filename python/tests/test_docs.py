@@ -109,7 +109,8 @@ def test_cli_reference_lists_every_command_and_option():
 
 def test_every_relative_link_between_pages_resolves():
     import _generate
-    _generate.main(str(BUILD)) if not all((DOCS / g).exists() for g in _generate.GENERATED) else None
+    if not all((DOCS / g).exists() for g in _generate.GENERATED):
+        _generate.main(str(BUILD), doxygen=False)  # the pages' text is enough to check their links
     link = re.compile(r"\]\(([^)#\s]+\.md)(#[^)]*)?\)")
     broken = []
     for page in DOCS.rglob("*.md"):

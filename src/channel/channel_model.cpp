@@ -242,7 +242,7 @@ VectorXcd ChannelModel::steering(double cos_theta) const {
   return a;
 }
 
-VectorXcd ChannelModel::channel(double ux, double uy, double uz, double x, double y, int slot) const {
+VectorXcd ChannelModel::channel_at(double ux, double uy, double uz, double x, double y, int slot) const {
   if (slot < 0 || slot >= fast_slots())
     throw InputError("slot = " + std::to_string(slot) + " is out of range: allowed 0 <= slot < fast_slots = " +
                      std::to_string(fast_slots()) + " (channel.fast_slots; 1 without fading)");

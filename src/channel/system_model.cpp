@@ -172,7 +172,7 @@ Cluster SystemModel::make_cluster(int uav, double ux, double uy, double uz, cons
   }
   c.G.resize(static_cast<Eigen::Index>(users.size()), antennas_);
   for (std::size_t i = 0; i < users.size(); ++i)
-    c.G.row(static_cast<Eigen::Index>(i)) = channel_->channel(ux, uy, uz, users_xy(users[i], 0), users_xy(users[i], 1), slot).adjoint();
+    c.G.row(static_cast<Eigen::Index>(i)) = channel_->channel_at(ux, uy, uz, users_xy(users[i], 0), users_xy(users[i], 1), slot).adjoint();
   return c;
 }
 
@@ -201,7 +201,7 @@ Network SystemModel::network(const Positions& uavs, const Positions& users_xy,
     MatrixXcd H(ks, antennas_);
     for (Eigen::Index r = 0; r < ks; ++r) {
       const int k = net.served[static_cast<std::size_t>(r)];
-      H.row(r) = channel_->channel(uavs(c.uav, 0), uavs(c.uav, 1), altitude_of(uavs, c.uav), users_xy(k, 0), users_xy(k, 1), slot).adjoint();
+      H.row(r) = channel_->channel_at(uavs(c.uav, 0), uavs(c.uav, 1), altitude_of(uavs, c.uav), users_xy(k, 0), users_xy(k, 1), slot).adjoint();
     }
     net.cross.push_back(std::move(H));
   }

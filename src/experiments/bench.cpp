@@ -1,6 +1,7 @@
 #include "skyloop/experiments/bench.hpp"
 
 #include <algorithm>
+#include <set>
 #include <cmath>
 #include <filesystem>
 #include <fmt/format.h>
@@ -128,7 +129,25 @@ std::vector<std::string> bench_task_ids() {
   return ids;
 }
 
-std::string config_fingerprint(const Config& cfg) { return fnv_text(to_toml(cfg)); }
+std::string config_fingerprint(const Config& cfg, const std::vector<std::string>& keys) {
+  const std::set<std::string> fixed(keys.begin(), keys.end());
+  Config c = cfg;
+  std::string s;
+  for (const auto& f : config_fields())
+    if (fixed.count(f.key)) s += f.key + " = " + format_value(f.get(c)) + "\n";
+  return "fnv1a64-values:" + fnv_text(s).substr(std::string("fnv1a64:").size());
+}
+
+namespace {
+/// "section.key" of every value a TOML table sets.
+void toml_keys(const toml::table& t, const std::string& prefix, std::vector<std::string>& out) {
+  for (const auto& [k, v] : t) {
+    const std::string key = prefix + std::string(k.str());
+    if (const auto* sub = v.as_table()) toml_keys(*sub, key + ".", out);
+    else out.push_back(key);
+  }
+}
+}  // namespace
 
 std::string reference_csv(const BenchTask& task, const std::vector<BenchReference>& rows) {
   std::string s = "task,version,layout,users_seed,users,reference,objective,seconds\n";
@@ -186,6 +205,10 @@ BenchTask load_bench_task(const std::string& id_or_dir, bool fresh) {
   parse_layout_split(t.protocol.train_split, source + ": protocol.train_split");
   const int layouts = static_cast<int>(r.integer("task.test_layouts", 1, 100000));
   t.config = resolve_config((dir / "config.toml").string(), {});
+  {
+    const std::string cfg_path = (dir / "config.toml").string();
+    toml_keys(parse_toml_document(read_file(cfg_path, "task configuration"), cfg_path), "", t.fixed_keys);
+  }
   const fs::path ref = dir / "reference.csv";
   if (!fresh && fs::exists(ref)) {
     t.references = parse_references(ref.string());

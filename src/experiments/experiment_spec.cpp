@@ -9,6 +9,7 @@
 
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/planning/registry.hpp"
+#include "skyloop/channel/path_loss.hpp"
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
@@ -21,7 +22,7 @@ std::string source_dir() { return data_dir(); }
 
 const std::vector<std::string>& experiment_kinds() {
   static const std::vector<std::string> kinds = {"models", "beamform_sweep", "marl_training", "planning_users", "trajectories",
-                                                 "generalisation", "rate_energy"};
+                                                 "generalisation", "rate_energy", "altitude_profile"};
   return kinds;
 }
 
@@ -201,6 +202,16 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
     need(!s.methods.empty(), "experiment.methods", "a list of beamformer specs");
     need(s.series.empty() == s.series_values.empty(), "experiment.series and experiment.series_values",
          "both (one curve per series value) or neither");
+  } else if (s.kind == "altitude_profile") {
+    need(!s.values.empty(), "experiment.values", "a list of channel.pathloss models");
+    for (const auto& v : s.values) {
+      std::vector<std::string> models;
+      for (const auto& m : kPathLossModels) models.emplace_back(m.name);
+      check_in(source, "experiment.values", v, models);
+    }
+    need(s.users.size() == 1, "experiment.users", "one user count K");
+    need(!s.planners.empty(), "experiment.planners", "a list of planners (optimal: the exact optimum)");
+    for (const auto& p : s.planners) check_in(source, "experiment.planners", p, builtin_planners().names());
   } else {
     need(!s.seeds.empty(), "experiment.seeds", "a list of training seeds");
     if (s.kind == "marl_training") {

@@ -40,7 +40,7 @@ SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Bea
   }
   for (Eigen::Index k = 0; k < s.users.rows(); ++k)
     for (Eigen::Index n = 0; n < s.uavs.rows(); ++n)
-      r.users[static_cast<std::size_t>(k)].cross.push_back(model.channel_model().channel(s.uavs(n, 0), s.uavs(n, 1), model.altitude_of(s.uavs, n), s.users(k, 0), s.users(k, 1)));
+      r.users[static_cast<std::size_t>(k)].cross.push_back(model.channel_model().channel_at(s.uavs(n, 0), s.uavs(n, 1), model.altitude_of(s.uavs, n), s.users(k, 0), s.users(k, 1)));
   const Network net = model.network(s, a);
   const std::vector<MatrixXcd> W = bf.design_network(net);
   check_network_output(bf, net, W);

@@ -79,13 +79,16 @@ TEST(BenchTasks, TheShippedTasksCoverTheStudiedSettings) {
 }
 
 // A task's numbers cannot drift: its resolved configuration is the one its references were
-// computed for (a new field or default changes the fingerprint), and its reference file is the
-// one shipped (load_bench_task refuses another checksum). A failure here means the physics or the
+// computed for (a value of any field its config.toml fixes changes the fingerprint; a field added
+// to the table later meets the task at its default, and the references' recomputation below
+// catches one that moves its numbers), and its reference file is the one shipped (load_bench_task
+// refuses another checksum). A failure here means the physics or the
 // configuration moved: give the task a new version (tasks/<name>-v<N+1>), never edit a shipped one.
 TEST(BenchTasks, EveryTaskMatchesItsFingerprintAndItsReferenceChecksum) {
   for (const auto& id : bench_task_ids()) {
     const auto t = load_bench_task(id);
-    EXPECT_EQ(config_fingerprint(t.config), t.fingerprint) << id << ": its configuration changed";
+    EXPECT_EQ(config_fingerprint(t.config, t.fixed_keys), t.fingerprint) << id << ": its configuration changed";
+    EXPECT_GT(t.fixed_keys.size(), 100u) << id << ": a task's config.toml fixes every field it was frozen with";
     EXPECT_EQ(reference_checksum(t.references), t.reference_checksum) << id;
     EXPECT_GE(t.references.size(), 5u) << id;
     EXPECT_GE(t.protocol.seeds, 5) << id;

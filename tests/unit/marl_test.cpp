@@ -1,6 +1,8 @@
 // The learners' building blocks on hand-made numbers, and short seeded learning runs.
 #include <gtest/gtest.h>
 
+#include <set>
+
 #include <algorithm>
 #include <filesystem>
 #include <sstream>
@@ -437,6 +439,39 @@ TEST(Marl, EveryLearnerTrainsAndFliesTheHeadingsModel) {
     } catch (const InputError& e) {
       EXPECT_NE(std::string(e.what()).find("trajectory.mobility = \"headings\""), std::string::npos) << e.what();
     }
+  }
+}
+
+// UAVs that choose their altitude (trajectory.mobility = "grid-3d", 15 actions): each learner
+// trains on the altitude levels with the observations' altitude field, and its policy flies
+// every UAV home at its destination's altitude with moves the mask allows only.
+TEST(Marl, EveryLearnerTrainsAndFliesTheAltitudeLevels) {
+  for (const std::string algo : {"mappo", "ippo", "vdn", "qmix"}) {
+    Config cfg = small_scenario(algo, 2048);
+    cfg.trajectory.mobility = "grid-3d";
+    cfg.marl.batch_episodes = 8;
+    validate(cfg);
+    MarlTrainOptions opt;
+    opt.out_dir = fresh("grid3d_" + algo);
+    opt.registry = &zf_registry();
+    const auto r = train_marl(cfg, opt);
+    EXPECT_TRUE(r.evaluation.success) << algo;
+    auto policy = MarlPolicy::load(opt.out_dir);
+    UavEnv env(cfg, zf_oracle(cfg, 3));
+    ASSERT_EQ(env.actions(), 15);
+    ASSERT_NO_THROW(env.spec().obs.field("altitude")) << algo;
+    policy->reset(env);
+    std::set<double> altitudes;
+    while (!env.done()) {
+      const auto b = policy->act(env);
+      for (int n = 0; n < env.uavs(); ++n)
+        ASSERT_TRUE(reachable_moves(env, n) >> b[static_cast<std::size_t>(n)] & 1u) << algo << ", t = " << env.t();
+      env.step(b);
+      for (int n = 0; n < env.uavs(); ++n) altitudes.insert(env.altitude(n));
+    }
+    EXPECT_TRUE(env.positions().isApprox(env.destinations())) << algo;
+    EXPECT_GE(*altitudes.begin(), 60.0) << algo;
+    EXPECT_LE(*altitudes.rbegin(), 140.0) << algo;
   }
 }
 

@@ -104,13 +104,14 @@ class ChannelModel {
   }
   /// The link of a UAV at (ux, uy, uz) to the user at (x, y): its geometry (elevation, height),
   /// large-scale state (P_LoS, path loss, shadowing, K) and its channel h in fast slot `slot`
-  /// (0 <= slot < fast_slots()): [L] complex. The overloads without uz fly at H.
+  /// (0 <= slot < fast_slots()): [L] complex. The overloads without uz fly at H. (channel_at has
+  /// a name of its own: channel(ux, uy, x, y, slot) takes five numbers too.)
   LinkGeometry geometry(double ux, double uy, double uz, double x, double y) const;
   LinkState link(double ux, double uy, double uz, double x, double y) const;
-  VectorXcd channel(double ux, double uy, double uz, double x, double y, int slot = 0) const;
+  VectorXcd channel_at(double ux, double uy, double uz, double x, double y, int slot = 0) const;
   LinkGeometry geometry(double ux, double uy, double x, double y) const { return geometry(ux, uy, altitude_, x, y); }
   LinkState link(double ux, double uy, double x, double y) const { return link(ux, uy, altitude_, x, y); }
-  VectorXcd channel(double ux, double uy, double x, double y, int slot = 0) const { return channel(ux, uy, altitude_, x, y, slot); }
+  VectorXcd channel(double ux, double uy, double x, double y, int slot = 0) const { return channel_at(ux, uy, altitude_, x, y, slot); }
   /// Steering vector of cos(theta_z): [L].
   VectorXcd steering(double cos_theta) const;
 

@@ -50,6 +50,7 @@ struct BenchTask {
   Config config;            // config.toml, resolved
   BenchProtocol protocol;
   double reference_rtol = 1e-9;    // relative tolerance of a recomputed reference (from the oracle's arithmetic)
+  std::vector<std::string> fixed_keys;  // the fields config.toml sets (what the fingerprint covers)
   std::string fingerprint;         // as stated in task.toml
   std::string reference_checksum;  // as stated in task.toml
   std::vector<BenchReference> references;  // reference.csv (empty before the first `bench reference --write`)
@@ -65,8 +66,12 @@ std::vector<std::string> bench_task_ids();
 /// split, to be computed: `bench reference --write`).
 BenchTask load_bench_task(const std::string& id_or_dir, bool fresh = false);
 
-/// The fingerprint of a resolved configuration ("fnv1a64:<16 hex>" of to_toml(cfg)).
-std::string config_fingerprint(const Config& cfg);
+/// The fingerprint of a resolved configuration: "fnv1a64-values:<16 hex>" of the lines
+/// "key = value" of the fields named in `keys` (a task's: every field its config.toml fixes), in
+/// the field table's order, values as config.toml writes them. Help text and fields added to the
+/// table after the task froze (which it meets at their defaults) do not enter it; what moves
+/// under those is caught by the references' recomputation.
+std::string config_fingerprint(const Config& cfg, const std::vector<std::string>& keys);
 /// The checksum of reference rows (users seeds, K, names and objectives, as reference.csv writes them).
 std::string reference_checksum(const std::vector<BenchReference>& rows);
 std::string reference_csv(const BenchTask& task, const std::vector<BenchReference>& rows);

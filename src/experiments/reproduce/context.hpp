@@ -154,6 +154,7 @@ StageKind sweep_stage();
 StageKind marl_training_stage();
 StageKind planning_users_stage();
 StageKind rate_energy_stage();
+StageKind altitude_profile_stage();
 StageKind trajectories_stage();
 StageKind generalisation_stage();
 

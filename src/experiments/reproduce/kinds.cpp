@@ -6,7 +6,7 @@ namespace skyloop::repro {
 
 const std::vector<StageKind>& stage_kinds() {
   static const std::vector<StageKind> kinds = {models_stage(), sweep_stage(), marl_training_stage(), planning_users_stage(),
-                                               trajectories_stage(), generalisation_stage(), rate_energy_stage()};
+                                               trajectories_stage(), generalisation_stage(), rate_energy_stage(), altitude_profile_stage()};
   return kinds;
 }
 

@@ -138,14 +138,36 @@ const ArraySpec& compact_state_spec() {
 
 EnvSpec make_env_spec(const Config& cfg, int agents, int users) { return make_env_spec(spec_params(cfg, agents, users)); }
 
+namespace {
+/// Everything a spec says (every array's fields with their offsets, sizes and bounds, the action
+/// space, the kinds), as text: two parameter sets share a spec exactly when they make the same one,
+/// whichever parameters they differ in.
+std::string spec_text(const EnvSpec& e) {
+  std::string s = std::to_string(e.agents) + " " + std::to_string(e.users) + " " + to_string(e.observation_kind) + " " +
+                  to_string(e.state_kind) + " " + std::to_string(e.action.hover) + " " + std::to_string(e.action.dims) + ":";
+  for (const auto& a : e.action.names) s += a + ",";
+  for (const ArraySpec* a : {&e.obs, &e.state, &e.agent_context, &e.agent_state, &e.action_mask, &e.paper_obs, &e.set_obs, &e.compact_state}) {
+    s += "\n" + a->name + " " + a->kind + " " + a->dtype + (a->per_agent ? " agent" : " env");
+    for (const auto& f : a->fields)
+      s += " " + f.name + "@" + std::to_string(f.offset) + "+" + std::to_string(f.size) + "[" + std::to_string(f.low) + "," +
+           std::to_string(f.high) + "]";
+  }
+  return s;
+}
+}  // namespace
+
 std::shared_ptr<const EnvSpec> shared_env_spec(const SpecParams& p) {
+  // Keyed by what the spec says, not by the parameters (a parameter left out of a hand-written
+  // comparison would hand one configuration another's spec).
+  EnvSpec e = make_env_spec(p);
+  std::string key = spec_text(e);
   static std::mutex mutex;
-  static std::vector<std::pair<SpecParams, std::shared_ptr<const EnvSpec>>> made;
+  static std::vector<std::pair<std::string, std::shared_ptr<const EnvSpec>>> made;
   std::lock_guard<std::mutex> lock(mutex);
-  for (const auto& [q, spec] : made)
-    if (q == p) return spec;
+  for (const auto& [k, spec] : made)
+    if (k == key) return spec;
   if (made.size() >= 64) made.erase(made.begin());  // a sweep over many scenarios: keep the newest
-  made.emplace_back(p, std::make_shared<const EnvSpec>(make_env_spec(p)));
+  made.emplace_back(std::move(key), std::make_shared<const EnvSpec>(std::move(e)));
   return made.back().second;
 }
 

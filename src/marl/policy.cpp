@@ -227,7 +227,7 @@ void MarlPolicy::set_sequential(bool sequential) {
   if (sequential && (impl_->q_based || !impl_->enc.set || impl_->actions.continuous()))
     throw InputError("marl.sequential = true for a " + impl_->algo + " policy" + (impl_->enc.set ? "" : " on the paper's observation") +
                      (impl_->actions.continuous() ? " of continuous commands" : "") +
-                     ": allowed for mappo and ippo policies on the set observation with grid or headings moves");
+                     ": allowed for mappo and ippo policies on the set observation with discrete moves (" + lattice_dynamics_names() + ")");
   impl_->enc.sequential = sequential;
   if (!sequential) impl_->enc.passes = 1;
 }

@@ -336,8 +336,8 @@ TEST(Cli, PlanWritesTrajectoriesRatesAndSummary) {
   for (const char* f : {"trajectory.csv", "rates.csv", "summary.csv", "users.csv", "config.toml"})
     EXPECT_TRUE(std::filesystem::exists(dir + "/" + f)) << f;
   const std::string traj = slurp(dir + "/trajectory.csv");
-  EXPECT_EQ(traj.rfind("seed,planner,t,uav,x,y,action,speed_mps,power_w\n", 0), 0u);
-  EXPECT_NE(traj.find("3,optimal,1,0,0,0,"), std::string::npos);
+  EXPECT_EQ(traj.rfind("seed,planner,t,uav,x,y,z,action,speed_mps,power_w\n", 0), 0u);
+  EXPECT_NE(traj.find("3,optimal,1,0,0,0,100,"), std::string::npos);  // UAV 0 at its start, at H = 100 m
   EXPECT_EQ(lines(slurp(dir + "/summary.csv")), 4);
   // Same seed, same files.
   const std::string dir2 = tmpdir("plan2");

@@ -325,7 +325,7 @@ TEST(Continuous, PlannersFlyItAndLatticeSearchesRefuseIt) {
     EXPECT_TRUE(r.success) << p->name();
   }
   EXPECT_NE(error_of([&] { solve_optimal(*env); }).find("trajectory.mobility = \"continuous\""), std::string::npos);
-  EXPECT_NE(error_of([&] { brute_force_optimum(*env); }).find("allowed trajectory.mobility = grid or headings"), std::string::npos);
+  EXPECT_NE(error_of([&] { brute_force_optimum(*env); }).find("allowed trajectory.mobility = " + lattice_dynamics_names()), std::string::npos);
   // Bad settings: one line naming the field, the value and what is allowed.
   Config bad = continuous();
   bad.trajectory.v_max_mps = 130;

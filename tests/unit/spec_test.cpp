@@ -108,3 +108,30 @@ TEST(Spec, FieldsAreContiguousAndNamedOnce) {
   EXPECT_EQ(s.action_mask.size, kGridActions);
   for (int a = 0; a < kGridActions; ++a) EXPECT_EQ(s.action.names[static_cast<std::size_t>(a)], grid_actions().name(a));
 }
+
+// Environments share a spec exactly when their parameters make the same one: the cache is keyed by
+// what the spec says, so a parameter that changes the layout (here the altitude field, the action
+// space, the rate map) can never be handed another configuration's spec.
+TEST(Spec, SharedSpecsAreKeyedByTheirContents) {
+  SpecParams p = spec_params(Config{}, 3, 12);
+  const auto a = shared_env_spec(p);
+  EXPECT_EQ(shared_env_spec(p).get(), a.get());
+  SpecParams q = p;
+  q.altitude = true;
+  const auto b = shared_env_spec(q);
+  EXPECT_NE(b.get(), a.get());
+  EXPECT_EQ(b->paper_obs.size, a->paper_obs.size + 1);
+  EXPECT_EQ(b->paper_obs.fields.back().name, "altitude");
+  q = p;
+  q.rate_map = 1;
+  EXPECT_NE(shared_env_spec(q)->set_obs.size, a->set_obs.size);
+  q = p;
+  Config grid3d;
+  grid3d.trajectory.mobility = "grid-3d";
+  q.action = make_dynamics(grid3d)->actions();
+  EXPECT_EQ(shared_env_spec(q)->action_mask.size, 15);
+  // Every field the same: the same spec object, whichever parameter set made it.
+  q = p;
+  EXPECT_EQ(make_env_spec(q).obs.size, a->obs.size);
+  EXPECT_EQ(shared_env_spec(q).get(), a.get());
+}

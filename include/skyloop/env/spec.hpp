@@ -112,11 +112,6 @@ struct SpecParams {
   bool lookahead = false;              // marl.lookahead: the set observation's move_gains field
   int rate_map = 0;                    // marl.rate_map: the set observation's rate_map field (its radius)
   bool altitude = false;               // the dynamics choose the altitude: the observations' altitude field
-  bool operator==(const SpecParams& o) const {
-    return agents == o.agents && users == o.users && area_x == o.area_x && area_y == o.area_y && d_fly == o.d_fly &&
-           t_max == o.t_max && state == o.state && observation == o.observation && action == o.action &&
-           lookahead == o.lookahead && rate_map == o.rate_map && altitude == o.altitude;
-  }
 };
 SpecParams spec_params(const Config& cfg, int agents, int users);
 
@@ -129,8 +124,8 @@ const ArraySpec& compact_state_spec();
 /// marl.encoder, the area and horizon).
 EnvSpec make_env_spec(const SpecParams& p);
 EnvSpec make_env_spec(const Config& cfg, int agents, int users);
-/// make_env_spec(p), built once per distinct p in this process and shared (environments of one
-/// VecEnv hold one spec between them).
+/// make_env_spec(p), shared by every parameter set that makes the same spec in this process
+/// (environments of one VecEnv hold one spec between them); keyed by the spec's own contents.
 std::shared_ptr<const EnvSpec> shared_env_spec(const SpecParams& p);
 
 ObservationKind parse_observation_kind(const std::string& encoder);  // marl.encoder

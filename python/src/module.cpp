@@ -68,13 +68,27 @@ py::object field_value(const Config& cfg, const std::string& key) {
   return out;
 }
 
-Positions positions_from(const Array<double>& a, const Config& cfg, const std::string& what) {
-  if (a.ndim() != 2 || a.shape(1) != 2)
-    throw InputError(what + " has shape " + std::to_string(a.ndim()) + "-d: allowed an [n, 2] array of (x, y) in metres");
+/// Points [n, 2] (x, y) in the area; with `altitudes`, [n, 3] (x, y, z) too, z above the users' antennas.
+Positions positions_from(const Array<double>& a, const Config& cfg, const std::string& what, bool altitudes = false) {
+  const bool three = altitudes && a.ndim() == 2 && a.shape(1) == 3;
+  if (a.ndim() != 2 || (a.shape(1) != 2 && !three))
+    throw InputError(what + " has shape " + std::to_string(a.ndim()) + "-d: allowed an [n, 2] array of (x, y) in metres" +
+                     (altitudes ? " or an [n, 3] array of (x, y, altitude z)" : ""));
   std::vector<Point2> pts;
   for (py::ssize_t i = 0; i < a.shape(0); ++i) pts.push_back({a.at(i, 0), a.at(i, 1)});
   if (pts.empty()) throw InputError(what + " is empty: allowed at least one (x, y) point");
-  return positions_in_area(pts, cfg, what);
+  const Positions xy = positions_in_area(pts, cfg, what);
+  if (!three) return xy;
+  Positions p(xy.rows(), 3);
+  p.leftCols(2) = xy;
+  for (py::ssize_t i = 0; i < a.shape(0); ++i) {
+    const double z = a.at(i, 2);
+    if (!std::isfinite(z) || z - cfg.scenario.user_height_m < cfg.channel.d0_m)
+      throw InputError(what + "[" + std::to_string(i) + "] has altitude z = " + format_double(z) + ": allowed a finite z at least " +
+                       "channel.d0_m above scenario.user_height_m (" + format_double(cfg.scenario.user_height_m + cfg.channel.d0_m) + " m)");
+    p(static_cast<Eigen::Index>(i), 2) = z;
+  }
+  return p;
 }
 
 // ---- environment ----------------------------------------------------------------------------
@@ -336,7 +350,7 @@ void bind_channel(py::module_& m) {
                std::to_string(c.antennas()) + ">";
       });
 
-  py::class_<Snapshot>(m, "Snapshot", "UAV positions [N, 2] and user positions [K, 2] (metres).")
+  py::class_<Snapshot>(m, "Snapshot", "UAV positions [N, 2] (at scenario.altitude_m) or [N, 3] (x, y, altitude z) and user positions [K, 2] (metres).")
       .def_readonly("uavs", &Snapshot::uavs)
       .def_readonly("users", &Snapshot::users);
 
@@ -358,7 +372,7 @@ void bind_channel(py::module_& m) {
       .def(py::init<const Config&>(), py::arg("config"))
       .def("random_snapshot", &SystemModel::random_snapshot, py::arg("uavs"), py::arg("users"), py::arg("seed"))
       .def("snapshot", [](const SystemModel&, const Config& cfg, const Array<double>& uavs, const Array<double>& users) {
-             return Snapshot{positions_from(uavs, cfg, "uavs"), positions_from(users, cfg, "users")};
+             return Snapshot{positions_from(uavs, cfg, "uavs", true), positions_from(users, cfg, "users")};
            }, py::arg("config"), py::arg("uavs"), py::arg("users"))
       .def("associate", [](const SystemModel& model, const Snapshot& s) { return model.associate(s).serving; }, py::arg("snapshot"),
            "serving UAV of every user, -1 where no UAV covers it")

@@ -44,6 +44,25 @@ py::dict array_spec_dict(const ArraySpec& a, int agents) {
 /// Every array's layout is the environment's spec (UavEnv::spec()); the rows are written by the
 /// environment's own writers. Calls from several Python threads are serialised by a mutex (taken
 /// with the GIL released): a VecEnv is safe to share, not parallel.
+/// One info field over the environments: an [M] array of its dtype.
+py::array info_column(const InfoField& f, const std::vector<StepInfo>& info) {
+  const auto M = static_cast<py::ssize_t>(info.size());
+  const std::string dtype = f.dtype;
+  if (dtype == "bool") {
+    py::array_t<bool> a({M});
+    for (py::ssize_t i = 0; i < M; ++i) a.mutable_at(i) = f.get(info[static_cast<std::size_t>(i)]) != 0;
+    return std::move(a);
+  }
+  if (dtype == "int32") {
+    py::array_t<std::int32_t> a({M});
+    for (py::ssize_t i = 0; i < M; ++i) a.mutable_at(i) = static_cast<std::int32_t>(f.get(info[static_cast<std::size_t>(i)]));
+    return std::move(a);
+  }
+  py::array_t<double> a({M});
+  for (py::ssize_t i = 0; i < M; ++i) a.mutable_at(i) = f.get(info[static_cast<std::size_t>(i)]);
+  return std::move(a);
+}
+
 class PyVecEnv {
  public:
   PyVecEnv(const Config& cfg, int num_envs, std::uint64_t seed, const std::string& oracle, std::vector<std::uint64_t> layouts)
@@ -165,57 +184,20 @@ class PyVecEnv {
     }
     py::dict d = out.dict();
     auto reward = Array<float>({M});
-    auto sum_rate = Array<double>({M}), objective = Array<double>({M});
     auto terminated = py::array_t<bool>({M}), truncated = py::array_t<bool>({M});
-    auto collisions = Array<std::int32_t>({M}), boundary = Array<std::int32_t>({M}), arrivals = Array<std::int32_t>({M});
-    auto home = Array<std::int32_t>({M}), T = Array<std::int32_t>({M});
-    auto success = py::array_t<bool>({M});
-    auto episode_reward = Array<double>({M});
-    auto episode_collisions = Array<std::int32_t>({M}), episode_boundary = Array<std::int32_t>({M});
-    auto energy = Array<double>({M}), episode_energy = Array<double>({M}), bits_per_joule = Array<double>({M});
-    auto sum_rate_objective = Array<double>({M});
     for (int i = 0; i < M; ++i) {
       const auto& s = info[static_cast<std::size_t>(i)];
-      energy.mutable_at(i) = s.energy_j;
-      episode_energy.mutable_at(i) = s.episode_energy_j;
-      bits_per_joule.mutable_at(i) = s.bits_per_joule;
-      sum_rate_objective.mutable_at(i) = s.sum_rate_objective;
       reward.mutable_at(i) = static_cast<float>(s.reward);
-      sum_rate.mutable_at(i) = s.sum_rate;
-      objective.mutable_at(i) = s.objective;
       // terminated: every UAV home (the MDP's end, whether or not the mission met its energy
       // budget: success says that); truncated: T_max reached first.
       terminated.mutable_at(i) = s.done && s.home == N;
       truncated.mutable_at(i) = s.done && s.home < N;
-      collisions.mutable_at(i) = s.collisions;
-      boundary.mutable_at(i) = s.boundary;
-      arrivals.mutable_at(i) = s.arrivals;
-      home.mutable_at(i) = s.home;
-      T.mutable_at(i) = s.T;
-      success.mutable_at(i) = s.success;
-      episode_reward.mutable_at(i) = s.episode_reward;
-      episode_collisions.mutable_at(i) = s.episode_collisions;
-      episode_boundary.mutable_at(i) = s.episode_boundary;
     }
     d["reward"] = reward;
     d["terminated"] = terminated;
     d["truncated"] = truncated;
     py::dict inf;
-    inf["sum_rate"] = sum_rate;
-    inf["objective"] = objective;
-    inf["collisions"] = collisions;
-    inf["boundary"] = boundary;
-    inf["arrivals"] = arrivals;
-    inf["home"] = home;
-    inf["T"] = T;
-    inf["success"] = success;
-    inf["episode_reward"] = episode_reward;
-    inf["episode_collisions"] = episode_collisions;  // so far in the episode (final values where it ends)
-    inf["episode_boundary"] = episode_boundary;
-    inf["energy_j"] = energy;                  // the fleet's propulsion energy in this step (J)
-    inf["episode_energy_j"] = episode_energy;  // so far in the episode
-    inf["bits_per_joule"] = bits_per_joule;
-    inf["sum_rate_objective"] = sum_rate_objective;  // P2.2's (1/T) sum R[t], whatever env.objective is
+    for (const InfoField& f : step_info_fields()) inf[f.name] = info_column(f, info);  // the spec's info fields
     inf["final_obs"] = final_obs;
     inf["final_state"] = final_state;
     d["info"] = inf;
@@ -573,6 +555,13 @@ py::dict env_spec_dict(const EnvSpec& e) {
   d["action_mask"] = array_spec_dict(e.action_mask, e.agents);
   d["paper_obs"] = array_spec_dict(e.paper_obs, e.agents);
   d["set_obs"] = array_spec_dict(e.set_obs, e.agents);
+  py::list info;  // the step's info fields (step_info_fields): what every info dict holds, per environment
+  for (const InfoField& f : step_info_fields()) {
+    py::dict x;
+    x["name"] = f.name, x["dtype"] = f.dtype, x["help"] = f.help;
+    info.append(x);
+  }
+  d["info"] = info;
   return d;
 }
 

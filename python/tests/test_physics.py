@@ -255,3 +255,20 @@ def test_link_state_and_fast_slots_equal_the_cli(skyloop_bin, source_dir):
     assert not np.array_equal(model.channel(c["x"], c["y"], u["x"], u["y"], 1), model.channel(c["x"], c["y"], u["x"], u["y"], 0))
     with pytest.raises(sl.InputError, match="slot = 4 is out of range"):
         model.channel(c["x"], c["y"], u["x"], u["y"], 4)
+
+
+def test_the_channel_reads_each_uavs_altitude():
+    """Al-Hourani urban (a = 9.61, b = 0.16), a user 100 m from the UAV's ground point, evaluated by
+    hand: at 100 m altitude the elevation is 45 deg and P_LoS = 0.967692, at 60 m 30.963757 deg and
+    0.760204. A snapshot's UAVs [N, 3] are associated by their 3-D distance."""
+    model = sl.SystemModel(sl.config(overrides={"channel.pathloss": "al-hourani", "channel.environment": "urban"}))
+    high, low = model.link(0.0, 0.0, 100.0, 0.0, uz=100.0), model.link(0.0, 0.0, 100.0, 0.0, uz=60.0)
+    assert high["elevation_deg"] == pytest.approx(45.0, abs=1e-6) and high["p_los"] == pytest.approx(0.9676919, abs=1e-6)
+    assert low["elevation_deg"] == pytest.approx(30.9637565, abs=1e-6) and low["p_los"] == pytest.approx(0.7602037, abs=1e-6)
+    assert model.link(0.0, 0.0, 100.0, 0.0) == high  # the default altitude is scenario.altitude_m
+    cfg = sl.config()
+    paper = sl.SystemModel(cfg)
+    users = np.array([[20.0, 0.0]])
+    near_low = paper.snapshot(cfg, np.array([[0.0, 0.0, 140.0], [60.0, 0.0, 60.0]]), users)
+    assert paper.associate(near_low) == [1]  # 141.4 m to UAV 0, 72.1 m to UAV 1
+    assert paper.associate(paper.snapshot(cfg, np.array([[0.0, 0.0, 140.0], [60.0, 0.0, 140.0]]), users)) == [0]

@@ -175,3 +175,18 @@ def test_one_env_from_two_threads_is_serialised():
     for t in threads:
         t.join()
     assert not errors, errors
+
+
+def test_the_step_info_is_the_specs():
+    """Every info field the step reports is listed by the spec, with its dtype, and nothing else is
+    (the final observation and state of an auto-reset aside)."""
+    env = sl.VecEnv(sl.config(overrides={"env.oracle": "zf"}), num_envs=2, seed=3)
+    env.reset()
+    r = env.step(np.full((2, env.spec["agents"]), env.spec["hover"]))
+    fields = env.spec["info"]
+    assert [f["name"] for f in fields][:3] == ["sum_rate", "objective", "collisions"] and all(f["help"] for f in fields)
+    assert set(r.info) - {"final_obs", "final_state"} == {f["name"] for f in fields}
+    for f in fields:
+        got = np.asarray(r.info[f["name"]])
+        assert got.shape == (2,) and got.dtype == np.dtype(f["dtype"]), f["name"]
+    assert np.all(r.info["T"] == 2) and np.all(r.info["home"] == 0)

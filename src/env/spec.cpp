@@ -97,7 +97,7 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.action = dynamics->actions();
   p.lookahead = cfg.marl.lookahead;
   p.rate_map = cfg.marl.rate_map;
-  p.altitude = dynamics->lattice() && dynamics->lattice()->levels() > 1;
+  p.altitude = dynamics->chooses_altitude();
   return p;
 }
 
@@ -215,5 +215,27 @@ StateKind parse_state_kind(const std::string& state) {
 
 std::string to_string(ObservationKind k) { return k == ObservationKind::Set ? "set" : "paper"; }
 std::string to_string(StateKind k) { return k == StateKind::Compact ? "compact" : "paper"; }
+
+const std::vector<InfoField>& step_info_fields() {
+  static const std::vector<InfoField> fields = {
+      {"sum_rate", "float64", "R[t] at the new slot (bit/s/Hz)", [](const StepInfo& s) { return s.sum_rate; }},
+      {"objective", "float64", "the episode's env.objective so far", [](const StepInfo& s) { return s.objective; }},
+      {"collisions", "int32", "UAVs closer than D_min to another at the slot's end", [](const StepInfo& s) { return double(s.collisions); }},
+      {"boundary", "int32", "moves cancelled at the area's (or the altitude band's) boundary", [](const StepInfo& s) { return double(s.boundary); }},
+      {"arrivals", "int32", "UAVs that arrived in this slot", [](const StepInfo& s) { return double(s.arrivals); }},
+      {"home", "int32", "UAVs home so far", [](const StepInfo& s) { return double(s.home); }},
+      {"T", "int32", "the slot reached", [](const StepInfo& s) { return double(s.T); }},
+      {"success", "bool", "every UAV home within its energy budget", [](const StepInfo& s) { return s.success ? 1.0 : 0.0; }},
+      {"episode_reward", "float64", "the rewards summed so far", [](const StepInfo& s) { return s.episode_reward; }},
+      {"episode_collisions", "int32", "collisions so far in the episode (final values where it ends)",
+       [](const StepInfo& s) { return double(s.episode_collisions); }},
+      {"episode_boundary", "int32", "boundary events so far in the episode", [](const StepInfo& s) { return double(s.episode_boundary); }},
+      {"energy_j", "float64", "the fleet's propulsion energy in this step (J)", [](const StepInfo& s) { return s.energy_j; }},
+      {"episode_energy_j", "float64", "the fleet's propulsion energy so far (J)", [](const StepInfo& s) { return s.episode_energy_j; }},
+      {"bits_per_joule", "float64", "B delta_t sum R[t] / E so far", [](const StepInfo& s) { return s.bits_per_joule; }},
+      {"sum_rate_objective", "float64", "P2.2's (1/T) sum R[t], whatever env.objective is", [](const StepInfo& s) { return s.sum_rate_objective; }},
+  };
+  return fields;
+}
 
 }  // namespace skyloop

@@ -73,7 +73,7 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, std::share
   mission_.t_max = t_max_;
   spec_params_.users = users();
   spec_params_.action = dynamics_->actions();
-  spec_params_.altitude = dynamics_->lattice() && dynamics_->lattice()->levels() > 1;
+  spec_params_.altitude = dynamics_->chooses_altitude();
   spec_ = shared_env_spec(spec_params_);
   vel_ = Positions::Zero(n_, 2);
   require_table_memory(cfg, *dynamics_, 1);

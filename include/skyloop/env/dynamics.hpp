@@ -156,6 +156,8 @@ class Dynamics {
   /// The lattice move set when positions stay on the D_fly lattice through each UAV's start (the
   /// DP, best-known, ways home and clearances plan on it); null otherwise.
   virtual const LatticeDynamics* lattice() const { return nullptr; }
+  /// Whether each UAV chooses its altitude (several altitude levels): the observations' altitude field.
+  bool chooses_altitude() const;
   /// Whether the model takes velocity commands (fly_command) beside its discrete primitives.
   bool commands_velocities() const { return actions_.continuous(); }
   /// How a command in [-1, 1]^dims is read (trajectory.command), where the model takes commands;

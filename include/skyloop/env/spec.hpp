@@ -83,6 +83,38 @@ struct EnvSpec {
   ArraySpec paper_obs, set_obs, compact_state;
 };
 
+/// What one step of an environment reports (UavEnv::step; its fields for Python in step_info_fields()).
+struct StepInfo {
+  double reward = 0;         // r[t] (eq:total_reward)
+  double sum_rate = 0;       // R at the new slot
+  double avg_rate = 0;       // R-bar at the new slot
+  int arrivals = 0, boundary = 0, collisions = 0;
+  int feasibility = 0;       // sum_n Phi_n
+  bool done = false;
+  bool success = false;      // every UAV arrived
+  // Episode so far (final values when done): P2.2 objective, slots, UAVs home, totals.
+  double objective = 0;
+  int T = 0, home = 0, episode_collisions = 0, episode_boundary = 0;
+  double episode_reward = 0;
+  // Propulsion (skyloop/env/energy.hpp): this slot's energy over the fleet, the episode's so far,
+  // its sum rate objective (P2.2, whatever env.objective is) and the UAVs past energy.budget_j.
+  double energy_j = 0, episode_energy_j = 0, sum_rate_objective = 0, bits_per_joule = 0;
+  int over_budget = 0;
+};
+
+/// One field of the step's info (what Python's `info` dict and every adapter's infos hold, and
+/// `VecEnv.spec["info"]` lists): its name, its dtype (float64 | int32 | bool), one line of help,
+/// and where it is in a StepInfo.
+struct InfoField {
+  const char* name;
+  const char* dtype;
+  const char* help;
+  double (*get)(const StepInfo&);
+};
+/// The step's info fields, in the order the info dict lists them (one table: the Python module
+/// builds its dicts from it).
+const std::vector<InfoField>& step_info_fields();
+
 // Layout constants the writers and the spec share.
 constexpr int kStateGrid = 8;   // compact state: G x G cells over the area
 constexpr int kNeighbours = 4;  // compact agent context: nearest other UAVs

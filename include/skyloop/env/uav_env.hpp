@@ -48,24 +48,6 @@
 
 namespace skyloop {
 
-struct StepInfo {
-  double reward = 0;         // r[t] (eq:total_reward)
-  double sum_rate = 0;       // R at the new slot
-  double avg_rate = 0;       // R-bar at the new slot
-  int arrivals = 0, boundary = 0, collisions = 0;
-  int feasibility = 0;       // sum_n Phi_n
-  bool done = false;
-  bool success = false;      // every UAV arrived
-  // Episode so far (final values when done): P2.2 objective, slots, UAVs home, totals.
-  double objective = 0;
-  int T = 0, home = 0, episode_collisions = 0, episode_boundary = 0;
-  double episode_reward = 0;
-  // Propulsion (skyloop/env/energy.hpp): this slot's energy over the fleet, the episode's so far,
-  // its sum rate objective (P2.2, whatever env.objective is) and the UAVs past energy.budget_j.
-  double energy_j = 0, episode_energy_j = 0, sum_rate_objective = 0, bits_per_joule = 0;
-  int over_budget = 0;
-};
-
 /// env.objective
 enum class Objective { SumRate, EnergyEfficiency, Weighted, Energy };
 Objective parse_objective(const std::string& s);

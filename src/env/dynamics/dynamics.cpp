@@ -76,6 +76,8 @@ void Dynamics::primitive_velocity(int, const Flight&, int, const Mission&, doubl
   no_commands(name_, "primitive_velocity");
 }
 
+bool Dynamics::chooses_altitude() const { return lattice() && lattice()->levels() > 1; }
+
 bool Dynamics::arrived(double x, double y, double dx, double dy) const { return std::abs(x - dx) < 1e-6 && std::abs(y - dy) < 1e-6; }
 
 void Dynamics::write_previous_action(int last_action, const Flight&, float* o) const {

@@ -134,10 +134,13 @@ void add_channel_fields(std::vector<Field>& f) {
     f.push_back(std::move(b));
   }
   {
-    std::vector<std::string> fading;  // the fading models' table (skyloop/channel/fading.hpp)
-    for (const auto& m : kFadingModels) fading.emplace_back(m.name);
-    f.push_back(text("channel.fading", "small-scale fading: none (the paper) or rician (Rayleigh on NLoS links)", fading,
-                     [](Config& c) -> std::string& { return c.channel.fading; }));
+    std::vector<std::string> fading;  // the fading models' table (skyloop/channel/fading.hpp): names and help
+    std::string help;
+    for (const auto& m : kFadingModels) {
+      fading.emplace_back(m.name);
+      help += (help.empty() ? "" : "; ") + std::string(m.name) + ": " + std::string(m.description);
+    }
+    f.push_back(text("channel.fading", "small-scale fading (" + help + ")", fading, [](Config& c) -> std::string& { return c.channel.fading; }));
   }
   f.push_back(text("channel.rician_k", "Rician K: fixed = rician_k_db; elevation = k_min_db at 0 deg rising linearly in dB to k_max_db at 90 deg",
                    {"fixed", "elevation"}, [](Config& c) -> std::string& { return c.channel.rician_k; }));

@@ -25,7 +25,15 @@ void UavEnv::write_observation(int n, float* o) const {
   o[4] = static_cast<float>((mission_.destinations(n, 0) - pos_(n, 0)) / mission_.area_x);
   o[5] = static_cast<float>((mission_.destinations(n, 1) - pos_(n, 1)) / mission_.area_y);
   write_previous_action(n, o + 6);
-  if (spec_params_.altitude) o[spec_->paper_obs.size - 1] = altitude_share(n);
+  write_optional(n, o + 6 + (spec_->action.continuous() ? spec_->action.dims : actions()), ObservationField::kPaper);
+}
+
+void UavEnv::write_optional(int n, float* o, int array) const {
+  for (const auto& f : observation_fields())
+    if ((f.arrays & array) && f.on(spec_params_)) {
+      f.write(*this, n, o);
+      o += f.size(spec_params_);
+    }
 }
 
 float UavEnv::altitude_share(int n) const {
@@ -165,15 +173,24 @@ void UavEnv::write_set_observation(int n, float* o) const {
     add_kernel(o + 2 * W, kNearGrid, d_fly_, d_fly_ / 2, seen(m, 0) - x, seen(m, 1) - y, 1.0);
   }
   o += 2 * W + Q;
-  if (spec_params_.lookahead) {
-    write_move_gains(n, o);
-    o += actions();
-  }
-  if (spec_params_.rate_map > 0) {
-    write_rate_map(n, o);
-    o += static_cast<int>(rate_map_offsets(spec_params_.rate_map).size());
-  }
-  if (spec_params_.altitude) *o = altitude_share(n);
+  write_optional(n, o, ObservationField::kSet);
+}
+
+const std::vector<ObservationField>& observation_fields() {
+  using F = ObservationField;
+  static const std::vector<ObservationField> fields = {
+      // marl.lookahead: tanh(kGainScale (R_a - R) / R) of each action (continuous: each primitive).
+      {"move_gains", F::kSet, [](const SpecParams& p) { return p.lookahead; }, [](const SpecParams& p) { return p.action.count(); }, -1, 1,
+       [](const UavEnv& e, int n, float* o) { e.write_move_gains(n, o); }},
+      // marl.rate_map = r: tanh(kGainScale (R_c - R) / R) at each cell c of rate_map_offsets(r); -1 outside the area.
+      {"rate_map", F::kSet, [](const SpecParams& p) { return p.rate_map > 0; },
+       [](const SpecParams& p) { return static_cast<int>(rate_map_offsets(p.rate_map).size()); }, -1, 1,
+       [](const UavEnv& e, int n, float* o) { e.write_rate_map(n, o); }},
+      // Dynamics that choose the altitude: (z - altitude_min_m) / (altitude_max_m - altitude_min_m).
+      {"altitude", F::kPaper | F::kSet, [](const SpecParams& p) { return p.altitude; }, [](const SpecParams&) { return 1; }, 0, 1,
+       [](const UavEnv& e, int n, float* o) { *o = e.altitude_share(n); }},
+  };
+  return fields;
 }
 
 void UavEnv::show_decided(int m, double x, double y, double z) {

@@ -76,13 +76,21 @@ const std::vector<std::array<int, 2>>& rate_map_offsets(int radius) {
   return tables[static_cast<std::size_t>(radius)];
 }
 
-ArraySpec paper_observation_spec(const ActionSpec& actions, bool altitude) {
+namespace {
+/// The optional fields of observation_fields() that `array` carries under p, appended to s.
+void add_optional(ArraySpec& s, const SpecParams& p, int array) {
+  for (const auto& f : observation_fields())
+    if ((f.arrays & array) && f.on(p)) s.add(f.name, f.size(p), f.low, f.high);
+}
+}  // namespace
+
+ArraySpec paper_observation_spec(const SpecParams& p) {
   ArraySpec s = named("obs", "paper", "float32", true);
   s.add("own_position", 2, 0, 1)                 // (x, y) / area side
       .add("users_mean_displacement", 2, -1, 1)   // mean over the users of (u - x) / area side
       .add("destination_displacement", 2, -1, 1);  // (destination - x) / area side
-  add_previous_action(s, actions);
-  if (altitude) s.add("altitude", 1, 0, 1);  // (z - altitude_min_m) / (altitude_max_m - altitude_min_m)
+  add_previous_action(s, p.action);
+  add_optional(s, p, ObservationField::kPaper);
   return s;
 }
 
@@ -115,10 +123,7 @@ ArraySpec set_observation_spec(const SpecParams& p) {
       .add("users_density", kWideGrid * kWideGrid, 0, 4)  // (4 / K) sum_k of Gaussian kernels
       .add("uavs_wide", kWideGrid * kWideGrid, 0, others)
       .add("uavs_near", kNearGrid * kNearGrid, 0, others);
-  if (p.lookahead) s.add("move_gains", p.action.count(), -1, 1);  // one per action (continuous: per primitive)
-  if (p.rate_map > 0)  // tanh(kGainScale (R_c - R) / R) at each cell c of rate_map_offsets; -1 outside the area
-    s.add("rate_map", static_cast<int>(rate_map_offsets(p.rate_map).size()), -1, 1);
-  if (p.altitude) s.add("altitude", 1, 0, 1);  // (z - altitude_min_m) / (altitude_max_m - altitude_min_m)
+  add_optional(s, p, ObservationField::kSet);  // move gains, the radio map, the altitude
   return s;
 }
 
@@ -178,7 +183,7 @@ EnvSpec make_env_spec(const SpecParams& p) {
   e.observation_kind = p.observation;
   e.state_kind = p.state;
   e.action = p.action;
-  e.paper_obs = paper_observation_spec(p.action, p.altitude);
+  e.paper_obs = paper_observation_spec(p);
   e.set_obs = set_observation_spec(p);
   e.compact_state = compact_state_spec();
   e.obs = e.observation_kind == ObservationKind::Set ? e.set_obs : e.paper_obs;

@@ -131,8 +131,7 @@ const std::vector<std::array<int, 2>>& rate_map_offsets(int radius);
 const ActionSpec& grid_actions();
 /// The paper's observation layout (bounds for any scenario): 6 reals and the one-hot previous
 /// action (11 reals under the grid model).
-/// The paper's observation; with `altitude`, its own altitude in the band appended.
-ArraySpec paper_observation_spec(const ActionSpec& actions = grid_actions(), bool altitude = false);
+
 /// What an environment's spec depends on.
 struct SpecParams {
   int agents = 0, users = 0;
@@ -146,6 +145,26 @@ struct SpecParams {
   bool altitude = false;               // the dynamics choose the altitude: the observations' altitude field
 };
 SpecParams spec_params(const Config& cfg, int agents, int users);
+
+/// The paper's observation (its 6 reals and the previous action), then the optional fields of
+/// observation_fields() that it carries under p.
+ArraySpec paper_observation_spec(const SpecParams& p);
+
+class UavEnv;
+/// An optional observation field, appended after the fixed ones of the arrays it joins when a
+/// setting turns it on: its layout and its writer in one row, the one place a new such field is
+/// written (src/env/observations.cpp; docs/extending/observation-field.md).
+struct ObservationField {
+  enum Arrays { kPaper = 1, kSet = 2 };
+  const char* name;
+  int arrays;                         // kPaper | kSet: the observations it joins
+  bool (*on)(const SpecParams&);      // whether the configuration turns it on
+  int (*size)(const SpecParams&);     // its values under p
+  float low, high;                    // its bounds
+  void (*write)(const UavEnv&, int n, float* out);  // UAV n's values into out[0 .. size - 1]
+};
+/// The optional fields, in the order they follow the fixed ones.
+const std::vector<ObservationField>& observation_fields();
 
 /// The set observation (sizes independent of K and N); bounds from the scenario.
 ArraySpec set_observation_spec(const SpecParams& p);

@@ -220,6 +220,9 @@ class UavEnv {
   void show_decided(int m, double x, double y, double z);
   /// UAV n's altitude within the dynamics' band, in [0, 1] (the observations' altitude field).
   float altitude_share(int n) const;
+  /// The optional fields of observation_fields() that `array` (ObservationField::kPaper or kSet)
+  /// carries under this environment's settings, written from `out` on.
+  void write_optional(int n, float* out, int array) const;
   void clear_decided();
   /// Where the set observation sees the UAVs: positions(), with the decided landings in place.
   const Positions& seen_positions() const { return any_decided_ ? seen_ : pos_; }

@@ -8,6 +8,7 @@
 
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/channel/fading.hpp"
+#include "skyloop/core/objective.hpp"
 #include "skyloop/channel/path_loss.hpp"
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/error.hpp"
@@ -428,11 +429,16 @@ void add_env_fields(std::vector<Field>& f) {
                    "reward: paper = eq:total_reward; objective = R-bar[t+1] - R-bar[t] (sums to the P2.2 objective) "
                    "minus the boundary and collision penalties",
                    {"paper", "objective"}, [](Config& c) -> std::string& { return c.env.reward; }));
-  f.push_back(text("env.objective",
-                   "what a mission is scored by: sum-rate = P2.2's (1/T) sum R[t]; energy-efficiency = bits per joule (kbit/J); "
-                   "weighted = R-bar - energy.weight x mean fleet propulsion power; energy = -kJ (the rate term off) "
-                   "(docs/concepts/mobility-energy.md)",
-                   {"sum-rate", "energy-efficiency", "weighted", "energy"}, [](Config& c) -> std::string& { return c.env.objective; }));
+  {
+    std::vector<std::string> names;  // the objectives' table (skyloop/core/objective.hpp): names and help
+    std::string help;
+    for (const auto& o : objectives()) {
+      names.emplace_back(o.name);
+      help += (help.empty() ? "" : "; ") + std::string(o.name) + " = " + o.help;
+    }
+    f.push_back(text("env.objective", "what a mission is scored by: " + help + " (docs/concepts/mobility-energy.md)", names,
+                     [](Config& c) -> std::string& { return c.env.objective; }));
+  }
   f.push_back(real("env.w_fea", "weight of the reachability indicator Phi_n", 0, 1e6, [](Config& c) -> double& { return c.env.w_fea; }));
   {
     Field b{"env.resample_users", Type::Boolean, "draw new users at every reset", 0, 0, {}, {}, {}};

@@ -29,13 +29,6 @@ namespace {
 bool same(double a, double b) { return std::abs(a - b) < 1e-6; }
 }  // namespace
 
-Objective parse_objective(const std::string& s) {
-  if (s == "sum-rate") return Objective::SumRate;
-  if (s == "energy-efficiency") return Objective::EnergyEfficiency;
-  if (s == "weighted") return Objective::Weighted;
-  if (s == "energy") return Objective::Energy;
-  throw InputError("env.objective = \"" + s + "\" is not allowed: allowed one of sum-rate, energy-efficiency, weighted, energy");
-}
 
 UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle) : UavEnv(cfg, std::move(oracle), make_dynamics(cfg)) {}
 

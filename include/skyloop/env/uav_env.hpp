@@ -41,6 +41,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "skyloop/core/objective.hpp"
 #include "skyloop/env/energy.hpp"
 #include "skyloop/env/dynamics.hpp"
 #include "skyloop/env/rate_oracle.hpp"
@@ -48,9 +49,6 @@
 
 namespace skyloop {
 
-/// env.objective
-enum class Objective { SumRate, EnergyEfficiency, Weighted, Energy };
-Objective parse_objective(const std::string& s);
 
 /// Users of an environment: from env.users_file if set, else K uniform users from `seed`.
 Positions make_users(const Config& cfg, int users, std::uint64_t seed);

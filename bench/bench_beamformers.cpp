@@ -32,7 +32,7 @@ static void BM_Wmmse(benchmark::State& s) { run(s, "wmmse", Config{}); }
 // Textbook WMMSE (start: RZF, tol 1e-6, cap 1000): slow in this highly correlated LoS channel.
 static void BM_WmmseRzfStart(benchmark::State& s) {
   Config cfg;
-  cfg.wmmse.init = "rzf";
+  cfg.wmmse.init = WmmseInit::Rzf;
   run(s, "wmmse", cfg);
 }
 // The paper's GA: pagmo sga, population 100, 2000 generations.
@@ -49,7 +49,7 @@ BENCHMARK(BM_Ga2000)->DenseRange(1, 8)->ArgName("Kn")->Unit(benchmark::kMillisec
 // Coordinated beamformers under the shared spectrum: one decision = one network of N UAVs, K = 12.
 static void network_run(benchmark::State& state, const std::string& method) {
   Config cfg;
-  cfg.channel.spectrum = "shared";
+  cfg.channel.spectrum = Spectrum::Shared;
   const auto bf = builtin_beamformers().create(method, cfg);
   const SystemModel model(cfg);
   std::vector<Network> nets;

@@ -151,7 +151,7 @@ BENCHMARK(BM_OptimalPaper)->Args({0, 200, 12})->Args({1, 200, 12})->ArgNames({"w
 static void BM_OptimalHeadings(benchmark::State& state) {
   Config cfg;
   cfg.trajectory.mobility = "headings";
-  const char* objectives[] = {"sum-rate", "energy-efficiency", "weighted"};
+  const Objective objectives[] = {Objective::SumRate, Objective::EnergyEfficiency, Objective::Weighted};
   cfg.env.objective = objectives[state.range(0)];
   cfg.energy.weight = 0.1;
   square_area(cfg, static_cast<double>(state.range(1)));

@@ -20,7 +20,7 @@ std::unique_ptr<LearnedBeamformer> load(const std::string& name, bool torch) {
   const std::string path = kModels + "/" + name + "/model.pt";
   if (!std::filesystem::exists(path)) return nullptr;
   Config cfg;
-  cfg.nn.inference = torch ? "torch" : "fast";
+  cfg.nn.inference = torch ? Inference::Torch : Inference::Fast;
   return LearnedBeamformer::load(path, cfg);
 }
 
@@ -67,7 +67,7 @@ void per_cluster(benchmark::State& state, const std::string& name) {
 void per_network(benchmark::State& state, const std::string& name) {
   set_torch_threads(bench_threads());
   Config cfg;
-  cfg.channel.spectrum = "shared";
+  cfg.channel.spectrum = Spectrum::Shared;
   const std::string path = kModels + "/" + name + "/model.pt";
   if (!std::filesystem::exists(path)) return state.SkipWithError("no shipped model");
   const auto bf = LearnedBeamformer::load(path, cfg);

@@ -25,7 +25,7 @@ static void train(benchmark::State& state, const std::string& model, const std::
   Config cfg;
   cfg.run.threads = t ? std::atoi(t) : 1;
   cfg.nn.model = model;
-  cfg.nn.readout = readout;
+  cfg.nn.readout = parse_choice<Readout>("nn.readout", readout);
   cfg.nn.train_samples = 64 * 4;
   cfg.nn.val_samples = 8;
   cfg.nn.test_samples = 8;
@@ -76,7 +76,7 @@ static void BM_PpoUpdateStep(benchmark::State& state) {
     b.returns.push_back(u(g));
   }
   const char* t = std::getenv("SKYLOOP_BENCH_THREADS");
-  auto nets = marl::make_ppo_networks("fast", kObs, kCritic, kHidden, 3e-4, torch::kCPU, 1, t ? std::atoi(t) : 1, kActions);
+  auto nets = marl::make_ppo_networks(PpoBackend::Fast, kObs, kCritic, kHidden, 3e-4, torch::kCPU, 1, t ? std::atoi(t) : 1, kActions);
   const marl::PpoSettings settings{0.2, 0.5, 0.03, 10.0};
   for (auto _ : state) benchmark::DoNotOptimize(nets->step(b, settings));
   auto macs = [&](int in, int out) {  // forward, weight gradient, and the input gradient past the first layer

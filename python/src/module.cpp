@@ -357,14 +357,14 @@ void bind_channel(py::module_& m) {
   py::class_<Network>(m, "Network",
                       "Every non-empty cluster of a snapshot, the cross channels and the spectrum model "
                       "(channel.spectrum): cross[i] is [K_s, L] complex, row r = h^H from cluster i's UAV to served user r.")
-      .def_property_readonly("spectrum", [](const Network& n) { return to_string(n.spectrum); })
+      .def_property_readonly("spectrum", [](const Network& n) { return std::string(name_of(n.spectrum)); })
       .def_readonly("uavs", &Network::uavs)
       .def_readonly("clusters", &Network::clusters)
       .def_readonly("served", &Network::served)
       .def_readonly("offset", &Network::offset)
       .def_readonly("cross", &Network::cross)
       .def("__repr__", [](const Network& n) {
-        return "<Network " + to_string(n.spectrum) + ", " + std::to_string(n.clusters.size()) + " clusters, " +
+        return "<Network " + std::string(name_of(n.spectrum)) + ", " + std::to_string(n.clusters.size()) + " clusters, " +
                std::to_string(n.served_count()) + " served users>";
       });
 

@@ -547,7 +547,7 @@ py::dict env_spec_dict(const EnvSpec& e) {
   d["hover"] = e.action.hover;  // the action that stays in place (an arrived UAV's only one)
   // The continuous model: commands in [-1, 1]^dims (the actions above are its primitives); 0: discrete.
   d["dims"] = e.action.dims;
-  d["observation_kind"] = to_string(e.observation_kind), d["state_kind"] = to_string(e.state_kind);
+  d["observation_kind"] = name_of(e.observation_kind), d["state_kind"] = name_of(e.state_kind);  // marl.encoder, env.state
   d["obs"] = array_spec_dict(e.obs, e.agents);
   d["state"] = array_spec_dict(e.state, e.agents);
   d["agent_context"] = array_spec_dict(e.agent_context, e.agents);

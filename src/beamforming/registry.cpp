@@ -9,29 +9,15 @@
 
 namespace skyloop {
 
-void BeamformerRegistry::add(const std::string& name, std::string description, BeamformerFactory factory) {
-  entries_[name] = Entry{std::move(description), std::move(factory)};
-}
-
 std::unique_ptr<Beamformer> BeamformerRegistry::create(const std::string& spec, const Config& cfg) const {
   const auto eq = spec.find('=');
   const std::string name = spec.substr(0, eq);
   const std::string arg = eq == std::string::npos ? "" : spec.substr(eq + 1);
   if (eq != std::string::npos && arg.empty())
     throw InputError("method '" + spec + "' has an empty argument after '=': allowed '" + name + "' or '" + name + "=ARG'");
-  const auto it = entries_.find(name);
-  if (it == entries_.end()) {
-    std::string known;
-    for (const auto& [n, e] : entries_) known += (known.empty() ? "" : ", ") + n;
-    throw InputError("method '" + spec + "' is unknown: allowed " + known);
-  }
-  return it->second.factory(cfg, arg);
-}
-
-std::vector<std::pair<std::string, std::string>> BeamformerRegistry::list() const {
-  std::vector<std::pair<std::string, std::string>> out;
-  for (const auto& [n, e] : entries_) out.emplace_back(n, e.description);
-  return out;
+  const Row* row = find(name);
+  if (!row) throw InputError(unknown(spec));
+  return row->entry(cfg, arg);
 }
 
 const std::vector<std::string>& learned_beamformer_names() {
@@ -59,7 +45,7 @@ void register_classical_beamformers(BeamformerRegistry& reg) {
   reg.add("zf", "zero forcing (pseudo-inverse), beamforming.zf_power_allocation",
           [no_arg](const Config& cfg, const std::string& arg) {
             no_arg("zf", arg);
-            return std::make_unique<ZfBeamformer>(cfg.beamforming.zf_power_allocation == "waterfilling");
+            return std::make_unique<ZfBeamformer>(cfg.beamforming.zf_power_allocation == PowerAllocation::WaterFilling);
           });
   reg.add("zfsel", "zero forcing with greedy user selection, water-filled", [no_arg](const Config&, const std::string& arg) {
     no_arg("zfsel", arg);

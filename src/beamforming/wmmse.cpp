@@ -113,21 +113,18 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
   return tr;
 }
 
-WmmseBeamformer::WmmseBeamformer(WmmseOptions opt, std::string init, int restarts, std::uint64_t seed,
+WmmseBeamformer::WmmseBeamformer(WmmseOptions opt, WmmseInit init, int restarts, std::uint64_t seed,
                                  PowerScaling scaling)
-    : opt_(opt), init_(std::move(init)), restarts_(restarts), seed_(seed), scaling_(scaling) {
-  if (init_ != "zfsel" && init_ != "rzf" && init_ != "mrt" && init_ != "random")
-    throw std::invalid_argument("wmmse.init = \"" + init_ + "\" is not allowed: allowed one of zfsel, rzf, mrt, random");
-}
+    : opt_(opt), init_(init), restarts_(restarts), seed_(seed), scaling_(scaling) {}
 
 MatrixXcd WmmseBeamformer::design(const Cluster& c) const {
   const Eigen::Index K = c.G.rows(), L = c.G.cols();
   if (K == 0) return MatrixXcd(L, 0);
   const std::uint64_t stream = derive_seed(seed_, cluster_hash(c));
-  MatrixXcd W0 = init_ == "zfsel" ? zf_select(c)
-                 : init_ == "rzf" ? rzf(c)
-                 : init_ == "mrt" ? mrt(c)
-                                  : random_beamformer(L, K, c.p_max, stream);
+  MatrixXcd W0 = init_ == WmmseInit::ZfSel ? zf_select(c)
+                 : init_ == WmmseInit::Rzf ? rzf(c)
+                 : init_ == WmmseInit::Mrt ? mrt(c)
+                                           : random_beamformer(L, K, c.p_max, stream);
   WmmseTrace best = wmmse_run(c, W0, opt_);
   for (int r = 1; r <= restarts_; ++r) {
     WmmseTrace t = wmmse_run(c, random_beamformer(L, K, c.p_max, derive_seed(stream, r)), opt_);

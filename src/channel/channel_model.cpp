@@ -36,6 +36,7 @@ class FreeSpace final : public PathLossModel {
   double p_los(const LinkGeometry&) const override { return 1.0; }
   double path_loss_db(const LinkGeometry& g, bool) const override { return -beta0_db_ + 20.0 * std::log10(g.distance_m / d0_); }
   double shadowing_std_db(const LinkGeometry&, bool) const override { return 0.0; }
+  bool paper() const override { return true; }
 
  private:
   double beta0_db_, d0_;
@@ -148,24 +149,34 @@ std::vector<std::pair<std::string, double>> link_fields(const LinkState& s) {
           {"gain", s.gain}};
 }
 
-std::unique_ptr<PathLossModel> make_path_loss(const ChannelConfig& c) {
-  if (c.pathloss == "free-space") return std::make_unique<FreeSpace>(c.beta0_db, c.d0_m);
-  if (c.pathloss == "3gpp-uma-av") return std::make_unique<UmaAv>(c.carrier_ghz);
-  if (c.pathloss == "3gpp-umi-av") return std::make_unique<UmiAv>(c.carrier_ghz);
-  if (c.pathloss == "3gpp-rma-av") return std::make_unique<RmaAv>(c.carrier_ghz);
-  if (c.pathloss == "al-hourani") {
-    const AirToGroundEnvironment* e = find_environment(c.environment);
-    if (!e) {
-      std::string names;
-      for (const auto& x : kAlHouraniEnvironments) names += (names.empty() ? "" : ", ") + std::string(x.name);
-      throw InputError("channel.environment = \"" + c.environment + "\" is unknown: allowed " + names);
-    }
-    return std::make_unique<AlHourani>(c.carrier_ghz, *e);
-  }
-  std::string names;
-  for (const auto& m : kPathLossModels) names += (names.empty() ? "" : ", ") + std::string(m.name);
-  throw InputError("channel.pathloss = \"" + c.pathloss + "\" is unknown: allowed " + names);
+const Registry<PathLossInfo>& path_loss_models() {
+  using Made = std::unique_ptr<PathLossModel>;
+  static const Registry<PathLossInfo> models(
+      "channel.pathloss = \"{}\"",
+      {
+          {"free-space", "the paper: beta0 (d0/d)^2, line of sight everywhere",
+           {0, 1e300, 0, [](const ChannelConfig& c) -> Made { return std::make_unique<FreeSpace>(c.beta0_db, c.d0_m); }}},
+          {"3gpp-uma-av", "3GPP TR 36.777 urban macro, aerial UAV (22.5 m < H <= 300 m, d_2D <= 4 km)",
+           {22.5, 300, 4000, [](const ChannelConfig& c) -> Made { return std::make_unique<UmaAv>(c.carrier_ghz); }}},
+          {"3gpp-umi-av", "3GPP TR 36.777 urban micro, aerial UAV (22.5 m < H <= 300 m, d_2D <= 4 km)",
+           {22.5, 300, 4000, [](const ChannelConfig& c) -> Made { return std::make_unique<UmiAv>(c.carrier_ghz); }}},
+          {"3gpp-rma-av", "3GPP TR 36.777 rural macro, aerial UAV (10 m < H <= 300 m, d_2D <= 10 km)",
+           {10, 300, 10000, [](const ChannelConfig& c) -> Made { return std::make_unique<RmaAv>(c.carrier_ghz); }}},
+          {"al-hourani", "Al-Hourani et al. (IEEE WCL 2014): sigmoid P_LoS in elevation, excess losses over free space",
+           {0, 1e300, 0, [](const ChannelConfig& c) -> Made {
+              const AirToGroundEnvironment* e = find_environment(c.environment);
+              if (!e) {
+                std::string names;
+                for (const auto& x : kAlHouraniEnvironments) names += (names.empty() ? "" : ", ") + std::string(x.name);
+                throw InputError("channel.environment = \"" + c.environment + "\" is unknown: allowed " + names);
+              }
+              return std::make_unique<AlHourani>(c.carrier_ghz, *e);
+            }}},
+      });
+  return models;
 }
+
+std::unique_ptr<PathLossModel> make_path_loss(const ChannelConfig& c) { return path_loss_models().at(c.pathloss).make(c); }
 
 ChannelModel::ChannelModel(const Config& cfg)
     : antennas_(cfg.channel.antennas),
@@ -174,12 +185,13 @@ ChannelModel::ChannelModel(const Config& cfg)
       user_height_(cfg.scenario.user_height_m),
       beta0_(db_to_linear(cfg.channel.beta0_db)),
       d0_(cfg.channel.d0_m),
-      free_space_(cfg.channel.pathloss == "free-space"),
       shadowing_(cfg.channel.shadowing),
       correlation_(cfg.channel.correlation_m),
       seed_(cfg.channel.seed),
       path_loss_(make_path_loss(cfg.channel)),
-      fading_(make_fading(cfg.channel)) {}
+      fading_(make_fading(cfg.channel)) {
+  free_space_ = path_loss_->paper();
+}
 
 bool ChannelModel::paper() const { return free_space_ && !fading_->random(); }
 

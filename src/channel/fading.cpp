@@ -28,7 +28,7 @@ class NoFading final : public FadingModel {
 class Rician final : public FadingModel {
  public:
   explicit Rician(const ChannelConfig& c)
-      : elevation_(c.rician_k == "elevation"), k_db_(c.rician_k_db), k_min_db_(c.rician_k_min_db), k_max_db_(c.rician_k_max_db),
+      : elevation_(c.rician_k == RicianK::Elevation), k_db_(c.rician_k_db), k_min_db_(c.rician_k_min_db), k_max_db_(c.rician_k_max_db),
         fast_slots_(c.fast_slots) {}
   int fast_slots() const override { return fast_slots_; }
   bool random() const override { return true; }
@@ -67,12 +67,18 @@ std::pair<double, double> unit_normals(std::uint64_t key) {
   return {r * std::cos(2.0 * kPi * u2), r * std::sin(2.0 * kPi * u2)};
 }
 
-std::unique_ptr<FadingModel> make_fading(const ChannelConfig& c) {
-  if (c.fading == "none") return std::make_unique<NoFading>();
-  if (c.fading == "rician") return std::make_unique<Rician>(c);
-  std::string allowed;
-  for (const auto& m : kFadingModels) allowed += (allowed.empty() ? "" : ", ") + std::string(m.name);
-  throw InputError("channel.fading = \"" + c.fading + "\" is unknown: allowed " + allowed);
+const Registry<FadingFactory>& fading_models() {
+  static const Registry<FadingFactory> models(
+      "channel.fading = \"{}\"",
+      {
+          {"none", "the paper: h = sqrt(beta) a, no scattered part",
+           [](const ChannelConfig&) -> std::unique_ptr<FadingModel> { return std::make_unique<NoFading>(); }},
+          {"rician", "Rician with K per channel.rician_k; Rayleigh on NLoS links",
+           [](const ChannelConfig& c) -> std::unique_ptr<FadingModel> { return std::make_unique<Rician>(c); }},
+      });
+  return models;
 }
+
+std::unique_ptr<FadingModel> make_fading(const ChannelConfig& c) { return fading_models().at(c.fading)(c); }
 
 }  // namespace skyloop

@@ -20,7 +20,7 @@ SystemModel::SystemModel(const Config& cfg)
       noise_(cfg.channel.noise_w()),
       area_x_(cfg.scenario.area_x_m),
       area_y_(cfg.scenario.area_y_m),
-      spectrum_(parse_spectrum(cfg.channel.spectrum)),
+      spectrum_(cfg.channel.spectrum),
       channel_(std::make_shared<ChannelModel>(cfg)),
       scenario_(cfg.scenario) {}
 
@@ -216,7 +216,7 @@ std::vector<Cluster> SystemModel::clusters(const Snapshot& s) const { return clu
 
 Positions draw_users(const ScenarioConfig& s, int users, Rng& rng) {
   Positions p(users, 2);
-  const bool hotspot = s.user_layout == "hotspot" || (s.user_layout == "mixed" && rng.uniform() < 0.5);
+  const bool hotspot = s.user_layout == UserLayout::Hotspot || (s.user_layout == UserLayout::Mixed && rng.uniform() < 0.5);
   if (!hotspot) {
     for (int k = 0; k < users; ++k) p(k, 0) = rng.uniform(0, s.area_x_m), p(k, 1) = rng.uniform(0, s.area_y_m);
     return p;

@@ -15,42 +15,6 @@
 
 namespace skyloop {
 
-std::vector<std::string> learner_names() {
-  std::vector<std::string> out;
-  for (const auto& l : learners()) out.push_back(l.name);
-  return out;
-}
-
-std::string learner_names_text() {
-  std::string out;
-  for (const auto& l : learners()) out += (out.empty() ? "" : ", ") + l.name;
-  return out;
-}
-
-const LearnerInfo& find_learner(const std::string& name) {
-  for (const auto& l : learners())
-    if (l.name == name) return l;
-  throw InputError("marl.algo = \"" + name + "\" is unknown: allowed " + learner_names_text());
-}
-
-std::string to_string(PowerScaling s) { return s == PowerScaling::Full ? "full" : "cap"; }
-
-Spectrum parse_spectrum(const std::string& s) {
-  if (s == "orthogonal") return Spectrum::Orthogonal;
-  if (s == "orthogonal-split") return Spectrum::OrthogonalSplit;
-  if (s == "shared") return Spectrum::Shared;
-  throw InputError("channel.spectrum = \"" + s + "\" is not allowed: allowed one of orthogonal, orthogonal-split, shared");
-}
-
-std::string to_string(Spectrum s) {
-  switch (s) {
-    case Spectrum::Orthogonal: return "orthogonal";
-    case Spectrum::OrthogonalSplit: return "orthogonal-split";
-    case Spectrum::Shared: return "shared";
-  }
-  return "orthogonal";
-}
-
 namespace {
 using Type = Field::Type;
 std::string format_number(double x) { return format_double(x); }
@@ -244,7 +208,7 @@ long lattice_steps(double v, double slot_s, double pitch) {
 }
 
 void finalise(Config& c) {
-  if (c.trajectory.layout == "generated") generate_layout(c);
+  if (c.trajectory.layout == LayoutSource::Generated) generate_layout(c);
   validate(c);
 }
 
@@ -285,7 +249,7 @@ void validate(const Config& c) {
   if (kmin > kmax)
     throw InputError("env.users_min = " + std::to_string(kmin) + " is above env.users_max = " + std::to_string(kmax) +
                      ": allowed users_min <= users_max (0 = scenario.users)");
-  if (kmin != kmax && c.env.state == "paper")
+  if (kmin != kmax && c.env.state == StateKind::Paper)
     throw InputError("env.users_min = " + std::to_string(kmin) + " and env.users_max = " + std::to_string(kmax) +
                      " give layouts of different sizes, but env.state = \"paper\" has 4N + 2K reals: allowed env.state = \"compact\"");
   if (!(c.scenario.user_height_m < c.scenario.altitude_m))
@@ -319,14 +283,14 @@ void validate(const Config& c) {
   if (c.marl.reserve_slack >= 0 && !dynamics->lattice())
     throw InputError("marl.reserve_slack = " + std::to_string(c.marl.reserve_slack) + " is not allowed with trajectory.mobility = " +
                      c.trajectory.mobility + ": allowed -1 (ways home are planned on the lattice of " + lattice_dynamics_names() + ")");
-  if (c.marl.rate_map > 0 && c.marl.encoder != "set")
-    throw InputError("marl.rate_map = " + std::to_string(c.marl.rate_map) + " with marl.encoder = \"" + c.marl.encoder +
+  if (c.marl.rate_map > 0 && c.marl.encoder != ObservationKind::Set)
+    throw InputError("marl.rate_map = " + std::to_string(c.marl.rate_map) + " with marl.encoder = \"" + std::string(name_of(c.marl.encoder)) +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
-  if (c.marl.lookahead && c.marl.encoder != "set")
-    throw InputError("marl.lookahead = true with marl.encoder = \"" + c.marl.encoder +
+  if (c.marl.lookahead && c.marl.encoder != ObservationKind::Set)
+    throw InputError("marl.lookahead = true with marl.encoder = \"" + std::string(name_of(c.marl.encoder)) +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation stays the paper's)");
-  if (c.marl.sequential && c.marl.encoder != "set")
-    throw InputError("marl.sequential = true with marl.encoder = \"" + c.marl.encoder +
+  if (c.marl.sequential && c.marl.encoder != ObservationKind::Set)
+    throw InputError("marl.sequential = true with marl.encoder = \"" + std::string(name_of(c.marl.encoder)) +
                      "\": allowed with marl.encoder = \"set\" (the paper's 11-real observation shows no other UAV)");
   if (c.marl.sequential && find_learner(c.marl.algo).core != LearnerInfo::Core::Ppo)
     throw InputError("marl.sequential = true with marl.algo = \"" + c.marl.algo +
@@ -347,14 +311,14 @@ void validate(const Config& c) {
     // An objective that scores propulsion energy needs a power model that is not identically 0
     // (eq. (12) of Zeng et al. with P0 = Pi = 0 and no parasite term is 0 at every speed).
     const auto& e = c.energy;
-    const bool kinetic = e.acceleration == "kinetic" && e.mass_kg > 0;
-    const bool zero = e.model == "none" || (e.p0_w == 0 && e.pi_w == 0 && e.d0 * e.rho_kgm3 * e.solidity * e.rotor_area_m2 == 0 && !kinetic);
-    const std::string why = e.model == "none" ? "energy.model = \"none\"" : "energy.p0_w = 0, energy.pi_w = 0 and no parasite or kinetic term";
-    if (zero && (c.env.objective == "energy-efficiency" || c.env.objective == "energy"))
-      throw InputError("env.objective = \"" + c.env.objective + "\" with " + why +
+    const bool kinetic = e.acceleration == Acceleration::Kinetic && e.mass_kg > 0;
+    const bool zero = e.model == Propulsion::None || (e.p0_w == 0 && e.pi_w == 0 && e.d0 * e.rho_kgm3 * e.solidity * e.rotor_area_m2 == 0 && !kinetic);
+    const std::string why = e.model == Propulsion::None ? "energy.model = \"none\"" : "energy.p0_w = 0, energy.pi_w = 0 and no parasite or kinetic term";
+    if (zero && (c.env.objective == Objective::EnergyEfficiency || c.env.objective == Objective::Energy))
+      throw InputError("env.objective = \"" + std::string(name_of(c.env.objective)) + "\" with " + why +
                        ": no move costs energy, so every mission scores the same; allowed energy.model = \"rotary-wing\" "
                        "with a power above 0, or env.objective = \"sum-rate\"");
-    if (zero && c.env.objective == "weighted" && e.weight > 0)
+    if (zero && c.env.objective == Objective::Weighted && e.weight > 0)
       throw InputError("env.objective = \"weighted\" with energy.weight = " + format_double(e.weight) + " and " + why +
                        ": the energy term is 0 whatever the UAVs do; allowed energy.model = \"rotary-wing\" with a power above 0, "
                        "or env.objective = \"sum-rate\"");

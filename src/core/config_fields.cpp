@@ -8,7 +8,6 @@
 
 #include "skyloop/beamforming/registry.hpp"
 #include "skyloop/channel/fading.hpp"
-#include "skyloop/core/objective.hpp"
 #include "skyloop/channel/path_loss.hpp"
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/error.hpp"
@@ -50,6 +49,16 @@ Field text(std::string key, std::string help, std::vector<std::string> choices, 
   return f;
 }
 
+/// A closed choice: its allowed values and their help come from the enum's table
+/// (skyloop/core/choices.hpp); `lead` says what the field decides.
+template <class E, class Ref>
+Field choice(std::string key, const std::string& lead, Ref ref) {
+  Field f{key, Type::Text, lead + ": " + choice_help<E>(), 0, 0, choice_names<E>(), {}, {}};
+  f.get = [ref](const Config& c) { return FieldValue(std::string(name_of(ref(const_cast<Config&>(c))))); };
+  f.set = [ref, key](Config& c, const FieldValue& v) { ref(c) = parse_choice<E>(key, std::get<std::string>(v)); };
+  return f;
+}
+
 template <class Ref>
 Field points(std::string key, std::string help, Ref ref) {
   Field f{std::move(key), Type::Points, std::move(help), 0, 0, {}, {}, {}};
@@ -84,8 +93,8 @@ void add_run_and_scenario_fields(std::vector<Field>& f) {
                       [](Config& c) -> int& { return c.scenario.uavs; }));
   f.push_back(integer("scenario.users", "number of users K in random snapshots", 1, kMaxUsers,
                       [](Config& c) -> int& { return c.scenario.users; }));
-  f.push_back(text("scenario.user_layout", "where users stand: uniform in the area (the paper), in hotspots, or mixed (each layout one of the two, even odds)",
-                   {"uniform", "hotspot", "mixed"}, [](Config& c) -> std::string& { return c.scenario.user_layout; }));
+  f.push_back(choice<UserLayout>("scenario.user_layout", "where users stand",
+                                 [](Config& c) -> UserLayout& { return c.scenario.user_layout; }));
   f.push_back(integer("scenario.hotspots", "hotspot centres (uniform in the area) when user_layout = hotspot", 1, 1000,
                       [](Config& c) -> int& { return c.scenario.hotspots; }));
   f.push_back(real("scenario.hotspot_radius_m", "std of a hotspot user's offset from its centre, per axis (m)", 0.1, 1e5,
@@ -113,15 +122,12 @@ void add_channel_fields(std::vector<Field>& f) {
                    [](Config& c) -> double& { return c.channel.d0_m; }));
   f.push_back(real("channel.coverage_radius_m", "coverage radius R_c on the 3-D UAV-user distance (m)", 1, 1e5,
                    [](Config& c) -> double& { return c.channel.coverage_radius_m; }));
-  f.push_back(text("channel.spectrum",
-                   "orthogonal: each UAV its own full band (the paper); orthogonal-split: N bands of 1/N; shared: one band, "
-                   "inter-cluster interference",
-                   {"orthogonal", "orthogonal-split", "shared"}, [](Config& c) -> std::string& { return c.channel.spectrum; }));
+  f.push_back(choice<Spectrum>("channel.spectrum", "how the UAVs share the spectrum",
+                               [](Config& c) -> Spectrum& { return c.channel.spectrum; }));
   {
-    std::vector<std::string> models, environments;
-    for (const auto& m : kPathLossModels) models.emplace_back(m.name);
+    std::vector<std::string> environments;
     for (const auto& e : kAlHouraniEnvironments) environments.emplace_back(e.name);
-    f.push_back(text("channel.pathloss", "air-to-ground path loss and LoS model (docs/concepts/channels.md)", models,
+    f.push_back(text("channel.pathloss", "air-to-ground path loss and LoS model (docs/concepts/channels.md)", path_loss_models().names(),
                      [](Config& c) -> std::string& { return c.channel.pathloss; }));
     f.push_back(text("channel.environment", "al-hourani's environment (its S-curve and excess losses)", environments,
                      [](Config& c) -> std::string& { return c.channel.environment; }));
@@ -134,17 +140,10 @@ void add_channel_fields(std::vector<Field>& f) {
     b.set = [](Config& c, const FieldValue& v) { c.channel.shadowing = std::get<bool>(v); };
     f.push_back(std::move(b));
   }
-  {
-    std::vector<std::string> fading;  // the fading models' table (skyloop/channel/fading.hpp): names and help
-    std::string help;
-    for (const auto& m : kFadingModels) {
-      fading.emplace_back(m.name);
-      help += (help.empty() ? "" : "; ") + std::string(m.name) + ": " + std::string(m.description);
-    }
-    f.push_back(text("channel.fading", "small-scale fading (" + help + ")", fading, [](Config& c) -> std::string& { return c.channel.fading; }));
-  }
-  f.push_back(text("channel.rician_k", "Rician K: fixed = rician_k_db; elevation = k_min_db at 0 deg rising linearly in dB to k_max_db at 90 deg",
-                   {"fixed", "elevation"}, [](Config& c) -> std::string& { return c.channel.rician_k; }));
+  // The fading models' registry (skyloop/channel/fading.hpp): names and help.
+  f.push_back(text("channel.fading", "small-scale fading (" + fading_models().help_text() + ")", fading_models().names(),
+                   [](Config& c) -> std::string& { return c.channel.fading; }));
+  f.push_back(choice<RicianK>("channel.rician_k", "Rician K of a LoS link", [](Config& c) -> RicianK& { return c.channel.rician_k; }));
   f.push_back(real("channel.rician_k_db", "Rician K-factor of a LoS link (dB)", -50, 100,
                    [](Config& c) -> double& { return c.channel.rician_k_db; }));
   f.push_back(real("channel.rician_k_min_db", "Rician K at elevation 0 (dB)", -50, 100,
@@ -164,18 +163,10 @@ void add_channel_fields(std::vector<Field>& f) {
 /// The fields of [beamforming], [wmmse], [ga], in the order `config show` writes them.
 void add_beamforming_fields(std::vector<Field>& f) {
   // [beamforming]
-  {
-    Field s{"beamforming.power_scaling", Type::Text,
-            "scaling onto the budget: full = sqrt(P/||W||^2), cap = the paper's min(1, sqrt(P/||W||^2))",
-            0, 0, {"full", "cap"}, {}, {}};
-    s.get = [](const Config& c) { return FieldValue(to_string(c.beamforming.power_scaling)); };
-    s.set = [](Config& c, const FieldValue& v) {
-      c.beamforming.power_scaling = std::get<std::string>(v) == "cap" ? PowerScaling::Cap : PowerScaling::Full;
-    };
-    f.push_back(std::move(s));
-  }
-  f.push_back(text("beamforming.zf_power_allocation", "ZF power over the users: waterfilling (optimal for ZF) or equal",
-                   {"waterfilling", "equal"}, [](Config& c) -> std::string& { return c.beamforming.zf_power_allocation; }));
+  f.push_back(choice<PowerScaling>("beamforming.power_scaling", "scaling onto the budget",
+                                   [](Config& c) -> PowerScaling& { return c.beamforming.power_scaling; }));
+  f.push_back(choice<PowerAllocation>("beamforming.zf_power_allocation", "ZF power over the users",
+                                      [](Config& c) -> PowerAllocation& { return c.beamforming.zf_power_allocation; }));
   // [wmmse]
   f.push_back(real("wmmse.tolerance", "stop when an iteration raises the sum rate by less than this fraction", 0, 1,
                    [](Config& c) -> double& { return c.wmmse.tolerance; }));
@@ -183,14 +174,12 @@ void add_beamforming_fields(std::vector<Field>& f) {
                       [](Config& c) -> int& { return c.wmmse.max_iterations; }));
   f.push_back(integer("wmmse.restarts", "extra WMMSE runs from random starting points (best is kept)", 0, 1000,
                       [](Config& c) -> int& { return c.wmmse.restarts; }));
-  f.push_back(text("wmmse.init", "starting point of the first WMMSE run", {"zfsel", "rzf", "mrt", "random"},
-                   [](Config& c) -> std::string& { return c.wmmse.init; }));
+  f.push_back(choice<WmmseInit>("wmmse.init", "starting point of the first WMMSE run", [](Config& c) -> WmmseInit& { return c.wmmse.init; }));
   f.push_back(real("wmmse.bisection_tolerance", "relative tolerance on the power budget in the multiplier bisection",
                    1e-16, 1e-2, [](Config& c) -> double& { return c.wmmse.bisection_tolerance; }));
   // [ga]
-  f.push_back(text("ga.algorithm", "pagmo2 global optimiser behind the 'ga' beamformer",
-                   {"sga", "de", "sade", "pso", "cmaes", "xnes", "gwo", "bee_colony"},
-                   [](Config& c) -> std::string& { return c.ga.algorithm; }));
+  f.push_back(choice<GaAlgorithm>("ga.algorithm", "pagmo2 global optimiser behind the 'ga' beamformer",
+                                  [](Config& c) -> GaAlgorithm& { return c.ga.algorithm; }));
   f.push_back(integer("ga.population", "population size", 8, 100000, [](Config& c) -> int& { return c.ga.population; }));
   f.push_back(integer("ga.generations", "generations per decision (the paper's 2000)", 1, 1e7,
                       [](Config& c) -> int& { return c.ga.generations; }));
@@ -209,14 +198,12 @@ void add_trajectory_and_energy_fields(std::vector<Field>& f) {
                    [](Config& c) -> double& { return c.trajectory.d_min_m; }));
   f.push_back(integer("trajectory.t_max", "mission horizon T_max (slots)", 1, 10000,
                       [](Config& c) -> int& { return c.trajectory.t_max; }));
-  f.push_back(text("trajectory.layout",
-                   "given: starts and destinations as listed; generated: scenario.uavs UAVs on the D_fly lattice from layout_seed",
-                   {"given", "generated"}, [](Config& c) -> std::string& { return c.trajectory.layout; }));
+  f.push_back(choice<LayoutSource>("trajectory.layout", "where the starts and destinations come from",
+                                   [](Config& c) -> LayoutSource& { return c.trajectory.layout; }));
   f.push_back(integer("trajectory.layout_seed", "seed of a generated layout", 0, 4611686018427387904.0,
                       [](Config& c) -> std::uint64_t& { return c.trajectory.layout_seed; }));
-  std::string mobility_help;  // the models' own lines (skyloop/env/dynamics.hpp's registry)
-  for (const auto& m : dynamics_models()) mobility_help += (mobility_help.empty() ? "" : "; ") + std::string(m.name) + ": " + m.description;
-  f.push_back(text("trajectory.mobility", mobility_help + " (docs/concepts/mobility-energy.md)", dynamics_names(),
+  // The models' own lines (skyloop/env/dynamics.hpp's registry).
+  f.push_back(text("trajectory.mobility", dynamics_models().help_text() + " (docs/concepts/mobility-energy.md)", dynamics_models().names(),
                    [](Config& c) -> std::string& { return c.trajectory.mobility; }));
   f.push_back(reals("trajectory.speeds_mps",
                     "headings: speeds along the axes (m/s; 0 = hover; diagonals fly sqrt(2) x), each x slot_s a multiple of D_fly",
@@ -227,10 +214,8 @@ void add_trajectory_and_energy_fields(std::vector<Field>& f) {
                    [](Config& c) -> double& { return c.trajectory.v_max_mps; }));
   f.push_back(real("trajectory.a_max_mps2", "continuous: the largest acceleration (m/s^2): |V[t] - V[t-1]| <= a_max slot_s", 0.01, 1000,
                    [](Config& c) -> double& { return c.trajectory.a_max_mps2; }));
-  f.push_back(text("trajectory.command",
-                   "continuous: what a command u in [-1, 1]^2 sets: velocity (onto the disc of v_max_mps) or polar (a speed "
-                   "v_max (u0 + 1) / 2 and a turn of u1 x the widest a_max allows from the last heading)",
-                   {"velocity", "polar"}, [](Config& c) -> std::string& { return c.trajectory.command; }));
+  f.push_back(choice<Command>("trajectory.command", "continuous: what a command u in [-1, 1]^2 sets",
+                              [](Config& c) -> Command& { return c.trajectory.command; }));
   f.push_back(real("trajectory.arrival_m", "continuous: a UAV this close to its destination at a slot's end has arrived (m)", 0.001,
                    1000, [](Config& c) -> double& { return c.trajectory.arrival_m; }));
   f.push_back(real("trajectory.climb_m", "grid-3d: the altitude one climb or descent changes in a slot (m)", 0.1, 1000,
@@ -240,8 +225,7 @@ void add_trajectory_and_energy_fields(std::vector<Field>& f) {
   f.push_back(real("trajectory.altitude_max_m", "grid-3d: the highest altitude a UAV may fly at (m); levels of climb_m from altitude_min_m",
                    1, 1e4, [](Config& c) -> double& { return c.trajectory.altitude_max_m; }));
   // [energy]
-  f.push_back(text("energy.model", "propulsion power: rotary-wing (Zeng, Xu, Zhang, IEEE TWC 2019, eq. (12)) or none",
-                   {"rotary-wing", "none"}, [](Config& c) -> std::string& { return c.energy.model; }));
+  f.push_back(choice<Propulsion>("energy.model", "propulsion power", [](Config& c) -> Propulsion& { return c.energy.model; }));
   f.push_back(real("energy.p0_w", "blade profile power in hover P0 (W)", 0, 1e5, [](Config& c) -> double& { return c.energy.p0_w; }));
   f.push_back(real("energy.pi_w", "induced power in hover Pi (W)", 0, 1e5, [](Config& c) -> double& { return c.energy.pi_w; }));
   f.push_back(real("energy.u_tip_mps", "rotor blade tip speed U_tip (m/s)", 1, 1000, [](Config& c) -> double& { return c.energy.u_tip_mps; }));
@@ -251,8 +235,8 @@ void add_trajectory_and_energy_fields(std::vector<Field>& f) {
   f.push_back(real("energy.rho_kgm3", "air density rho (kg/m^3)", 0.01, 10, [](Config& c) -> double& { return c.energy.rho_kgm3; }));
   f.push_back(real("energy.solidity", "rotor solidity s", 0, 1, [](Config& c) -> double& { return c.energy.solidity; }));
   f.push_back(real("energy.rotor_area_m2", "rotor disc area A (m^2)", 0, 1000, [](Config& c) -> double& { return c.energy.rotor_area_m2; }));
-  f.push_back(text("energy.acceleration", "acceleration term: none (Zeng's steady-flight model) or kinetic (+ m (V[t]^2 - V[t-1]^2) / 2 when speeding up)",
-                   {"none", "kinetic"}, [](Config& c) -> std::string& { return c.energy.acceleration; }));
+  f.push_back(choice<Acceleration>("energy.acceleration", "acceleration term",
+                                   [](Config& c) -> Acceleration& { return c.energy.acceleration; }));
   f.push_back(real("energy.mass_kg", "aircraft mass m for the kinetic term (kg)", 0, 1e5, [](Config& c) -> double& { return c.energy.mass_kg; }));
   f.push_back(real("energy.budget_j", "propulsion energy budget per UAV over a mission (J; 0 = none)", 0, 1e12,
                    [](Config& c) -> double& { return c.energy.budget_j; }));
@@ -269,9 +253,7 @@ void add_nn_fields(std::vector<Field>& f) {
                       [](Config& c) -> int& { return c.nn.hidden; }));
   f.push_back(integer("nn.layers", "message-passing layers L_g (GNN)", 1, 16, [](Config& c) -> int& { return c.nn.layers; }));
   f.push_back(real("nn.learning_rate", "Adam learning rate", 1e-7, 1, [](Config& c) -> double& { return c.nn.learning_rate; }));
-  f.push_back(text("nn.lr_schedule",
-                   "learning rate over training: constant (the paper) or cosine (from nn.learning_rate per step down to 1% of it at the last epoch)",
-                   {"constant", "cosine"}, [](Config& c) -> std::string& { return c.nn.lr_schedule; }));
+  f.push_back(choice<LrSchedule>("nn.lr_schedule", "learning rate over training", [](Config& c) -> LrSchedule& { return c.nn.lr_schedule; }));
   f.push_back(real("nn.weight_decay", "Adam weight decay (L2)", 0, 1, [](Config& c) -> double& { return c.nn.weight_decay; }));
   f.push_back(integer("nn.epochs", "training epochs E_gnn", 1, 100000, [](Config& c) -> int& { return c.nn.epochs; }));
   f.push_back(integer("nn.batch_samples", "snapshots per mini-batch (all their clusters form the batch)", 1, 1000000,
@@ -281,28 +263,17 @@ void add_nn_fields(std::vector<Field>& f) {
   f.push_back(integer("nn.test_samples", "held-out test snapshots", 1, 100000000, [](Config& c) -> int& { return c.nn.test_samples; }));
   f.push_back(integer("nn.data_seed", "seed of the train/validation/test sets (disjoint streams)", 0, 4611686018427387904.0,
                       [](Config& c) -> std::uint64_t& { return c.nn.data_seed; }));
-  f.push_back(text("nn.device", "torch device for training and inference", {"cpu", "cuda"},
-                   [](Config& c) -> std::string& { return c.nn.device; }));
+  f.push_back(choice<ComputeDevice>("nn.device", "torch device for training and inference", [](Config& c) -> ComputeDevice& { return c.nn.device; }));
   f.push_back(real("nn.grad_clip", "max global gradient norm (0 = no clipping)", 0, 1e6,
                    [](Config& c) -> double& { return c.nn.grad_clip; }));
-  f.push_back(text("nn.readout", "per-user output: direct = 2L reals (the paper), structured = (lambda, power) of the optimal structure",
-                   {"direct", "structured"}, [](Config& c) -> std::string& { return c.nn.readout; }));
-  f.push_back(text("nn.features",
-                   "what the encoders see of each channel: linear = [Re h, Im h] scaled (the paper), log = its direction with the norm compressed logarithmically (for channels whose gains span decades: 3GPP, Al-Hourani)",
-                   {"linear", "log"}, [](Config& c) -> std::string& { return c.nn.features; }));
-  f.push_back(text("nn.precision",
-                   "arithmetic of a served model: float32 (as trained) or float64 (same weights, a reference for numerical checks)",
-                   {"float32", "float64"}, [](Config& c) -> std::string& { return c.nn.precision; }));
-  f.push_back(text("nn.inference",
-                   "serving path of a learned model: fast (fused float32 kernels, same weights; the ignn and float64 are served by "
-                   "torch) or torch (LibTorch, the training path and the reference)",
-                   {"fast", "torch"}, [](Config& c) -> std::string& { return c.nn.inference; }));
-  f.push_back(text("nn.selection",
-                   "what a served per-cluster model's beams become: soft = the network's beams (as trained); ranked = the "
-                   "network chooses whom to serve, ZF how: in the order of the rates the network's beams give them, each user "
-                   "joins while it raises the water-filled ZF sum rate (at most L); the result or the network's own beams, "
-                   "whichever has the higher sum rate",
-                   {"soft", "ranked"}, [](Config& c) -> std::string& { return c.nn.selection; }));
+  f.push_back(choice<Readout>("nn.readout", "per-user output", [](Config& c) -> Readout& { return c.nn.readout; }));
+  f.push_back(choice<Features>("nn.features", "what the encoders see of each channel",
+                               [](Config& c) -> Features& { return c.nn.features; }));
+  f.push_back(choice<Precision>("nn.precision", "arithmetic of a served model", [](Config& c) -> Precision& { return c.nn.precision; }));
+  f.push_back(choice<Inference>("nn.inference", "serving path of a learned model",
+                                [](Config& c) -> Inference& { return c.nn.inference; }));
+  f.push_back(choice<Selection>("nn.selection", "what a served per-cluster model's beams become",
+                                [](Config& c) -> Selection& { return c.nn.selection; }));
 }
 
 /// The fields of [marl], in the order `config show` writes them.
@@ -324,15 +295,10 @@ void add_marl_fields(std::vector<Field>& f) {
   f.push_back(real("marl.entropy_coef", "entropy coefficient c2", 0, 1e3, [](Config& c) -> double& { return c.marl.entropy_coef; }));
   f.push_back(integer("marl.rollout", "steps per environment between PPO updates", 1, 1e6, [](Config& c) -> int& { return c.marl.rollout; }));
   f.push_back(integer("marl.minibatches", "PPO mini-batches per epoch", 1, 4096, [](Config& c) -> int& { return c.marl.minibatches; }));
-  f.push_back(text("marl.minibatch",
-                   "what PPO's minibatches are drawn in: samples = agent samples shuffled one by one (the paper's and the "
-                   "MAPPO reference's); steps = whole steps, every agent of a step in the same minibatch (TorchRL's layout), "
-                   "so that the critic's state columns the agents of a step share (the set encoder's compact state) are "
-                   "multiplied once per step, forward and backward (the fast backend)",
-                   {"samples", "steps"}, [](Config& c) -> std::string& { return c.marl.minibatch; }));
+  f.push_back(choice<MinibatchLayout>("marl.minibatch", "what PPO's minibatches are drawn in",
+                                [](Config& c) -> MinibatchLayout& { return c.marl.minibatch; }));
   f.push_back(integer("marl.epochs", "PPO epochs per update", 1, 1000, [](Config& c) -> int& { return c.marl.epochs; }));
-  f.push_back(text("marl.critic_state", "MAPPO critic input: global state or agent-specific state", {"global", "agent"},
-                   [](Config& c) -> std::string& { return c.marl.critic_state; }));
+  f.push_back(choice<CriticState>("marl.critic_state", "MAPPO critic input", [](Config& c) -> CriticState& { return c.marl.critic_state; }));
   {
     Field b{"marl.value_norm", Type::Boolean, "normalise value targets with running mean and variance", 0, 0, {}, {}, {}};
     b.get = [](const Config& c) { return FieldValue(c.marl.value_norm); };
@@ -357,10 +323,8 @@ void add_marl_fields(std::vector<Field>& f) {
                       [](Config& c) -> bool& { return c.marl.action_mask; }));
   f.push_back(boolean("marl.shield", "collision shield: mask a move that brings two UAVs within D_min when another move avoids it",
                       [](Config& c) -> bool& { return c.marl.shield; }));
-  f.push_back(text("marl.encoder",
-                   "agent network input: mlp = the paper's 11-real observation; set = permutation-invariant encoder over "
-                   "user and neighbour displacements (any K and N)",
-                   {"mlp", "set"}, [](Config& c) -> std::string& { return c.marl.encoder; }));
+  f.push_back(choice<ObservationKind>("marl.encoder", "agent network input",
+                                      [](Config& c) -> ObservationKind& { return c.marl.encoder; }));
   f.push_back(boolean("marl.lookahead",
                       "the set observation also holds each move's one-slot change of the sum rate R, the others held in place "
                       "(what Greedy ranks moves by; asks the rate oracle for A + 1 position sets per agent and slot, memoised); needs marl.encoder = set",
@@ -377,17 +341,14 @@ void add_marl_fields(std::vector<Field>& f) {
                       "they chose in the pass before (their intentions), so the first to choose sees the others too (an actor "
                       "pass per UAV per pass; in training the earlier passes sample and only the last is trained on); 1 = one pass",
                       1, kMaxSequentialPasses, [](Config& c) -> int& { return c.marl.sequential_passes; }));
-  f.push_back(text("marl.lr_schedule",
-                   "the learners' learning rate over training: constant, or linear = from marl.learning_rate down to 0 "
-                   "at total_steps (CleanRL's anneal_lr)",
-                   {"constant", "linear"}, [](Config& c) -> std::string& { return c.marl.lr_schedule; }));
+  f.push_back(choice<StepSchedule>("marl.lr_schedule", "the learners' learning rate (from marl.learning_rate) over training",
+                                   [](Config& c) -> StepSchedule& { return c.marl.lr_schedule; }));
   f.push_back(real("marl.average_decay",
                    "PPO: a Polyak average of the actor's weights, a <- d a + (1 - d) w after every optimiser step, is what "
                    "validation scores and policy.pt holds (training goes on with w; last.pt holds both); 0 = off, below 1",
                    0, 1, [](Config& c) -> double& { return c.marl.average_decay; }));
-  f.push_back(text("marl.entropy_schedule",
-                   "PPO's entropy bonus over training: constant, or linear = from marl.entropy_coef down to 0 at total_steps",
-                   {"constant", "linear"}, [](Config& c) -> std::string& { return c.marl.entropy_schedule; }));
+  f.push_back(choice<StepSchedule>("marl.entropy_schedule", "PPO's entropy bonus (from marl.entropy_coef) over training",
+                                   [](Config& c) -> StepSchedule& { return c.marl.entropy_schedule; }));
   f.push_back(integer("marl.rate_map",
                       "the set observation also holds the radio map around the UAV: the sum rate R with the UAV at each lattice "
                       "point within this many D_fly steps, the others held in place (2 r (r + 1) cells, asked of the rate oracle "
@@ -397,20 +358,15 @@ void add_marl_fields(std::vector<Field>& f) {
                       "slots of slack the reachability mask keeps in reserve; the collision shield may spend them to let a UAV "
                       "wait or step aside (0 = none)",
                       0, 1000, [](Config& c) -> int& { return c.marl.slack_margin; }));
-  f.push_back(text("marl.mask_clearance",
-                   "what the reachability mask counts the moves home around: none = nothing (through every UAV); parked = the "
-                   "UAVs that have arrived (they hover at their destinations); destinations = every other UAV's destination, "
-                   "then the parked UAVs, where the slots left allow it (lattice models)",
-                   {"none", "parked", "destinations"}, [](Config& c) -> std::string& { return c.marl.mask_clearance; }));
+  f.push_back(choice<Clearance>("marl.mask_clearance", "what the reachability mask counts the moves home around",
+                                [](Config& c) -> Clearance& { return c.marl.mask_clearance; }));
   f.push_back(integer("marl.reserve_slack",
                       "a UAV with at most this much slack left reserves its way home in space and time, and the UAVs after it in "
                       "the shield's order plan around the ways reserved; an execution setting: validation, eval and deployment fly "
                       "it, training samples without it (lattice models; -1 = none)",
                       -1, 1000, [](Config& c) -> int& { return c.marl.reserve_slack; }));
-  f.push_back(text("marl.backend",
-                   "PPO learners' network library: fast = fused float32 passes on the CPU (the default); torch = LibTorch's "
-                   "autograd (the reference; needed for nn.device = cuda)",
-                   {"fast", "torch"}, [](Config& c) -> std::string& { return c.marl.backend; }));
+  f.push_back(choice<PpoBackend>("marl.backend", "PPO learners' network library",
+                                 [](Config& c) -> PpoBackend& { return c.marl.backend; }));
   f.push_back(integer("marl.val_layouts", "held-out validation layouts scored at every checkpoint; policy.pt = the best (0 = the last policy)",
                       0, 100000, [](Config& c) -> int& { return c.marl.val_layouts; }));
   f.push_back(integer("marl.checkpoint_every", "updates between checkpoints", 1, 1e7, [](Config& c) -> int& { return c.marl.checkpoint_every; }));
@@ -425,20 +381,9 @@ void add_env_fields(std::vector<Field>& f) {
   f.push_back(real("env.w_arr", "reward per newly arrived UAV", 0, 1e6, [](Config& c) -> double& { return c.env.w_arr; }));
   f.push_back(real("env.w_bud", "penalty per boundary event", 0, 1e6, [](Config& c) -> double& { return c.env.w_bud; }));
   f.push_back(real("env.w_col", "penalty per UAV in a collision", 0, 1e6, [](Config& c) -> double& { return c.env.w_col; }));
-  f.push_back(text("env.reward",
-                   "reward: paper = eq:total_reward; objective = R-bar[t+1] - R-bar[t] (sums to the P2.2 objective) "
-                   "minus the boundary and collision penalties",
-                   {"paper", "objective"}, [](Config& c) -> std::string& { return c.env.reward; }));
-  {
-    std::vector<std::string> names;  // the objectives' table (skyloop/core/objective.hpp): names and help
-    std::string help;
-    for (const auto& o : objectives()) {
-      names.emplace_back(o.name);
-      help += (help.empty() ? "" : "; ") + std::string(o.name) + " = " + o.help;
-    }
-    f.push_back(text("env.objective", "what a mission is scored by: " + help + " (docs/concepts/mobility-energy.md)", names,
-                     [](Config& c) -> std::string& { return c.env.objective; }));
-  }
+  f.push_back(choice<Reward>("env.reward", "reward", [](Config& c) -> Reward& { return c.env.reward; }));
+  f.push_back(choice<Objective>("env.objective", "what a mission is scored by (docs/concepts/mobility-energy.md)",
+                                [](Config& c) -> Objective& { return c.env.objective; }));
   f.push_back(real("env.w_fea", "weight of the reachability indicator Phi_n", 0, 1e6, [](Config& c) -> double& { return c.env.w_fea; }));
   {
     Field b{"env.resample_users", Type::Boolean, "draw new users at every reset", 0, 0, {}, {}, {}};
@@ -451,10 +396,8 @@ void add_env_fields(std::vector<Field>& f) {
   f.push_back(integer("env.users_max", "most users of a sampled layout (0 = scenario.users)", 0, 4096,
                       [](Config& c) -> int& { return c.env.users_max; }));
   {
-    f.push_back(text("env.state",
-                     "global state for critics and mixers: paper = every UAV, user and destination (4N + 2K reals); "
-                     "compact = 8 x 8 density maps of users, UAVs and pending destinations (194 reals, any N and K)",
-                     {"paper", "compact"}, [](Config& c) -> std::string& { return c.env.state; }));
+    f.push_back(choice<StateKind>("env.state", "global state for critics and mixers",
+                                  [](Config& c) -> StateKind& { return c.env.state; }));
     Field u{"env.users_file", Type::Text, "TOML file with users = [[x, y], ...] (empty: uniform users from the seed)", 0, 0, {}, {}, {}};
     u.get = [](const Config& c) { return FieldValue(c.env.users_file); };
     u.set = [](Config& c, const FieldValue& v) { c.env.users_file = std::get<std::string>(v); };

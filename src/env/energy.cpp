@@ -8,8 +8,8 @@
 namespace skyloop {
 
 PropulsionModel::PropulsionModel(const EnergyConfig& c)
-    : enabled_(c.model == "rotary-wing"),
-      kinetic_(c.acceleration == "kinetic"),
+    : enabled_(c.model == Propulsion::RotaryWing),
+      kinetic_(c.acceleration == Acceleration::Kinetic),
       p0_(c.p0_w),
       pi_(c.pi_w),
       u_tip_(c.u_tip_mps),

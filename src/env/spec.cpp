@@ -99,8 +99,8 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
   p.agents = agents, p.users = users;
   p.area_x = cfg.scenario.area_x_m, p.area_y = cfg.scenario.area_y_m, p.d_fly = cfg.trajectory.d_fly_m;
   p.t_max = cfg.trajectory.t_max;
-  p.state = parse_state_kind(cfg.env.state);
-  p.observation = parse_observation_kind(cfg.marl.encoder);
+  p.state = cfg.env.state;
+  p.observation = cfg.marl.encoder;
   const auto dynamics = make_dynamics(cfg);
   p.action = dynamics->actions();
   p.lookahead = cfg.marl.lookahead;
@@ -148,8 +148,8 @@ namespace {
 /// space, the kinds), as text: two parameter sets share a spec exactly when they make the same one,
 /// whichever parameters they differ in.
 std::string spec_text(const EnvSpec& e) {
-  std::string s = std::to_string(e.agents) + " " + std::to_string(e.users) + " " + to_string(e.observation_kind) + " " +
-                  to_string(e.state_kind) + " " + std::to_string(e.action.hover) + " " + std::to_string(e.action.dims) + ":";
+  std::string s = std::to_string(e.agents) + " " + std::to_string(e.users) + " " + name_of(e.observation_kind) + " " +
+                  name_of(e.state_kind) + " " + std::to_string(e.action.hover) + " " + std::to_string(e.action.dims) + ":";
   for (const auto& a : e.action.names) s += a + ",";
   for (const ArraySpec* a : {&e.obs, &e.state, &e.agent_context, &e.agent_state, &e.action_mask, &e.paper_obs, &e.set_obs, &e.compact_state}) {
     s += "\n" + a->name + " " + a->kind + " " + a->dtype + (a->per_agent ? " agent" : " env");
@@ -205,21 +205,6 @@ EnvSpec make_env_spec(const SpecParams& p) {
   for (const auto& a : e.action.names) e.action_mask.add(a, 1, 0, 1);
   return e;
 }
-
-ObservationKind parse_observation_kind(const std::string& encoder) {
-  if (encoder == "mlp") return ObservationKind::Paper;
-  if (encoder == "set") return ObservationKind::Set;
-  throw InputError("marl.encoder = \"" + encoder + "\" is not allowed: allowed one of: mlp, set");
-}
-
-StateKind parse_state_kind(const std::string& state) {
-  if (state == "paper") return StateKind::Paper;
-  if (state == "compact") return StateKind::Compact;
-  throw InputError("env.state = \"" + state + "\" is not allowed: allowed one of: paper, compact");
-}
-
-std::string to_string(ObservationKind k) { return k == ObservationKind::Set ? "set" : "paper"; }
-std::string to_string(StateKind k) { return k == StateKind::Compact ? "compact" : "paper"; }
 
 const std::vector<InfoField>& step_info_fields() {
   static const std::vector<InfoField> fields = {

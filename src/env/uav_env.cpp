@@ -44,12 +44,12 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, std::share
       w_fea_(cfg.env.w_fea),
       dynamics_(std::move(dynamics)),
       propulsion_(cfg.energy),
-      objective_kind_(parse_objective(cfg.env.objective)),
+      objective_kind_(cfg.env.objective),
       bandwidth_hz_(cfg.channel.bandwidth_hz),
       w_energy_(cfg.energy.weight),
       budget_j_(cfg.energy.budget_j),
-      compact_(cfg.env.state == "compact"),
-      objective_reward_(cfg.env.reward == "objective"),
+      compact_(cfg.env.state == StateKind::Compact),
+      objective_reward_(cfg.env.reward == Reward::Objective),
       spec_params_(spec_params(cfg, n_, 0)),
       oracle_(std::move(oracle)) {
   // Every UAV starts and ends at the scenario's altitude H (the third column; dynamics that
@@ -217,7 +217,7 @@ void UavEnv::require_table_memory(const Config& cfg, int envs) {
 }
 
 void UavEnv::require_table_memory(const Config& cfg, const Dynamics& dynamics, int envs) {
-  const bool clearance = cfg.marl.mask_clearance != "none" && dynamics.lattice();
+  const bool clearance = cfg.marl.mask_clearance != Clearance::None && dynamics.lattice();
   const auto& t = cfg.trajectory;
   double cells = 0, most = 0;  // every UAV's lattice points, and the largest lattice's
   for (const Point2& s : t.starts) {
@@ -234,9 +234,9 @@ void UavEnv::require_table_memory(const Config& cfg, const Dynamics& dynamics, i
   const double bytes = shared + per_env * envs, limit = memory_limit_bytes();
   if (limit <= 0 || bytes <= limit) return;  // the message only when it fails
   const std::string model = "trajectory.mobility = \"" + dynamics.name() + "\"";
-  const std::string tables = headings && clearance ? model + " and marl.mask_clearance = \"" + cfg.marl.mask_clearance + "\""
+  const std::string tables = headings && clearance ? model + " and marl.mask_clearance = \"" + name_of(cfg.marl.mask_clearance) + "\""
                              : headings            ? model
-                                                   : "marl.mask_clearance = \"" + cfg.marl.mask_clearance + "\"";
+                                                   : "marl.mask_clearance = \"" + std::string(name_of(cfg.marl.mask_clearance)) + "\"";
   const int uavs = static_cast<int>(t.starts.size());
   require_memory(bytes,
                  "the distance tables of " + tables + " over " + std::to_string(uavs) + " UAVs' lattices of " +

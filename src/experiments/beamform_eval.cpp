@@ -63,7 +63,7 @@ std::string beamform_eval_csv(const std::vector<BeamformEvalRow>& rows, const Co
   for (const auto& r : rows) {
     out += fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.seed, r.sample, r.method, r.uavs, r.users,
                        cfg.channel.antennas, format_double(cfg.channel.p_max_dbm), format_double(cfg.channel.noise_dbm),
-                       cfg.channel.spectrum,
+                       name_of(cfg.channel.spectrum),
                        r.clusters, r.served_users, format_double(r.sum_rate), format_double(r.latency_ms));
   }
   return out;

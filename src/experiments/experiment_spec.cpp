@@ -20,12 +20,6 @@ namespace skyloop {
 
 std::string source_dir() { return data_dir(); }
 
-const std::vector<std::string>& experiment_kinds() {
-  static const std::vector<std::string> kinds = {"models", "beamform_sweep", "marl_training", "planning_users", "trajectories",
-                                                 "generalisation", "rate_energy", "altitude_profile"};
-  return kinds;
-}
-
 namespace {
 
 const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "config", "set",   "models", "reuse_shipped",
@@ -204,11 +198,7 @@ ExperimentSpec parse_experiment(const std::string& text, const std::string& sour
          "both (one curve per series value) or neither");
   } else if (s.kind == "altitude_profile") {
     need(!s.values.empty(), "experiment.values", "a list of channel.pathloss models");
-    for (const auto& v : s.values) {
-      std::vector<std::string> models;
-      for (const auto& m : kPathLossModels) models.emplace_back(m.name);
-      check_in(source, "experiment.values", v, models);
-    }
+    for (const auto& v : s.values) check_in(source, "experiment.values", v, path_loss_models().names());
     need(s.users.size() == 1, "experiment.users", "one user count K");
     need(!s.planners.empty(), "experiment.planners", "a list of planners (optimal: the exact optimum)");
     for (const auto& p : s.planners) check_in(source, "experiment.planners", p, builtin_planners().names());

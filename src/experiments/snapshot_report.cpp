@@ -45,7 +45,7 @@ SnapshotReport evaluate_snapshot(const Config& cfg, const Snapshot& s, const Bea
   const std::vector<MatrixXcd> W = bf.design_network(net);
   check_network_output(bf, net, W);
   const auto powers = user_powers(net, W);
-  r.spectrum = to_string(net.spectrum);
+  r.spectrum = name_of(net.spectrum);
   for (Eigen::Index n = 0; n < s.uavs.rows(); ++n) {
     ClusterReport c;
     c.uav = static_cast<int>(n);
@@ -87,7 +87,7 @@ std::string snapshot_json(const SnapshotReport& r, const Config& cfg) {
   j["settings"] = {{"antennas", cfg.channel.antennas},       {"altitude_m", cfg.scenario.altitude_m},
                    {"p_max_dbm", cfg.channel.p_max_dbm},     {"noise_dbm", cfg.channel.noise_dbm},
                    {"coverage_radius_m", cfg.channel.coverage_radius_m},
-                   {"power_scaling", to_string(cfg.beamforming.power_scaling)}, {"spectrum", cfg.channel.spectrum},
+                   {"power_scaling", name_of(cfg.beamforming.power_scaling)}, {"spectrum", name_of(cfg.channel.spectrum)},
                    {"pathloss", cfg.channel.pathloss}, {"fading", cfg.channel.fading}, {"fast_slots", cfg.channel.fast_slots}};
   j["users"] = json::array();
   for (const auto& u : r.users) {

@@ -75,36 +75,25 @@ struct SumRateProblem {
 
 pagmo::algorithm make_algorithm(const GaOptions& o, std::size_t dim, unsigned seed) {
   const auto gen = static_cast<unsigned>(o.generations);
-  if (o.algorithm == "sga")
-    return pagmo::algorithm(pagmo::sga(gen, 0.9, 15.0, 1.0 / static_cast<double>(dim), 20.0, 2u, "sbx",
-                                       "polynomial", "tournament", seed));
-  if (o.algorithm == "de") return pagmo::algorithm(pagmo::de(gen, 0.8, 0.9, 2u, 1e-12, 1e-12, seed));
-  if (o.algorithm == "sade") return pagmo::algorithm(pagmo::sade(gen, 2u, 1u, 1e-12, 1e-12, false, seed));
-  if (o.algorithm == "pso")
-    return pagmo::algorithm(pagmo::pso(gen, 0.7298, 2.05, 2.05, 0.5, 5u, 2u, 4u, false, seed));
-  if (o.algorithm == "cmaes")
-    return pagmo::algorithm(pagmo::cmaes(gen, -1, -1, -1, -1, 0.5, 1e-12, 1e-12, false, true, seed));
-  if (o.algorithm == "xnes")
-    return pagmo::algorithm(pagmo::xnes(gen, -1, -1, -1, -1, 1e-12, 1e-12, false, true, seed));
-  if (o.algorithm == "gwo") return pagmo::algorithm(pagmo::gwo(gen, seed));
-  if (o.algorithm == "bee_colony") return pagmo::algorithm(pagmo::bee_colony(gen, 20u, seed));
-  throw InputError("ga.algorithm = \"" + o.algorithm + "\" is not allowed");
+  switch (o.algorithm) {
+    case GaAlgorithm::Sga:
+      return pagmo::algorithm(pagmo::sga(gen, 0.9, 15.0, 1.0 / static_cast<double>(dim), 20.0, 2u, "sbx",
+                                         "polynomial", "tournament", seed));
+    case GaAlgorithm::De: return pagmo::algorithm(pagmo::de(gen, 0.8, 0.9, 2u, 1e-12, 1e-12, seed));
+    case GaAlgorithm::Sade: return pagmo::algorithm(pagmo::sade(gen, 2u, 1u, 1e-12, 1e-12, false, seed));
+    case GaAlgorithm::Pso: return pagmo::algorithm(pagmo::pso(gen, 0.7298, 2.05, 2.05, 0.5, 5u, 2u, 4u, false, seed));
+    case GaAlgorithm::Cmaes:
+      return pagmo::algorithm(pagmo::cmaes(gen, -1, -1, -1, -1, 0.5, 1e-12, 1e-12, false, true, seed));
+    case GaAlgorithm::Xnes: return pagmo::algorithm(pagmo::xnes(gen, -1, -1, -1, -1, 1e-12, 1e-12, false, true, seed));
+    case GaAlgorithm::Gwo: return pagmo::algorithm(pagmo::gwo(gen, seed));
+    case GaAlgorithm::BeeColony: return pagmo::algorithm(pagmo::bee_colony(gen, 20u, seed));
+  }
+  throw std::logic_error("make_algorithm: an enumerator without a case");
 }
 
 }  // namespace
 
-const std::vector<std::string>& ga_algorithms() {
-  static const std::vector<std::string> names{"sga", "de", "sade", "pso", "cmaes", "xnes", "gwo", "bee_colony"};
-  return names;
-}
-
 GaBeamformer::GaBeamformer(GaOptions opt) : opt_(std::move(opt)) {
-  const auto& names = ga_algorithms();
-  if (std::find(names.begin(), names.end(), opt_.algorithm) == names.end()) {
-    std::string allowed;
-    for (const auto& n : names) allowed += (allowed.empty() ? "" : ", ") + n;
-    throw InputError("ga.algorithm = \"" + opt_.algorithm + "\" is not allowed: allowed one of " + allowed);
-  }
   if (opt_.population < 8)
     throw InputError("ga.population = " + std::to_string(opt_.population) + " is out of range: allowed >= 8");
   if (opt_.generations < 1)
@@ -127,7 +116,7 @@ MatrixXcd GaBeamformer::design(const Cluster& c) const {
 void register_ga_beamformers(BeamformerRegistry& reg) {
   reg.add("ga", "pagmo2 global optimiser (default sga = the paper's GA); 'ga=pso' etc. picks another",
           [](const Config& cfg, const std::string& arg) {
-            GaOptions o{arg.empty() ? cfg.ga.algorithm : arg, cfg.ga.population, cfg.ga.generations, cfg.run.seed,
+            GaOptions o{arg.empty() ? cfg.ga.algorithm : parse_choice<GaAlgorithm>("ga=NAME's NAME", arg), cfg.ga.population, cfg.ga.generations, cfg.run.seed,
                         cfg.beamforming.power_scaling};
             return std::make_unique<GaBeamformer>(o);
           });

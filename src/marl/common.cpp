@@ -118,7 +118,7 @@ void Encoder::write(const UavEnv& env, int n, float* out) const {
 
 Encoder encoder_of(const Config& cfg, bool context) {
   Encoder e;
-  e.set = cfg.marl.encoder == "set";
+  e.set = cfg.marl.encoder == ObservationKind::Set;
   e.context = context && !e.set;
   e.threads = resolve_threads(cfg.run.threads);
   e.asks_oracle = e.set && (cfg.marl.lookahead || cfg.marl.rate_map > 0);
@@ -196,7 +196,7 @@ nlohmann::json Run::resume(const Config& cfg, const std::string& size_key, int s
   if (old.value("algo", "") != cfg.marl.algo || old.value("hidden", 0) != cfg.marl.hidden || old.value(size_key, 0) != size)
     throw InputError("--resume: '" + last + "' holds a " + old.value("algo", std::string("?")) +
                      " run of other sizes: allowed the same algo, hidden size and scenario as the config");
-  if (old.value("backend", std::string("torch")) != learner_backend(cfg))
+  if (old.value("backend", std::string("torch")) != name_of(learner_backend(cfg)))
     throw InputError("--resume: '" + last + "' was trained with marl.backend = \"" + old.value("backend", std::string("torch")) +
                      "\": allowed the same backend as the run it continues");
   const std::int64_t done = old.value("env_steps", std::int64_t{0});
@@ -298,8 +298,8 @@ MarlTrainResult Run::finish(const Config& cfg, const MarlTrainOptions& opt, cons
   return result;
 }
 
-std::string learner_backend(const Config& cfg) {
-  return find_learner(cfg.marl.algo).core == LearnerInfo::Core::Ppo ? cfg.marl.backend : "torch";
+PpoBackend learner_backend(const Config& cfg) {
+  return find_learner(cfg.marl.algo).core == LearnerInfo::Core::Ppo ? cfg.marl.backend : PpoBackend::Torch;
 }
 
 torch::Device device_of(const Config& cfg) { return nn::resolve_device(cfg.nn.device); }

@@ -55,7 +55,7 @@ Encoder encoder_of(const Config& cfg, bool context);
 /// (linear; a function of the steps alone, so --resume continues it).
 struct Schedule {
   bool linear = false;
-  static Schedule of(const std::string& name) { return Schedule{name == "linear"}; }
+  static Schedule of(StepSchedule s) { return Schedule{s == StepSchedule::Linear}; }
   double factor(std::int64_t steps, std::int64_t total) const {
     return linear ? std::max(0.0, 1.0 - static_cast<double>(steps) / static_cast<double>(std::max<std::int64_t>(1, total))) : 1.0;
   }
@@ -136,9 +136,9 @@ std::string metrics_header();
 std::string metrics_row(std::uint64_t seed, std::int64_t steps, const EpisodeStats& e, const LearnerLog& log, double steps_per_s);
 
 torch::Device device_of(const Config& cfg);
-/// The network library a run of cfg trains with: marl.backend for the PPO learners, "torch" for
+/// The network library a run of cfg trains with: marl.backend for the PPO learners, torch for
 /// the value-decomposition ones (recorded in the policy header as "backend").
-std::string learner_backend(const Config& cfg);
+PpoBackend learner_backend(const Config& cfg);
 
 /// What every learner needs before its loop: torch threads set, the run's paths (checked for
 /// --resume), the device, and M environments on the shared training scenario. `check`, when

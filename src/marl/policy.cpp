@@ -75,15 +75,12 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   impl->safety = safety_options(trained);
   impl->enc.sequential = trained.marl.sequential;  // the UAVs choose one after another, as trained
   impl->enc.passes = trained.marl.sequential ? trained.marl.sequential_passes : 1;
-  impl->command = trained.trajectory.command;
+  impl->command = name_of(trained.trajectory.command);
   const int hidden = meta.value("hidden", 0), obs = meta.value("obs_dim", 0), uavs = meta.value("uavs", 0);
   const std::string encoder = meta.value("encoder", "mlp");
-  if (encoder != "mlp" && encoder != "set")
-    throw InputError("policy '" + path + "' names encoder '" + encoder + "': allowed mlp, set");
-  impl->enc.set = encoder == "set";
-  const LearnerInfo* learner = nullptr;
-  for (const auto& l : learners())
-    if (l.name == impl->algo) learner = &l;
+  impl->enc.set = parse_choice<ObservationKind>("policy '" + path + "''s encoder", encoder) == ObservationKind::Set;
+  const auto* row = learners().find(impl->algo);
+  const LearnerInfo* learner = row ? &row->entry : nullptr;
   if (!learner) throw InputError("policy '" + path + "' names algo '" + impl->algo + "': allowed " + learner_names_text());
   const bool q_based = learner->acts_by_q();
   impl->q_based = q_based;

@@ -47,7 +47,7 @@ CriticReader CriticReader::of(const Config& cfg, const Encoder& encoder) {
   CriticReader r;
   r.encoder = encoder;
   if (find_learner(cfg.marl.algo).local_critic) r.input = Input::LocalObservation;
-  else r.input = cfg.marl.critic_state == "global" ? Input::GlobalState : Input::AgentState;
+  else r.input = cfg.marl.critic_state == CriticState::Global ? Input::GlobalState : Input::AgentState;
   return r;
 }
 
@@ -386,7 +386,7 @@ UpdateStats update(const Rollout& r, PpoNetworks& nets, RunningStats& value_norm
 
   const PpoSettings settings{m.clip, m.value_coef, m.entropy_coef * entropy_factor, m.grad_clip};
   // marl.minibatch = steps: minibatches of whole steps, a step's N agents in consecutive rows.
-  const int group = m.minibatch == "steps" ? r.N : 1;
+  const int group = m.minibatch == MinibatchLayout::Steps ? r.N : 1;
   const std::size_t units = S / static_cast<std::size_t>(group);  // agent samples or steps
   const int rows = group * static_cast<int>(std::max<std::size_t>(1, units / static_cast<std::size_t>(m.minibatches)));
   b.share = group > 1 && r.critic_shared ? group : 1;
@@ -486,7 +486,7 @@ MarlTrainResult train_ppo(const Config& cfg, const MarlTrainOptions& opt) {
   std::string metrics = metrics_header();
   auto meta = [&] {
     return nlohmann::json{{"format", kFormat}, {"version", kVersion}, {"algo", m.algo}, {"uavs", N},
-                          {"obs_dim", obs_width}, {"encoder", m.encoder}, {"backend", m.backend},
+                          {"obs_dim", obs_width}, {"encoder", name_of(m.encoder)}, {"backend", name_of(m.backend)},
                           {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).dynamics().actions().names},
                           {"hover", vec.env(0).hover()}, {"dims", C},
                           {"critic_input", critic.name()}, {"critic_dim", critic_width},

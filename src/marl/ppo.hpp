@@ -180,7 +180,7 @@ class PpoNetworks : public Learned {
 /// `actions` is the actor's output width: the discrete actions, or 2 x the continuous command's size.
 /// `critic_observation` (0 or obs_width): the critic's first input columns are the observation
 /// (Minibatch::critic_observation, which each step's batch must match).
-std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
+std::unique_ptr<PpoNetworks> make_ppo_networks(PpoBackend backend, int obs_width, int critic_width, int hidden,
                                                double learning_rate, const torch::Device& device, std::uint64_t seed,
                                                int threads = 1, int actions = kGridActions, int critic_observation = 0);
 

@@ -418,14 +418,13 @@ class FastPpo final : public PpoNetworks {
 
 }  // namespace
 
-std::unique_ptr<PpoNetworks> make_ppo_networks(const std::string& backend, int obs_width, int critic_width, int hidden,
+std::unique_ptr<PpoNetworks> make_ppo_networks(PpoBackend backend, int obs_width, int critic_width, int hidden,
                                                double learning_rate, const torch::Device& device, std::uint64_t seed,
                                                int threads, int actions, int critic_observation) {
   if (critic_observation != 0 && (critic_observation != obs_width || critic_width < obs_width))
     throw std::logic_error("make_ppo_networks: the critic reads the whole observation or none of it");
   auto nets = initial_nets(obs_width, critic_width, hidden, actions, seed);
-  if (backend == "torch") return std::make_unique<TorchPpo>(std::move(nets), learning_rate, device, critic_observation);
-  if (backend != "fast") throw InputError("marl.backend = \"" + backend + "\" is not allowed: allowed one of fast, torch");
+  if (backend == PpoBackend::Torch) return std::make_unique<TorchPpo>(std::move(nets), learning_rate, device, critic_observation);
   if (device.is_cuda())
     throw InputError("marl.backend = \"fast\" runs on the CPU: with nn.device = \"cuda\" set marl.backend = \"torch\"");
   return std::make_unique<FastPpo>(std::move(nets), learning_rate, threads, critic_observation);

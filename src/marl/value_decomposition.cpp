@@ -278,7 +278,7 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
                           {"obs_dim", vec.env(0).observation_size()}, {"context_dim", D - vec.env(0).observation_size()},
                           {"mobility", cfg.trajectory.mobility}, {"actions", vec.env(0).dynamics().actions().names},
                           {"hover", vec.env(0).hover()},
-                          {"state_dim", S}, {"hidden", m.hidden}, {"backend", "torch"}, {"encoder", m.encoder},
+                          {"state_dim", S}, {"hidden", m.hidden}, {"backend", "torch"}, {"encoder", name_of(m.encoder)},
                           {"mixer_embed", m.mixer_embed}, {"env_steps", steps}, {"grad_steps", core.grad_steps},
                           {"episodes", episodes}, {"config", to_toml(cfg)}};
   };

@@ -26,12 +26,12 @@ const ArchiveKind& checkpoint_kind() {
 void save_checkpoint(const std::string& path, const ModelInfo& info, const TrainingState& state, BeamNetImpl& model,
                      torch::optim::Optimizer* optimizer) {
   nlohmann::json meta = {{"model", info.model},             {"antennas", info.antennas},
-                         {"hidden", info.hidden},           {"layers", info.layers}, {"readout", info.readout},
+                         {"hidden", info.hidden},           {"layers", info.layers}, {"readout", name_of(info.readout)},
                          {"feature_scale", info.feature_scale}, {"parameters", info.parameters},
                          {"epoch", state.epoch},            {"step", state.step},
                          {"best_epoch", state.best_epoch},  {"best_val_sum_rate", state.best_val},
                          {"config", info.config_toml}};
-  if (info.features != "linear") meta["features"] = info.features;  // absent: linear (files before it)
+  if (info.features != Features::Linear) meta["features"] = name_of(info.features);  // absent: linear (files before it)
   torch::serialize::OutputArchive archive;
   torch::serialize::OutputArchive params;
   model.save(params);
@@ -55,8 +55,8 @@ LoadedCheckpoint load_checkpoint(const std::string& path, const torch::Device& d
     out.info.antennas = meta.at("antennas").get<int>();
     out.info.hidden = meta.at("hidden").get<int>();
     out.info.layers = meta.at("layers").get<int>();
-    out.info.readout = meta.value("readout", std::string("direct"));
-    out.info.features = meta.value("features", std::string("linear"));
+    out.info.readout = parse_choice<Readout>("the checkpoint's readout", meta.value("readout", std::string("direct")));
+    out.info.features = parse_choice<Features>("the checkpoint's features", meta.value("features", std::string("linear")));
     out.info.feature_scale = meta.at("feature_scale").get<double>();
     out.info.parameters = meta.at("parameters").get<std::int64_t>();
     out.info.config_toml = meta.at("config").get<std::string>();
@@ -71,8 +71,8 @@ LoadedCheckpoint load_checkpoint(const std::string& path, const torch::Device& d
   out.info.best_val_sum_rate = out.state.best_val;
   try {
     out.model = make_model(out.info.model, out.info.antennas, out.info.hidden, out.info.layers,
-                           parse_readout(out.info.readout));
-    out.model->set_features(parse_features(out.info.features));
+                           out.info.readout);
+    out.model->set_features(out.info.features);
     torch::serialize::InputArchive params;
     archive.read("model", params);
     out.model->load(params);

@@ -376,8 +376,8 @@ Model::~Model() = default;
 
 std::unique_ptr<Model> Model::build(const ModelInfo& info, const Params& p) {
   auto m = std::make_unique<Impl>();
-  m->structured = info.readout == "structured";
-  m->log_features = info.features == "log";
+  m->structured = info.readout == Readout::Structured;
+  m->log_features = info.features == Features::Log;
   m->antennas = info.antennas;
   m->feature_scale = static_cast<float>(info.feature_scale);
   const int L = info.antennas, d = info.hidden, out = m->structured ? 2 : 2 * L;

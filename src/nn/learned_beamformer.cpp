@@ -99,13 +99,13 @@ std::unique_ptr<LearnedBeamformer> LearnedBeamformer::load(const std::string& pa
                      ": allowed a model trained for the configured L");
   ck.model->eval();
   // The fast path serves float32 on the CPU; float64 (a reference) and CUDA stay with LibTorch.
-  if (cfg.nn.inference == "fast" && cfg.nn.precision == "float32" && impl->device.is_cpu())
+  if (cfg.nn.inference == Inference::Fast && cfg.nn.precision == Precision::Float32 && impl->device.is_cpu())
     impl->fast = nn::fast::Model::build(ck.info, parameters_of(*ck.model));
-  if (cfg.nn.precision == "float64") {
+  if (cfg.nn.precision == Precision::Float64) {
     impl->dtype = torch::kFloat64;
     ck.model->to(torch::kFloat64);
   }
-  impl->ranked = cfg.nn.selection == "ranked";
+  impl->ranked = cfg.nn.selection == Selection::Ranked;
   if (impl->ranked && ck.model->network())
     throw InputError("nn.selection = \"ranked\" is not allowed for the " + ck.info.model +
                      " model (its beams are designed for the whole network): allowed soft");

@@ -68,22 +68,6 @@ torch::Tensor MlpImpl::forward(const torch::Tensor& x, const Graph& g) {
   return final_ ? h : torch::relu(norm(h, 2));
 }
 
-Readout parse_readout(const std::string& s) {
-  if (s == "direct") return Readout::Direct;
-  if (s == "structured") return Readout::Structured;
-  throw std::invalid_argument("nn.readout = \"" + s + "\" is not allowed: allowed one of direct, structured");
-}
-
-std::string to_string(Readout r) { return r == Readout::Direct ? "direct" : "structured"; }
-
-Features parse_features(const std::string& s) {
-  if (s == "linear") return Features::Linear;
-  if (s == "log") return Features::Log;
-  throw std::invalid_argument("nn.features = \"" + s + "\" is not allowed: allowed one of linear, log");
-}
-
-std::string to_string(Features f) { return f == Features::Linear ? "linear" : "log"; }
-
 torch::Tensor encode_features(const torch::Tensor& x, Features f) {
   if (f == Features::Linear) return x;
   const auto r = x.norm(2, -1, true);

@@ -10,6 +10,7 @@
 #include <memory>
 #include <string>
 
+#include "skyloop/core/choices.hpp"
 #include "torch_fwd.hpp"
 
 namespace skyloop::nn {
@@ -73,9 +74,7 @@ TORCH_MODULE(Mlp);
 ///    p = softmax over the cluster's users. This is the known structure of the sum-rate-optimal
 ///    beamformer (it spans MRT, RZF and ZF, and switches users off with p_k -> 0), so the network
 ///    only has to choose 2 numbers per user. Solved in double precision.
-enum class Readout { Direct, Structured };
-Readout parse_readout(const std::string& s);
-std::string to_string(Readout r);
+// Readout: the enum of nn.readout (skyloop/core/choices.hpp).
 /// Head outputs per user: 2L (direct) or 2 (structured).
 int64_t head_width(Readout r, int64_t antennas);
 /// Structured readout: head [U, 2], x [U, 2L] -> beamformers [U, 2L] with sum_k ||w_k||^2 = 1.
@@ -88,9 +87,7 @@ torch::Tensor structured_beams(const torch::Tensor& head, const torch::Tensor& x
 ///    set's RMS still moves the input by O(1), where under the 3GPP and Al-Hourani channels the
 ///    linear features of far or shadowed users are ~1e-3 of the near ones'. Zero stays zero.
 /// Readouts that use the channel (structured) always read the linear x.
-enum class Features { Linear, Log };
-Features parse_features(const std::string& s);
-std::string to_string(Features f);
+// Features: the enum of nn.features (skyloop/core/choices.hpp).
 /// x [..., 2L] -> the encoders' input of the same shape.
 torch::Tensor encode_features(const torch::Tensor& x, Features f);
 
@@ -200,6 +197,6 @@ std::shared_ptr<BeamNetImpl> make_model(const std::string& name, int64_t antenna
 
 /// The device `nn.device` names ("cpu" or "cuda"); "cuda" without a visible GPU (or in a LibTorch
 /// without CUDA) throws InputError. Read by the beamformers' training and serving and the learners.
-torch::Device resolve_device(const std::string& name);
+torch::Device resolve_device(ComputeDevice device);
 
 }  // namespace skyloop::nn

@@ -39,8 +39,8 @@ void set_torch_threads(int threads) {
 }
 
 namespace nn {
-torch::Device resolve_device(const std::string& name) {
-  if (name == "cuda") {
+torch::Device resolve_device(ComputeDevice device) {
+  if (device == ComputeDevice::Cuda) {
     if (!torch::cuda::is_available())
       throw InputError("nn.device = \"cuda\" is not available (this LibTorch has no CUDA, or no GPU is visible): allowed cpu");
     return torch::Device(torch::kCUDA);
@@ -78,7 +78,7 @@ nlohmann::json reference_rates(const Config& cfg, const std::vector<Network>& ne
   BeamformerRegistry classical;
   register_classical_beamformers(classical);
   std::vector<const char*> names{"mrt", "zf", "zfsel", "wmmse"};
-  if (parse_spectrum(cfg.channel.spectrum) == Spectrum::Shared) names.insert(names.end(), {"crzf", "nwmmse"});
+  if (cfg.channel.spectrum == Spectrum::Shared) names.insert(names.end(), {"crzf", "nwmmse"});
   for (const char* name : names) out[name] = mean_network_rate(*classical.create(name, cfg), nets, cfg.run.threads);
   return out;
 }
@@ -180,8 +180,8 @@ void BeamformerTraining::make_model() {
   info_.feature_scale = 1.0 / train_.channel_rms();
   info_.config_toml = to_toml(cfg_);
   torch::manual_seed(cfg_.run.seed);
-  model_ = nn::make_model(info_.model, info_.antennas, info_.hidden, info_.layers, nn::parse_readout(info_.readout));
-  model_->set_features(nn::parse_features(info_.features));
+  model_ = nn::make_model(info_.model, info_.antennas, info_.hidden, info_.layers, info_.readout);
+  model_->set_features(info_.features);
   model_->to(device_);
   info_.parameters = nn::count_parameters(*model_);
   adam_ = std::make_unique<torch::optim::Adam>(model_->parameters(),
@@ -194,7 +194,7 @@ void BeamformerTraining::resume() {
       ck.info.antennas != info_.antennas || ck.info.readout != info_.readout || ck.info.features != info_.features)
     throw InputError("--resume: '" + last_path_ + "' holds a " + ck.info.model + " (hidden " + std::to_string(ck.info.hidden) +
                      ", layers " + std::to_string(ck.info.layers) + ", L " + std::to_string(ck.info.antennas) + ", readout " +
-                     ck.info.readout + ", features " + ck.info.features +
+                     name_of(ck.info.readout) + ", features " + name_of(ck.info.features) +
                      "): allowed the same model, sizes, readout and features as the config");
   torch::NoGradGuard no_grad;
   auto dst = model_->parameters();
@@ -214,7 +214,7 @@ bool BeamformerTraining::train_epoch(int epoch, double& loss_sum, std::int64_t& 
   std::unique_ptr<Progress> bar;
   if (opt_.progress)
     bar = std::make_unique<Progress>(fmt::format("epoch {}/{}", epoch + 1, cfg_.nn.epochs), steps_per_epoch_, *opt_.progress, 5.0, 5.0);
-  const bool cosine = cfg_.nn.lr_schedule == "cosine";
+  const bool cosine = cfg_.nn.lr_schedule == LrSchedule::Cosine;
   bool go_on = true;
   for (std::size_t first = 0; first < samples_; first += batch_) {
     int64_t units = 0;
@@ -307,11 +307,11 @@ TrainResult BeamformerTraining::test_report() {
                            {"val_sum_rate", best.state.best_val},
                            {"test_sum_rate", result.test_sum_rate},
                            {"parameters", info_.parameters},
-                           {"readout", info_.readout},
-                           {"features", info_.features},
+                           {"readout", name_of(info_.readout)},
+                           {"features", name_of(info_.features)},
                            {"train_seconds", train_seconds_},
                            {"clusters_per_second", result.clusters_per_second},
-                           {"spectrum", cfg_.channel.spectrum},
+                           {"spectrum", name_of(cfg_.channel.spectrum)},
                            {"references_test_sum_rate", reference_rates(cfg_, nets)}};
   write_file_atomic((dir_ / "test.json").string(), report.dump(2) + "\n");
   return result;
@@ -326,7 +326,7 @@ TrainResult BeamformerTraining::run() {
   if (opt_.progress)
     *opt_.progress << fmt::format("training {} ({} parameters) on {} snapshots ({}), {} epochs; data {:.1f}s\n", info_.model,
                                   info_.parameters, samples_,
-                                  network_ ? "whole networks, " + cfg_.channel.spectrum + " spectrum"
+                                  network_ ? "whole networks, " + std::string(name_of(cfg_.channel.spectrum)) + " spectrum"
                                            : std::to_string(train_.clusters.clusters()) + " clusters",
                                   cfg_.nn.epochs, data_s_);
   start_epoch_ = state_.epoch;

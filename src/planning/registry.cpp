@@ -4,46 +4,6 @@
 
 namespace skyloop {
 
-void PlannerRegistry::add(const std::string& name, std::string description, PlannerFactory factory) {
-  for (auto& e : entries_)
-    if (e.name == name) {
-      e.description = std::move(description);
-      e.factory = std::move(factory);
-      return;
-    }
-  entries_.push_back(Entry{name, std::move(description), std::move(factory)});
-}
-
-std::unique_ptr<Planner> PlannerRegistry::create(const std::string& name, const PlannerArgs& args) const {
-  for (const auto& e : entries_)
-    if (e.name == name) return e.factory(args);
-  throw InputError("planner '" + name + "' is unknown: allowed " + names_text());
-}
-
-bool PlannerRegistry::contains(const std::string& name) const {
-  for (const auto& e : entries_)
-    if (e.name == name) return true;
-  return false;
-}
-
-std::vector<std::string> PlannerRegistry::names() const {
-  std::vector<std::string> out;
-  for (const auto& e : entries_) out.push_back(e.name);
-  return out;
-}
-
-std::string PlannerRegistry::names_text() const {
-  std::string out;
-  for (const auto& e : entries_) out += (out.empty() ? "" : ", ") + e.name;
-  return out;
-}
-
-std::vector<std::pair<std::string, std::string>> PlannerRegistry::list() const {
-  std::vector<std::pair<std::string, std::string>> out;
-  for (const auto& e : entries_) out.emplace_back(e.name, e.description);
-  return out;
-}
-
 PlannerRegistry& builtin_planners() {
   static PlannerRegistry reg = [] {
     PlannerRegistry r;

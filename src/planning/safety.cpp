@@ -121,10 +121,7 @@ ActionSet reachable_counted(const UavEnv& env, int n, int margin, const UavEnv::
 
 SafetyOptions safety_options(const Config& cfg) {
   const auto& m = cfg.marl;
-  const Clearance c = m.mask_clearance == "destinations" ? Clearance::Destinations
-                      : m.mask_clearance == "parked"     ? Clearance::Parked
-                                                         : Clearance::None;
-  return SafetyOptions{m.action_mask, m.shield, m.slack_margin, c, m.reserve_slack};
+  return SafetyOptions{m.action_mask, m.shield, m.slack_margin, m.mask_clearance, m.reserve_slack};
 }
 
 SafetyOptions training_safety_options(const Config& cfg) {

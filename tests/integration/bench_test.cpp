@@ -58,11 +58,11 @@ TEST(BenchTasks, TheShippedTasksCoverTheStudiedSettings) {
   EXPECT_EQ(uma.config.channel.pathloss, "3gpp-uma-av");
   EXPECT_EQ(uma.config.channel.fading, "rician");
   const auto shared = load_bench_task("shared-wmmse-v1");
-  EXPECT_EQ(shared.config.channel.spectrum, "shared");
+  EXPECT_EQ(shared.config.channel.spectrum, Spectrum::Shared);
   EXPECT_EQ(shared.config.env.oracle, "nwmmse");
   const auto energy = load_bench_task("energy-headings-v1");
   EXPECT_EQ(energy.config.trajectory.mobility, "headings");
-  EXPECT_EQ(energy.config.env.objective, "energy-efficiency");
+  EXPECT_EQ(energy.config.env.objective, Objective::EnergyEfficiency);
   EXPECT_EQ(load_bench_task("continuous-v1").config.trajectory.mobility, "continuous");
   const auto fleet = load_bench_task("fleet16-v1");
   EXPECT_EQ(fleet.config.trajectory.starts.size(), 16u);

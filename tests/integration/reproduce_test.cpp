@@ -151,7 +151,7 @@ TEST(Experiments, AConfigFileIsTheBaseOfTheExperimentsSettings) {
                                             source, "quick");
   EXPECT_TRUE(fs::equivalent(s.config, dir / "recipe.toml")) << s.config;
   const Config c = resolve_experiment(s, {"marl.hidden=16", "env.users_max=12"}, {"env.users_min=4"});
-  EXPECT_EQ(c.marl.encoder, "set");   // the file
+  EXPECT_EQ(c.marl.encoder, ObservationKind::Set);  // the file
   EXPECT_EQ(c.marl.hidden, 48);       // `set` over the file and over `before`
   EXPECT_EQ(c.env.users_max, 12);     // `before` over the file
   EXPECT_EQ(c.env.users_min, 4);      // `after` last
@@ -179,22 +179,21 @@ TEST(Experiments, AConfigFileIsTheBaseOfTheExperimentsSettings) {
   for (const auto& e : load_experiments(kExperiments, "paper"))
     if (!e.config.empty()) {
       EXPECT_TRUE(fs::equivalent(e.config, kSrc + "/configs/generalise.toml")) << e.path;
-      EXPECT_EQ(resolve_experiment(e).marl.encoder, "set") << e.path;
+      EXPECT_EQ(resolve_experiment(e).marl.encoder, ObservationKind::Set) << e.path;
       ++with_recipe;
     }
   EXPECT_GE(with_recipe, 5);
   fs::remove_all(dir);
 }
 
-// Every kind an experiment file may name has a stage, and the table holds no other; an unknown
-// kind is an error naming the kinds there are, never a silent fall-through to another stage.
+// Every kind an experiment file may name is a stage of the registry, once, with its pieces and
+// assembly; an unknown kind is an error naming the kinds there are, never a silent fall-through.
 TEST(Reproduce, EveryExperimentKindHasAStage) {
   std::set<std::string> table;
-  for (const auto& k : repro::stage_kinds()) {
+  for (const auto& k : repro::stage_kinds().rows()) {
     EXPECT_TRUE(table.insert(k.name).second) << k.name << " twice";
-    EXPECT_TRUE(k.pieces && k.assemble) << k.name;
+    EXPECT_TRUE(k.entry.pieces && k.entry.assemble) << k.name;
   }
-  EXPECT_EQ(table, std::set<std::string>(experiment_kinds().begin(), experiment_kinds().end()));
   EXPECT_EQ(repro::stage_kind("models").phase, 0);
   try {
     repro::stage_kind("beamform_swep");

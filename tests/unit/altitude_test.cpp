@@ -25,10 +25,7 @@ using skyloop::test::error_of;
 
 namespace {
 
-std::unique_ptr<UavEnv> make_env(const Config& cfg, std::uint64_t seed = 1) {
-  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, cfg.scenario.users, seed));
-  return std::make_unique<UavEnv>(cfg, oracle);
-}
+std::unique_ptr<UavEnv> make_env(const Config& cfg, std::uint64_t seed = 1) { return skyloop::test::zf_env(cfg, seed); }
 
 /// grid-3d on the paper's defaults: levels 60, 80, ..., 140 m, missions at H = 100 m.
 Config grid3d() {
@@ -149,7 +146,7 @@ TEST(Altitude, OptimumEqualsBruteForceOnTinyInstances) {
     for (const char* objective : {"sum-rate", "energy-efficiency"})
       for (std::uint64_t seed : {1u, 2u}) {
         Config c = tiny(pathloss);
-        c.env.objective = objective;
+        c.env.objective = parse_choice<Objective>("env.objective", objective);
         auto env = make_env(c, seed);
         const OptimalPlan plan = solve_optimal(*env);
         const double brute = brute_force_optimum(*env);

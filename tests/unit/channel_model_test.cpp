@@ -200,7 +200,7 @@ TEST(ChannelModel, LargeKApproachesThePapersChannelAndNlosLinksAreRayleigh) {
   const VectorXcd h = faded.channel(10, 20, 90, 150, 0), h0 = paper.channel(10, 20, 90, 150);
   EXPECT_LT((h - h0).norm(), 1e-4 * h0.norm());
   // Elevation-dependent K: k_min at 0 deg, k_max at 90, linear in dB between.
-  c.channel.rician_k = "elevation";
+  c.channel.rician_k = RicianK::Elevation;
   c.channel.rician_k_min_db = 5, c.channel.rician_k_max_db = 15;
   const ChannelModel m(c);
   auto k_at = [&](double elevation_deg) {  // a LoS link's K at this elevation (dB)

@@ -80,10 +80,10 @@ TEST(Continuous, CommandsMapOneToOneOntoTheDisc) {
 
 TEST(Continuous, PolarCommandsAreASpeedAndATurnTheUavCanMake) {
   Config c = continuous();  // v_max 20 m/s, a_max 5 m/s^2 x 2 s: dv_max 10 m/s
-  ASSERT_EQ(ContinuousDynamics(c).command(), "velocity");
-  c.trajectory.command = "polar";
+  ASSERT_EQ(ContinuousDynamics(c).command(), Command::Velocity);
+  c.trajectory.command = Command::Polar;
   const ContinuousDynamics polar(c);
-  ASSERT_EQ(polar.command(), "polar");
+  ASSERT_EQ(polar.command(), Command::Polar);
   double vx, vy;
   // Flying north-east at 10 m/s. u = 0 cruises straight on at v_max / 2; u1 turns by u1 times the
   // widest turn a_max allows at the speed asked for: at 10 m/s on 10 m/s, 60 degrees

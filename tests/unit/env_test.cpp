@@ -313,7 +313,7 @@ TEST(Env, ResampledVectorEnvMatchesSingleEnvs) {
   // rates, rewards and ends; the first reward of each episode reads R at the start.
   Config cfg;
   cfg.env.resample_users = true;
-  cfg.env.reward = "objective";
+  cfg.env.reward = Reward::Objective;
   const int M = 4;
   VecEnv vec(cfg, zf_bf(), M, 11);
   std::vector<std::unique_ptr<UavEnv>> single;
@@ -367,7 +367,7 @@ TEST(Env, SettlingAStepEarlyChangesNothing) {
   const std::vector<Case> cases{
       {"fixed users", [](Config&) {}},
       {"resampled layouts", [](Config& c) { c.env.resample_users = true; }},
-      {"shared spectrum (joint memo)", [](Config& c) { c.channel.spectrum = "shared"; }},
+      {"shared spectrum (joint memo)", [](Config& c) { c.channel.spectrum = Spectrum::Shared; }},
   };
   for (const Case& k : cases) {
     SCOPED_TRACE(k.name);

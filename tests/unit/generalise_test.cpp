@@ -32,7 +32,7 @@ Config crowded(int uavs) {
   cfg.scenario.area_x_m = cfg.scenario.area_y_m = 100;
   cfg.scenario.uavs = uavs;
   cfg.scenario.users = 6;
-  cfg.trajectory.layout = "generated";
+  cfg.trajectory.layout = LayoutSource::Generated;
   cfg.trajectory.t_max = 12;
   cfg.trajectory.layout_seed = 7;
   finalise(cfg);
@@ -103,7 +103,7 @@ TEST(Layouts, UserCountIsSeededAndInItsRange) {
   EXPECT_EQ(max_layout_users(cfg), 16);
   // A K range with the paper's state (4N + 2K reals) is refused.
   EXPECT_THROW(validate(cfg), InputError);
-  cfg.env.state = "compact";
+  cfg.env.state = StateKind::Compact;
   EXPECT_NO_THROW(validate(cfg));
   cfg.env.users_min = 20;
   EXPECT_THROW(validate(cfg), InputError);
@@ -252,7 +252,7 @@ TEST(Env, SetObservationKeptPerCoordinateEqualsAFreshOne) {
   for (const char* mobility : {"grid", "headings", "continuous"}) {
     Config cfg;
     cfg.scenario.users = 40;
-    cfg.marl.encoder = "set";
+    cfg.marl.encoder = ObservationKind::Set;
     cfg.trajectory.mobility = mobility;
     finalise(cfg);
     const bool continuous = std::string(mobility) == "continuous";
@@ -316,7 +316,7 @@ void step_at_random(UavEnv& env, Rng& rng) {
 Config look_ahead_scene(const char* mobility, int rate_map) {
   Config cfg;
   cfg.scenario.users = 9;
-  cfg.marl.encoder = "set";
+  cfg.marl.encoder = ObservationKind::Set;
   cfg.marl.lookahead = true;
   cfg.marl.rate_map = rate_map;
   cfg.trajectory.mobility = mobility;
@@ -367,7 +367,7 @@ TEST(Env, MoveGainsAreTheOneSlotLookAhead) {
   // One UAV: Greedy's move has the largest gain among the feasible moves, every slot.
   Config one;
   one.scenario.users = 9;
-  one.marl.encoder = "set";
+  one.marl.encoder = ObservationKind::Set;
   one.marl.lookahead = true;
   one.trajectory.starts = {{20, 20}};
   one.trajectory.destinations = {{180, 180}};
@@ -388,7 +388,7 @@ TEST(Env, MoveGainsAreTheOneSlotLookAhead) {
   }
   // The paper's observation has no look-ahead: refused in one line.
   Config mlp = one;
-  mlp.marl.encoder = "mlp";
+  mlp.marl.encoder = ObservationKind::Paper;
   try {
     validate(mlp);
     ADD_FAILURE() << "marl.lookahead with marl.encoder = mlp was accepted";
@@ -455,7 +455,7 @@ TEST(Env, DecidedLandingsAreWhatTheLaterAgentsSee) {
   // The paper's observation shows no other UAV; the value-decomposition learners and continuous
   // commands choose at once: each refused in one line naming marl.sequential.
   for (const auto& bad : std::vector<std::pair<const char*, std::function<void(Config&)>>>{
-           {"mlp", [](Config& c) { c.marl.encoder = "mlp", c.marl.lookahead = false, c.marl.rate_map = 0; }},
+           {"mlp", [](Config& c) { c.marl.encoder = ObservationKind::Paper, c.marl.lookahead = false, c.marl.rate_map = 0; }},
            {"vdn", [](Config& c) { c.marl.algo = "vdn"; }},
            {"continuous", [](Config& c) { c.trajectory.mobility = "continuous"; }}}) {
     Config c = cfg;
@@ -537,7 +537,7 @@ TEST(Env, RateMapIsTheRadioMapAroundTheUav) {
   // The paper's observation has no radio map, and the radius is bounded: each refused in one line.
   for (const auto& [encoder, radius] : {std::pair{"mlp", 2}, std::pair{"set", kMaxRateMap + 1}, std::pair{"set", -1}}) {
     Config bad;
-    bad.marl.encoder = encoder;
+    bad.marl.encoder = parse_choice<ObservationKind>("marl.encoder", encoder);
     std::string error;
     try {
       set_field(bad, *find_field("marl.rate_map"), FieldValue(static_cast<std::int64_t>(radius)));
@@ -552,7 +552,7 @@ TEST(Env, RateMapIsTheRadioMapAroundTheUav) {
 
 TEST(Env, ObjectiveRewardSumsToTheObjective) {
   Config cfg;
-  cfg.env.reward = "objective";
+  cfg.env.reward = Reward::Objective;
   cfg.env.w_bud = cfg.env.w_col = 0;
   UavEnv env = make_env(cfg, make_users(cfg, 12, 5));
   for (std::uint64_t s = 0; s < 3; ++s) {
@@ -698,12 +698,12 @@ TEST(Env, EnvironmentsMadeLikeAnotherStepAsFreshOnes) {
     cfg.scenario.area_x_m = cfg.scenario.area_y_m = 100;
     cfg.scenario.uavs = 4;
     cfg.scenario.users = 6;
-    cfg.trajectory.layout = "generated";
+    cfg.trajectory.layout = LayoutSource::Generated;
     cfg.trajectory.t_max = 12;
     cfg.trajectory.layout_seed = 7;
     cfg.trajectory.mobility = mobility;
     if (mobility == "headings") cfg.trajectory.speeds_mps = {0, 10, 20};
-    cfg.marl.mask_clearance = "destinations";
+    cfg.marl.mask_clearance = Clearance::Destinations;
     finalise(cfg);
     const SafetyOptions safety = safety_options(cfg);
     const UavEnv like = make_env(cfg, layout_users(cfg, 1));

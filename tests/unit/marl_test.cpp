@@ -189,10 +189,10 @@ TEST(Marl, MappoLearnsToArriveNearTheOptimum) {
 TEST(Marl, GeneralisesToHeldOutLayoutsWithTheSafetyMasks) {
   Config cfg = small_scenario("mappo", 200000);
   cfg.env.oracle = "gnn";
-  cfg.env.reward = "objective";
+  cfg.env.reward = Reward::Objective;
   cfg.env.resample_users = true;
-  cfg.marl.encoder = "set";
-  cfg.marl.minibatch = "steps";
+  cfg.marl.encoder = ObservationKind::Set;
+  cfg.marl.minibatch = MinibatchLayout::Steps;
   cfg.marl.action_mask = cfg.marl.shield = true;
   LayoutEvalOptions eval;
   eval.layouts = 20;
@@ -249,15 +249,15 @@ std::string metrics_without_timing(const std::string& dir) {
 // metrics (every column but the wall-clock rate) and the same greedy episode; --resume continues.
 TEST(Marl, EveryAlgorithmRunsSeededAndResumes) {
   std::vector<std::string> variants;
-  for (const auto& l : learners()) variants.push_back(l.name);
+  for (const auto& l : learners().rows()) variants.push_back(l.name);
   variants.push_back("mappo/torch");
   variants.push_back("mappo/steps");
   ASSERT_EQ(learner_names(), (std::vector<std::string>{"mappo", "ippo", "vdn", "qmix"}));
   for (const std::string& variant : variants) {
     const std::string algo = variant.substr(0, variant.find('/'));
     Config cfg = small_scenario(algo, 4096);
-    if (variant == "mappo/torch") cfg.marl.backend = "torch";
-    if (variant == "mappo/steps") cfg.marl.minibatch = "steps", cfg.marl.encoder = "set";  // the state shared per step
+    if (variant == "mappo/torch") cfg.marl.backend = PpoBackend::Torch;
+    if (variant == "mappo/steps") cfg.marl.minibatch = MinibatchLayout::Steps, cfg.marl.encoder = ObservationKind::Set;  // the state shared per step
     cfg.marl.batch_episodes = 8;
     const std::string tag = algo + (variant == algo ? "" : "_" + variant.substr(variant.find('/') + 1));
     MarlTrainOptions a;
@@ -276,7 +276,7 @@ TEST(Marl, EveryAlgorithmRunsSeededAndResumes) {
     a.resume = true;
     if (algo == "mappo") {
       Config other = more;
-      other.marl.backend = cfg.marl.backend == "fast" ? "torch" : "fast";
+      other.marl.backend = cfg.marl.backend == PpoBackend::Fast ? PpoBackend::Torch : PpoBackend::Fast;
       EXPECT_THROW(train_marl(other, a), InputError) << variant << ": resumed on the other backend";
     }
     const auto rc = train_marl(more, a);
@@ -289,7 +289,7 @@ TEST(Marl, EveryAlgorithmRunsSeededAndResumes) {
 // the whole metrics file (every column but the wall-clock rate) and the greedy episode on
 // run.threads = 1 and 2. QMIX's losses/value used to differ in its 9th digit.
 TEST(Marl, EveryLearnerIsTheSameOnAnyThreadCount) {
-  for (const auto& l : learners()) {
+  for (const auto& l : learners().rows()) {
     Config cfg;  // the paper scenario
     cfg.env.oracle = "zf";
     cfg.marl.algo = l.name;
@@ -318,7 +318,7 @@ TEST(Marl, EveryLearnerIsTheSameOnAnyThreadCount) {
 // thread count was set (as `skyloop reproduce` under mpirun against one process found).
 TEST(Marl, SharedSpectrumLearnedOracleIsTheSameOnAnyThreadCount) {
   Config cfg;
-  cfg.channel.spectrum = "shared";
+  cfg.channel.spectrum = Spectrum::Shared;
   cfg.env.oracle = "ignn";
   cfg.env.resample_users = true;
   cfg.marl.action_mask = false;
@@ -495,7 +495,7 @@ TEST(Marl, UnknownLearnersAreRefusedWithTheRegisteredNames) {
 /// A MAPPO policy on the set observation with the look-ahead, trained briefly into `dir`.
 static std::unique_ptr<MarlPolicy> look_ahead_policy(Config& cfg, const std::string& dir, bool sequential, int passes = 1) {
   cfg = small_scenario("mappo", 1024);
-  cfg.marl.encoder = "set";
+  cfg.marl.encoder = ObservationKind::Set;
   cfg.marl.lookahead = true;
   cfg.marl.sequential = sequential;
   cfg.marl.sequential_passes = passes;
@@ -594,7 +594,7 @@ TEST(Marl, SequentialPassesFlyAsTrainedOrAsSet) {
   EXPECT_EQ(once->sequential_passes(), 1);
   EXPECT_THROW(once->set_sequential_passes(2), InputError);
   Config plain = small_scenario("mappo", 1024);
-  plain.marl.encoder = "set";
+  plain.marl.encoder = ObservationKind::Set;
   plain.marl.sequential_passes = 2;
   try {
     validate(plain);
@@ -633,7 +633,7 @@ TEST(Marl, ContinuousPoliciesOfEitherCommandShareTheTwinsOptima) {
   velocity.trajectory.mobility = "continuous";
   validate(velocity);
   Config polar = velocity;
-  polar.trajectory.command = "polar";
+  polar.trajectory.command = Command::Polar;
   validate(polar);
   EXPECT_EQ(lattice_twin(polar).trajectory.mobility, "headings");
   EXPECT_EQ(to_toml(lattice_twin(polar)), to_toml(lattice_twin(velocity)));
@@ -651,8 +651,8 @@ TEST(Marl, ContinuousMappoLearnsEnergyEfficientFlight) {
   Config cfg = small_scenario("mappo", 200000);
   cfg.trajectory.mobility = "continuous";
   cfg.marl.entropy_coef = 0;
-  cfg.env.objective = "energy-efficiency";
-  cfg.env.reward = "objective";
+  cfg.env.objective = Objective::EnergyEfficiency;
+  cfg.env.reward = Reward::Objective;
   validate(cfg);
   const auto oracle = zf_oracle(cfg, cfg.marl.users_seed);
   UavEnv env(cfg, oracle);
@@ -671,7 +671,7 @@ TEST(Marl, ContinuousMappoLearnsEnergyEfficientFlight) {
     EXPECT_TRUE(policy->commands_velocities());
     EXPECT_EQ(run_episode(env, *policy).objective, r.evaluation.objective) << "the saved policy replays its evaluation";
     Config polar = cfg;  // a policy flies the command it was trained with (trajectory.command)
-    polar.trajectory.command = "polar";
+    polar.trajectory.command = Command::Polar;
     validate(polar);
     UavEnv other(polar, oracle);
     EXPECT_THROW(policy->act_velocities(other), InputError);

@@ -20,10 +20,7 @@ using skyloop::test::error_of;
 
 namespace {
 
-std::unique_ptr<UavEnv> make_env(const Config& cfg, std::uint64_t seed = 1) {
-  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, cfg.scenario.users, seed));
-  return std::make_unique<UavEnv>(cfg, oracle);
-}
+std::unique_ptr<UavEnv> make_env(const Config& cfg, std::uint64_t seed = 1) { return skyloop::test::zf_env(cfg, seed); }
 
 Config headings(std::vector<double> speeds = {0, 10, 20}) {
   Config c;
@@ -64,12 +61,12 @@ TEST(Energy, SlotEnergyAndTheKineticTerm) {
   Config c;
   const PropulsionModel steady(c.energy);
   EXPECT_DOUBLE_EQ(steady.slot_energy(10, 0, 2), 2 * steady.power(10));
-  c.energy.acceleration = "kinetic";
+  c.energy.acceleration = Acceleration::Kinetic;
   const PropulsionModel kinetic(c.energy);
   // Speeding up 0 -> 20 m/s adds m v^2 / 2 = 2.04 * 400 / 2 = 408 J; slowing down adds nothing.
   EXPECT_NEAR(kinetic.slot_energy(20, 0, 2) - steady.slot_energy(20, 0, 2), 408.0, 1e-9);
   EXPECT_DOUBLE_EQ(kinetic.slot_energy(0, 20, 2), steady.slot_energy(0, 20, 2));
-  c.energy.model = "none";
+  c.energy.model = Propulsion::None;
   EXPECT_EQ(PropulsionModel(c.energy).slot_energy(20, 0, 2), 0.0);
 }
 
@@ -254,9 +251,9 @@ TEST(Mobility, ObjectiveRewardSumsToTheObjective) {
   // env.reward = objective: an episode's rewards sum to J (J[1] = 0 for energy-efficiency and energy).
   for (const char* objective : {"energy-efficiency", "weighted", "energy"}) {
     Config c = headings();
-    c.env.reward = "objective";
+    c.env.reward = Reward::Objective;
     c.env.w_bud = c.env.w_col = 0;  // the penalties aside
-    c.env.objective = objective;
+    c.env.objective = parse_choice<Objective>("env.objective", objective);
     c.energy.weight = 0.05;
     auto env = make_env(c, 3);
     RandomPlanner random(2);
@@ -281,7 +278,7 @@ TEST(Mobility, OptimumEqualsBruteForceOnTinyHeadingsInstances) {
       c.trajectory.d_min_m = 15;
       c.trajectory.t_max = 4;
       const bool heavy = std::string(objective) == "weighted-heavy";
-      c.env.objective = heavy ? "weighted" : objective;
+      c.env.objective = parse_choice<Objective>("env.objective", heavy ? "weighted" : objective);
       c.energy.weight = heavy ? 2.0 : 0.1;
       auto env = make_env(c, seed);
       const OptimalPlan plan = solve_optimal(*env);
@@ -313,7 +310,7 @@ TEST(Mobility, LeastEnergyCruiseIsTheMaximumRangeSpeed) {
   c.trajectory.slot_s = 1;
   c.trajectory.speeds_mps = {0, 14, 16, 18, 20, 22};
   c.trajectory.t_max = 40;
-  c.env.objective = "energy";
+  c.env.objective = Objective::Energy;
   validate(c);
   auto env = make_env(c);
   const OptimalPlan plan = solve_optimal(*env);
@@ -330,7 +327,7 @@ TEST(Mobility, LeastEnergyCruiseIsTheMaximumRangeSpeed) {
 
 TEST(Mobility, GreedyFollowsTheObjectiveAndRefusesHugeJointSpaces) {
   Config c = headings();
-  c.env.objective = "energy";
+  c.env.objective = Objective::Energy;
   auto env = make_env(c, 4);
   GreedyPlanner greedy;
   RandomPlanner random(4);

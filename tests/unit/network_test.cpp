@@ -10,6 +10,7 @@
 #include "skyloop/beamforming/wmmse.hpp"
 #include "skyloop/channel/network.hpp"
 #include "skyloop/channel/rates.hpp"
+#include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/env/rate_oracle.hpp"
@@ -19,7 +20,7 @@ namespace {
 
 Config shared_config() {
   Config cfg;
-  cfg.channel.spectrum = "shared";
+  cfg.channel.spectrum = Spectrum::Shared;
   return cfg;
 }
 
@@ -56,12 +57,12 @@ TEST(Spectrum, SharedSinrMatchesTheHandComputedTwoUavCase) {
   const double sinr = 1e-6 / (5e-7 + 1e-12);
   EXPECT_NEAR(network_sum_rate(net, W), 2 * std::log2(1 + sinr), 1e-12);
 
-  cfg.channel.spectrum = "orthogonal";
+  cfg.channel.spectrum = Spectrum::Orthogonal;
   const Network orth = SystemModel(cfg).network(s);
   EXPECT_NEAR(network_sum_rate(orth, W), 2 * std::log2(1 + 1e6), 1e-9);
   EXPECT_EQ(user_powers(orth, W)[0][0].inter, 0.0);
 
-  cfg.channel.spectrum = "orthogonal-split";
+  cfg.channel.spectrum = Spectrum::OrthogonalSplit;
   const Network split = SystemModel(cfg).network(s);
   EXPECT_NEAR(split.clusters[0].noise, 5e-13, 1e-25);
   EXPECT_NEAR(network_sum_rate(split, W), 2 * 0.5 * std::log2(1 + 2e6), 1e-9);
@@ -129,7 +130,7 @@ TEST(Spectrum, SharedPowersOfThousandsOfUsersEqualTheFullProducts) {
 TEST(Spectrum, OrthogonalNetworkRateIsTheSumOfClusterRates) {
   for (const std::string spectrum : {"orthogonal", "orthogonal-split"}) {
     Config cfg;
-    cfg.channel.spectrum = spectrum;
+    cfg.channel.spectrum = parse_choice<Spectrum>("channel.spectrum", spectrum);
     const SystemModel model(cfg);
     for (std::uint64_t seed = 0; seed < 20; ++seed) {
       const Network net = model.network(model.random_snapshot(3, 12, seed));
@@ -145,7 +146,7 @@ TEST(Spectrum, OrthogonalNetworkRateIsTheSumOfClusterRates) {
 
 TEST(Spectrum, BadValueIsRefusedNamingTheField) {
   try {
-    parse_spectrum("reuse");
+    resolve_config(std::nullopt, {"channel.spectrum=reuse"});
     FAIL() << "accepted";
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("channel.spectrum = \"reuse\""), std::string::npos) << e.what();
@@ -217,7 +218,7 @@ TEST(Coordinated, NetworkWmmseBeatsInterferenceUnawareWmmse) {
     coordinated += a, alone += b;
   }
   EXPECT_GT(coordinated, 2 * alone);
-  cfg.channel.spectrum = "orthogonal";
+  cfg.channel.spectrum = Spectrum::Orthogonal;
   const SystemModel orth(cfg);
   for (std::uint64_t seed = 0; seed < 5; ++seed) {
     const Network net = orth.network(orth.random_snapshot(3, 12, seed));

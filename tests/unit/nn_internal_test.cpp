@@ -46,8 +46,8 @@ TEST(NnInternal, CheckpointRoundTripsBitForBit) {
     info.hidden = 16;
     info.layers = 2;
     info.feature_scale = 1234.5678;
-    info.features = std::string(name) == "deepsets" ? "log" : "linear";
-    model->set_features(parse_features(info.features));
+    info.features = std::string(name) == "deepsets" ? Features::Log : Features::Linear;
+    model->set_features(info.features);
     info.parameters = count_parameters(*model);
     info.config_toml = "[run]\nseed = 3\n";
     TrainingState state{7, 99, 5, 42.25};
@@ -83,7 +83,7 @@ TEST(NnInternal, LogFeaturesCompressTheNormAndKeepTheDirection) {
   EXPECT_NEAR(y[2].norm().item<double>(), std::log(6.0) / std::log1p(1000.0), 1e-12);
   EXPECT_NEAR((y[2] / y[2].norm() - x[2] / x[2].norm()).norm().item<double>(), 0.0, 1e-15);
   EXPECT_TRUE(torch::equal(encode_features(x, Features::Linear), x));
-  EXPECT_THROW(parse_features("sqrt"), std::invalid_argument);
+  EXPECT_THROW(parse_choice<Features>("nn.features", "sqrt"), InputError);
 }
 
 TEST(NnInternal, MaxOverOthersHandMade) {
@@ -186,8 +186,8 @@ void expect_float32_paths_within_rounding(const std::string& label, const Config
                                           const std::string& scratch, const std::vector<int>& sizes) {
   constexpr double u32 = 5.960464477539063e-8, delta = 1e-6;
   Config cfg64 = cfg, cfg_torch = cfg;
-  cfg64.nn.precision = "float64";
-  cfg_torch.nn.inference = "torch";
+  cfg64.nn.precision = Precision::Float64;
+  cfg_torch.nn.inference = Inference::Torch;
   const auto fast32 = LearnedBeamformer::load(path, cfg);
   const auto torch32 = LearnedBeamformer::load(path, cfg_torch);
   const auto bf64 = LearnedBeamformer::load(path, cfg64);

@@ -58,7 +58,7 @@ const char* kModels[] = {"gnn", "deepsets", "mspointnet", "gnn+structured", "dee
 constexpr double kF64Tol = 1e-8;
 
 Config f64(Config cfg) {
-  cfg.nn.precision = "float64";
+  cfg.nn.precision = Precision::Float64;
   return cfg;
 }
 
@@ -71,7 +71,7 @@ TEST(Learned, RankedSelectionServesTheNetworksRankingWithZf) {
   for (const char* m : {"gnn", "gnn+structured"}) {
     const Config soft = f64(tiny_config(m));
     Config ranked = soft;
-    ranked.nn.selection = "ranked";
+    ranked.nn.selection = Selection::Ranked;
     const auto a = LearnedBeamformer::load(tiny_model(m), soft), b = LearnedBeamformer::load(tiny_model(m), ranked);
     int replaced = 0;
     for (int k = 1; k <= 8; ++k)
@@ -90,7 +90,7 @@ TEST(Learned, RankedSelectionServesTheNetworksRankingWithZf) {
     EXPECT_GT(replaced, 0) << m << ": a tiny model's beams are never beaten by ZF on its ranking";
   }
   Config ig = tiny_config("ignn");
-  ig.nn.selection = "ranked";
+  ig.nn.selection = Selection::Ranked;
   try {
     LearnedBeamformer::load(tiny_model("ignn"), ig);
     ADD_FAILURE() << "ignn with nn.selection = ranked was not refused";
@@ -279,7 +279,7 @@ TEST(Learned, CosineScheduleStartsAtTheRateDecaysAndResumesOnItsCurve) {
   Config constant = tiny_config("gnn");
   constant.nn.epochs = 3;
   Config cosine = constant;
-  cosine.nn.lr_schedule = "cosine";
+  cosine.nn.lr_schedule = LrSchedule::Cosine;
   const auto run = [](const Config& c, const std::string& name, int max_steps) {
     TrainOptions o;
     o.out_dir = fresh_dir(name);
@@ -330,8 +330,8 @@ std::pair<double, double> short_run(const std::string& readout, const std::strin
                                     const std::string& model = "gnn") {
   Config cfg;
   cfg.nn.model = model;
-  if (model == "ignn") cfg.channel.spectrum = "shared";
-  cfg.nn.readout = readout;
+  if (model == "ignn") cfg.channel.spectrum = Spectrum::Shared;
+  cfg.nn.readout = parse_choice<Readout>("nn.readout", readout);
   cfg.nn.hidden = 64;
   cfg.nn.layers = 2;
   cfg.nn.epochs = 6;
@@ -370,7 +370,7 @@ TEST(Learned, StructuredReadoutShortTrainingBeatsZf) {
 TEST(Ignn, PermutingUsersAndUavsPermutesBeamformers) {
   for (const char* m : {"ignn", "ignn+structured"}) {
     Config cfg = tiny_config(m);
-    cfg.nn.precision = "float64";
+    cfg.nn.precision = Precision::Float64;
     const auto bf = LearnedBeamformer::load(tiny_model(m), cfg);
     EXPECT_TRUE(bf->coordinated());
     const SystemModel model(cfg);
@@ -413,7 +413,7 @@ TEST(Ignn, PermutingUsersAndUavsPermutesBeamformers) {
 // and a network model's per-cluster call is the network of that cluster alone.
 TEST(Ignn, BatchedNetworksEqualOneByOne) {
   Config cfg = tiny_config("ignn+structured");
-  cfg.nn.precision = "float64";
+  cfg.nn.precision = Precision::Float64;
   const auto bf = LearnedBeamformer::load(tiny_model("ignn+structured"), cfg);
   const SystemModel model(cfg);
   std::vector<Network> nets;

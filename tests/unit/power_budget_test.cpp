@@ -56,7 +56,7 @@ TEST(PowerBudget, CheckerRejectsViolations) {
 
 TEST(Batch, DesignBatchEqualsOneByOneForAnyThreadCount) {
   Config cfg;
-  cfg.wmmse.init = "random";
+  cfg.wmmse.init = WmmseInit::Random;
   const auto bf = builtin_beamformers().create("wmmse", cfg);
   const auto clusters = test::clusters_of_size(cfg, 4, 16, 3);
   const auto one = bf->design_batch(clusters, 1);

@@ -250,8 +250,8 @@ TEST(PpoCore, LossGradientMatchesAutograd) {
 TEST(PpoCore, BackendsTakeTheSameSteps) {
   const PpoSettings s{0.2, 0.5, 0.03, 0.1};  // a small clip norm, so the clipping is exercised
   auto b = random_minibatch(512, 11, 37, 5);
-  auto fast = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 9);
-  auto ref = make_ppo_networks("torch", 11, 37, 64, 3e-4, torch::kCPU, 9);
+  auto fast = make_ppo_networks(PpoBackend::Fast, 11, 37, 64, 3e-4, torch::kCPU, 9);
+  auto ref = make_ppo_networks(PpoBackend::Torch, 11, 37, 64, 3e-4, torch::kCPU, 9);
   std::vector<float> lf(static_cast<std::size_t>(b.rows) * kGridActions), lr(lf.size());
   fast->logits(b.observations.data(), b.rows, lf.data());
   ref->logits(b.observations.data(), b.rows, lr.data());
@@ -267,7 +267,6 @@ TEST(PpoCore, BackendsTakeTheSameSteps) {
     EXPECT_NEAR(uf.grad_norm, ur.grad_norm, tol * ur.grad_norm) << "step " << step;
     if (step == 0) EXPECT_GT(ur.grad_norm, s.grad_clip) << "the clip should act";
   }
-  EXPECT_THROW(make_ppo_networks("jax", 11, 37, 64, 3e-4, torch::kCPU, 9), InputError);
 }
 
 // The critic's first input columns may be the actor's observation (the set encoder's MAPPO: the
@@ -290,9 +289,9 @@ TEST(PpoCore, TheCriticReadsTheActorsObservationInPlace) {
     whole.critic_inputs.insert(whole.critic_inputs.end(), o, o + obs);
     whole.critic_inputs.insert(whole.critic_inputs.end(), c, c + own);
   }
-  auto in_place = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
-  auto copied = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 2);
-  auto ref = make_ppo_networks("torch", obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
+  auto in_place = make_ppo_networks(PpoBackend::Fast, obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
+  auto copied = make_ppo_networks(PpoBackend::Fast, obs, width, 64, 3e-4, torch::kCPU, 9, 2);
+  auto ref = make_ppo_networks(PpoBackend::Torch, obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
   std::vector<float> vi(rows), vc(rows), vr(rows);
   for (int step = 0; step < 6; ++step) {
     in_place->values(split.observations.data(), split.critic_inputs.data(), rows, vi.data());
@@ -332,10 +331,10 @@ TEST(PpoCore, AgentsOfAStepShareTheCriticsStateColumns) {
   shared.share = agents;
   Minibatch by_row = shared;
   by_row.share = 1;
-  auto two = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
-  auto one = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
-  auto rows_apart = make_ppo_networks("fast", obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
-  auto ref = make_ppo_networks("torch", obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
+  auto two = make_ppo_networks(PpoBackend::Fast, obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
+  auto one = make_ppo_networks(PpoBackend::Fast, obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
+  auto rows_apart = make_ppo_networks(PpoBackend::Fast, obs, width, 64, 3e-4, torch::kCPU, 9, 2, kGridActions, obs);
+  auto ref = make_ppo_networks(PpoBackend::Torch, obs, width, 64, 3e-4, torch::kCPU, 9, 1, kGridActions, obs);
   for (int step = 0; step < 6; ++step) {
     const auto u2 = two->step(shared, s), u1 = one->step(shared, s), ua = rows_apart->step(by_row, s), ur = ref->step(shared, s);
     EXPECT_EQ(u2.policy_loss, u1.policy_loss) << "step " << step;
@@ -400,7 +399,7 @@ TEST(PpoCore, MinibatchesOfWholeSteps) {
         r.advantages[i] = static_cast<float>(i % 7);
       }
   MarlConfig m;
-  m.minibatch = "steps";
+  m.minibatch = MinibatchLayout::Steps;
   m.minibatches = 4, m.epochs = 2;
   for (const bool shared : {false, true}) {
     r.critic_shared = shared;
@@ -432,7 +431,7 @@ TEST(PpoCore, TheLearningRateIsSetBetweenSteps) {
   const PpoSettings s{0.2, 0.5, 0.03, 10};
   auto b = random_minibatch(256, 11, 37, 8);
   const std::size_t L = static_cast<std::size_t>(b.rows) * kGridActions;
-  for (const char* backend : {"fast", "torch"}) {
+  for (const PpoBackend backend : {PpoBackend::Fast, PpoBackend::Torch}) {
     std::vector<float> before(L), full(L), half(L), frozen(L);
     auto logits_after = [&](double rate, std::vector<float>& out) {
       auto nets = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 9);
@@ -444,14 +443,14 @@ TEST(PpoCore, TheLearningRateIsSetBetweenSteps) {
     logits_after(3e-4, full);
     logits_after(1.5e-4, half);
     logits_after(0, frozen);
-    EXPECT_EQ(frozen, before) << backend << ": rate 0 moved the actor";
+    EXPECT_EQ(frozen, before) << name_of(backend) << ": rate 0 moved the actor";
     double moved = 0, off = 0;
     for (std::size_t i = 0; i < L; ++i) {
       moved += std::abs(full[i] - before[i]);
       off += std::abs((half[i] - before[i]) - 0.5 * (full[i] - before[i]));
     }
-    EXPECT_GT(moved, 0) << backend;
-    EXPECT_LT(off, 0.02 * 0.5 * moved) << backend << ": half the rate, not half the step";
+    EXPECT_GT(moved, 0) << name_of(backend);
+    EXPECT_LT(off, 0.02 * 0.5 * moved) << name_of(backend) << ": half the rate, not half the step";
   }
 }
 
@@ -476,8 +475,8 @@ TEST(PpoCore, ThePublishedActorIsThePolyakAverage) {
     for (auto& p : nets.actor->parameters()) out.push_back(p.detach().to(torch::kDouble).clone());
     return out;
   };
-  for (const char* backend : {"fast", "torch"}) {
-    SCOPED_TRACE(backend);
+  for (const PpoBackend backend : {PpoBackend::Fast, PpoBackend::Torch}) {
+    SCOPED_TRACE(name_of(backend));
     auto nets = make_ppo_networks(backend, 11, 37, 64, 3e-4, torch::kCPU, 9);
     nets->set_average_decay(d);
     std::vector<torch::Tensor> average;  // in float64, from each step's trained weights
@@ -534,8 +533,8 @@ TEST(PpoCore, ThePublishedActorIsThePolyakAverage) {
 TEST(PpoCore, FastBackendIsTheSameOnAnyThreadCount) {
   const PpoSettings s{0.2, 0.5, 0.03, 0.1};
   auto b = random_minibatch(333, 11, 37, 6);  // an odd row count: unequal halves
-  auto one = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 4, 1);
-  auto two = make_ppo_networks("fast", 11, 37, 64, 3e-4, torch::kCPU, 4, 2);
+  auto one = make_ppo_networks(PpoBackend::Fast, 11, 37, 64, 3e-4, torch::kCPU, 4, 1);
+  auto two = make_ppo_networks(PpoBackend::Fast, 11, 37, 64, 3e-4, torch::kCPU, 4, 2);
   for (int step = 0; step < 5; ++step) {
     const auto u1 = one->step(b, s), u2 = two->step(b, s);
     EXPECT_EQ(u1.policy_loss, u2.policy_loss) << "step " << step;
@@ -568,7 +567,7 @@ TEST(PpoCore, CollectFillsEveryCellOfTheRollout) {
   const CriticReader critic = CriticReader::of(cfg, enc);
   auto run = [&](Rollout& r) {
     VecEnv vec(cfg, oracle, 3);
-    auto nets = make_ppo_networks("fast", enc.width(vec.env(0)), critic.width(vec.env(0)), 16, 3e-4, torch::kCPU, 1);
+    auto nets = make_ppo_networks(PpoBackend::Fast, enc.width(vec.env(0)), critic.width(vec.env(0)), 16, 3e-4, torch::kCPU, 1);
     Rng rng(11);
     EpisodeStats stats;
     collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats);
@@ -625,18 +624,18 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
   const std::vector<Case> cases{
       {"set encoder, resampled layouts",
        [](Config& c) {
-         c.marl.encoder = "set";
+         c.marl.encoder = ObservationKind::Set;
          c.env.resample_users = true;
        }},
       {"mlp encoder, one scenario", [](Config&) {}},
       {"set encoder with the look-ahead, one scenario (one shared oracle)",
        [](Config& c) {
-         c.marl.encoder = "set";
+         c.marl.encoder = ObservationKind::Set;
          c.marl.lookahead = true;
        }},
       {"set encoder with the look-ahead and the radio map, resampled layouts (an oracle per environment)",
        [](Config& c) {
-         c.marl.encoder = "set";
+         c.marl.encoder = ObservationKind::Set;
          c.marl.lookahead = true;
          c.marl.rate_map = 2;
          c.env.resample_users = true;
@@ -644,13 +643,13 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
       {"continuous commands", [](Config& c) { c.trajectory.mobility = "continuous"; }},
       {"sequential choices with the look-ahead, one scenario (one shared oracle: the lanes in turn)",
        [](Config& c) {
-         c.marl.encoder = "set";
+         c.marl.encoder = ObservationKind::Set;
          c.marl.lookahead = true;
          c.marl.sequential = true;
        }},
       {"sequential choices with the look-ahead and the radio map, resampled layouts",
        [](Config& c) {
-         c.marl.encoder = "set";
+         c.marl.encoder = ObservationKind::Set;
          c.marl.lookahead = true;
          c.marl.rate_map = 2;
          c.marl.sequential = true;
@@ -658,7 +657,7 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
        }},
       {"sequential choices in two passes (marl.sequential_passes), resampled layouts",
        [](Config& c) {
-         c.marl.encoder = "set";
+         c.marl.encoder = ObservationKind::Set;
          c.marl.lookahead = true;
          c.marl.sequential = true;
          c.marl.sequential_passes = 2;
@@ -680,7 +679,7 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
       const int dims = vec.env(0).dynamics().actions().dims;
       Rollout r(30, 5, 2, enc.width(vec.env(0)), critic.width(vec.env(0)), dims > 0 ? 0 : vec.env(0).actions(), dims,
                 critic.observation_width(vec.env(0)));
-      auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1,
+      auto nets = make_ppo_networks(PpoBackend::Fast, r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1,
                                     dims > 0 ? 2 * dims : r.A, r.critic_observation);
       EXPECT_EQ(nets->lanes(), kCollectLanes);
       Rng rng(11);
@@ -705,7 +704,7 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
   // writes them on the calling thread where the environments share one oracle).
   Config cfg = small_scene();
   cfg.run.threads = 2;
-  cfg.marl.encoder = "set";
+  cfg.marl.encoder = ObservationKind::Set;
   EXPECT_EQ(encoder_of(cfg, false).threads, 2);
   EXPECT_FALSE(encoder_of(cfg, false).asks_oracle);
   cfg.marl.lookahead = true;
@@ -715,7 +714,7 @@ TEST(PpoCore, CollectIsTheSameOnOneThreadAndOnTwo) {
   cfg.marl.rate_map = 2;
   EXPECT_TRUE(encoder_of(cfg, false).asks_oracle);
   cfg.marl.rate_map = 0;
-  cfg.marl.encoder = "mlp";  // the paper's observation reads the environment alone
+  cfg.marl.encoder = ObservationKind::Paper;  // the paper's observation reads the environment alone
   EXPECT_EQ(encoder_of(cfg, false).threads, 2);
   EXPECT_FALSE(encoder_of(cfg, false).asks_oracle);
   auto beamformer = std::make_shared<ZfBeamformer>();
@@ -732,7 +731,7 @@ TEST(PpoCore, SequentialAgentsReadTheLandingsChosenBeforeThem) {
   Config cfg = small_scene();
   cfg.trajectory.starts = {{0, 0}, {120, 120}, {0, 120}};
   cfg.trajectory.destinations = {{120, 40}, {0, 80}, {120, 80}};
-  cfg.marl.encoder = "set";
+  cfg.marl.encoder = ObservationKind::Set;
   cfg.marl.lookahead = true;
   cfg.marl.rate_map = 1;
   cfg.marl.sequential = true;
@@ -746,7 +745,7 @@ TEST(PpoCore, SequentialAgentsReadTheLandingsChosenBeforeThem) {
   const int N = 3, D = enc.width(replay);
   Rollout r(30, 1, N, D, critic.width(replay), kGridActions, 0, critic.observation_width(replay));
   ASSERT_EQ(r.critic_observation, D) << "the critic reads the actor's observation row";
-  auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1, r.A, r.critic_observation);
+  auto nets = make_ppo_networks(PpoBackend::Fast, r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1, 1, r.A, r.critic_observation);
   Rng rng(5);
   EpisodeStats stats;
   collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats, 1);
@@ -793,7 +792,7 @@ TEST(PpoCore, EachEnvironmentSamplesFromAStreamOfItsOwn) {
   auto draws = [&](int envs) {
     VecEnv vec(cfg, oracle, envs);
     Rollout r(12, envs, 2, enc.width(vec.env(0)), critic.width(vec.env(0)));
-    auto nets = make_ppo_networks("fast", r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1);
+    auto nets = make_ppo_networks(PpoBackend::Fast, r.obs_width, r.critic_width, 16, 3e-4, torch::kCPU, 1);
     Rng rng(5);
     EpisodeStats stats;
     collect(vec, enc, critic, SafetyOptions{true, true}, *nets, RunningStats{}, rng, r, stats, 2);
@@ -858,7 +857,7 @@ TEST(PpoCore, ExplainedVarianceOverActiveAgents) {
 
 // update() moves the policy towards the actions with positive advantages, on both backends.
 TEST(PpoCore, UpdateRaisesTheProbabilityOfAdvantageousActions) {
-  for (const char* backend : {"fast", "torch"}) {
+  for (const PpoBackend backend : {PpoBackend::Fast, PpoBackend::Torch}) {
     Rollout r(64, 2, 2, 6, 6);
     std::mt19937_64 g(8);
     std::uniform_real_distribution<float> u(-1, 1);
@@ -886,8 +885,8 @@ TEST(PpoCore, UpdateRaisesTheProbabilityOfAdvantageousActions) {
     Rng rng(2);
     Minibatch scratch;
     const auto stats = update(r, *nets, vn, m, rng, scratch);
-    EXPECT_GT(stats.approx_kl, 0.0) << backend;
-    EXPECT_LT(stats.policy_loss, 0.0) << backend;
+    EXPECT_GT(stats.approx_kl, 0.0) << name_of(backend);
+    EXPECT_LT(stats.policy_loss, 0.0) << name_of(backend);
     std::vector<float> after(before.size());
     nets->logits(r.observations.data(), static_cast<int>(r.samples()), after.data());
     auto mean_p_east = [&](const std::vector<float>& z) {
@@ -899,7 +898,7 @@ TEST(PpoCore, UpdateRaisesTheProbabilityOfAdvantageousActions) {
       }
       return s / static_cast<double>(r.samples());
     };
-    EXPECT_GT(mean_p_east(after), mean_p_east(before) + 0.05) << backend;
+    EXPECT_GT(mean_p_east(after), mean_p_east(before) + 0.05) << name_of(backend);
   }
 }
 
@@ -1016,8 +1015,8 @@ TEST(PpoCore, GaussianLossGradientMatchesAutograd) {
 TEST(PpoCore, BackendsTakeTheSameGaussianSteps) {
   const PpoSettings s{0.2, 0.5, 0.01, 0.1};
   auto b = gaussian_minibatch(512, 8, 37, 5);
-  auto fast = make_ppo_networks("fast", 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
-  auto ref = make_ppo_networks("torch", 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
+  auto fast = make_ppo_networks(PpoBackend::Fast, 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
+  auto ref = make_ppo_networks(PpoBackend::Torch, 8, 37, 64, 3e-4, torch::kCPU, 9, 1, 4);
   for (int step = 0; step < 10; ++step) {
     const auto uf = fast->step(b, s), ur = ref->step(b, s);
     const double tol = step == 0 ? 1e-5 : 1e-3;

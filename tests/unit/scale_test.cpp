@@ -135,7 +135,7 @@ TEST(Scale, GeneratedLayoutIsSeededSeparatedAndReachable) {
 TEST(Scale, HotspotUsersGatherAroundFewCentres) {
   Config cfg = city(3, 2000, 1000);
   const SystemModel uniform(cfg);
-  cfg.scenario.user_layout = "hotspot";
+  cfg.scenario.user_layout = UserLayout::Hotspot;
   cfg.scenario.hotspots = 3;
   cfg.scenario.hotspot_radius_m = 30;
   const SystemModel hot(cfg);
@@ -238,7 +238,7 @@ TEST(Scale, BadSizesAreRefusedInOneLine) {
 TEST(Scale, CompactStateIsSizedIndependentlyOfNAndK) {
   for (const auto& [uavs, users] : {std::pair{3, 12}, std::pair{16, 400}, std::pair{64, 4096}}) {
     Config cfg = city(uavs, users, 2000);
-    cfg.env.state = "compact";
+    cfg.env.state = StateKind::Compact;
     auto oracle = std::make_shared<RateOracle>(cfg, builtin_beamformers().create("mrt", cfg), make_users(cfg, users, 1));
     UavEnv env(cfg, oracle);
     EXPECT_EQ(env.state_size(), 3 * kStateGrid * kStateGrid + 2);

@@ -10,9 +10,17 @@
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/channel/system_model.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/beamforming/linear.hpp"
 #include "skyloop/core/rng.hpp"
+#include "skyloop/env/uav_env.hpp"
 
 namespace skyloop::test {
+
+/// An environment of cfg with ZF behind R[t] and cfg.scenario.users users drawn from `seed`.
+inline std::unique_ptr<UavEnv> zf_env(const Config& cfg, std::uint64_t seed = 1) {
+  auto oracle = std::make_shared<RateOracle>(cfg, std::make_shared<ZfBeamformer>(), make_users(cfg, cfg.scenario.users, seed));
+  return std::make_unique<UavEnv>(cfg, oracle);
+}
 
 /// The message of the InputError `f` throws ("" if it throws none).
 inline std::string error_of(const std::function<void()>& f) {
@@ -86,11 +94,11 @@ inline Config tiny_nn_config(const std::string& model) {
   while (plus != std::string::npos) {
     const std::size_t next = model.find('+', plus + 1);
     const std::string part = model.substr(plus + 1, next == std::string::npos ? std::string::npos : next - plus - 1);
-    if (part == "log") cfg.nn.features = "log";
-    else cfg.nn.readout = part;
+    if (part == "log") cfg.nn.features = Features::Log;
+    else cfg.nn.readout = parse_choice<Readout>("nn.readout", part);
     plus = next;
   }
-  if (cfg.nn.model == "ignn") cfg.channel.spectrum = "shared";  // the network model learns interference
+  if (cfg.nn.model == "ignn") cfg.channel.spectrum = Spectrum::Shared;  // the network model learns interference
   cfg.nn.hidden = 16;
   cfg.nn.layers = 2;
   cfg.nn.epochs = 1;

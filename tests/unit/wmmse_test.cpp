@@ -31,8 +31,8 @@ TEST(Wmmse, SumRateNeverDecreasesAcrossIterations) {
 
 TEST(Wmmse, BeatsMrtAndZfOnAverage) {
   const Config cfg;
-  WmmseBeamformer bf(WmmseOptions{}, "zfsel", 0, 1);
-  WmmseBeamformer textbook(WmmseOptions{}, "rzf", 0, 1);
+  WmmseBeamformer bf(WmmseOptions{}, WmmseInit::ZfSel, 0, 1);
+  WmmseBeamformer textbook(WmmseOptions{}, WmmseInit::Rzf, 0, 1);
   double w = 0, t = 0, m = 0, z = 0;
   for (int k : {2, 3, 4, 5, 6})
     for (const auto& c : test::clusters_of_size(cfg, k, 20, 40 + k)) {
@@ -51,7 +51,7 @@ TEST(Wmmse, RefinesItsStartingPoint) {
   // WMMSE from any start ends at least as high as the start (monotone ascent).
   Config cfg;
   cfg.channel.noise_dbm = -70;  // lower SNR, where WMMSE moves away from ZF
-  WmmseBeamformer bf(WmmseOptions{}, "zfsel", 0, 1);
+  WmmseBeamformer bf(WmmseOptions{}, WmmseInit::ZfSel, 0, 1);
   double gain = 0;
   for (const auto& c : test::clusters_of_size(cfg, 4, 30, 77)) {
     const double start = sum_rate(c, zf_select(c));
@@ -70,7 +70,7 @@ TEST(Wmmse, NeverEndsBelowItsStartAtExtremeSnr) {
     Config cfg;
     cfg.channel.p_max_dbm = p_dbm;
     cfg.channel.noise_dbm = -200;
-    WmmseBeamformer bf(WmmseOptions{}, "zfsel", 0, 1);
+    WmmseBeamformer bf(WmmseOptions{}, WmmseInit::ZfSel, 0, 1);
     for (int k : {2, 4, 6})
       for (const auto& c : test::clusters_of_size(cfg, k, 10, 60 + k)) {
         const double start = sum_rate(c, zf_select(c));
@@ -87,9 +87,9 @@ TEST(Wmmse, NeverEndsBelowItsStartAtExtremeSnr) {
 TEST(Wmmse, RestartsAreSeededAndNeverWorse) {
   const Config cfg;
   const auto clusters = test::clusters_of_size(cfg, 4, 10, 8);
-  WmmseBeamformer none(WmmseOptions{}, "rzf", 0, 1);
-  WmmseBeamformer some(WmmseOptions{}, "rzf", 4, 1);
-  WmmseBeamformer again(WmmseOptions{}, "rzf", 4, 1);
+  WmmseBeamformer none(WmmseOptions{}, WmmseInit::Rzf, 0, 1);
+  WmmseBeamformer some(WmmseOptions{}, WmmseInit::Rzf, 4, 1);
+  WmmseBeamformer again(WmmseOptions{}, WmmseInit::Rzf, 4, 1);
   for (const auto& c : clusters) {
     const MatrixXcd a = some.design(c);
     EXPECT_EQ(a, again.design(c));
@@ -99,7 +99,7 @@ TEST(Wmmse, RestartsAreSeededAndNeverWorse) {
 
 TEST(Wmmse, SingleUserReachesMrtOptimum) {
   const Config cfg;
-  WmmseBeamformer bf(WmmseOptions{}, "random", 0, 5);
+  WmmseBeamformer bf(WmmseOptions{}, WmmseInit::Random, 0, 5);
   for (const auto& c : test::clusters_of_size(cfg, 1, 5, 9))
     EXPECT_NEAR(sum_rate(c, bf.design(c)), sum_rate(c, mrt(c)), 1e-6);
 }

@@ -21,20 +21,19 @@
 namespace skyloop {
 
 struct GaOptions {
-  std::string algorithm = "sga";
+  GaAlgorithm algorithm = GaAlgorithm::Sga;  // ga.algorithm (its table: skyloop/core/choices.hpp)
   int population = 100;
   int generations = 2000;
   std::uint64_t seed = 1;
   PowerScaling scaling = PowerScaling::Full;
 };
 
-/// Names accepted by GaOptions::algorithm.
-const std::vector<std::string>& ga_algorithms();
-
 class GaBeamformer final : public Beamformer {
  public:
-  explicit GaBeamformer(GaOptions opt);  // throws InputError for an unknown algorithm
-  std::string name() const override { return opt_.algorithm == "sga" ? "ga" : "ga:" + opt_.algorithm; }
+  explicit GaBeamformer(GaOptions opt);  // throws InputError for a population below 8 or no generations
+  std::string name() const override {
+    return opt_.algorithm == GaAlgorithm::Sga ? "ga" : "ga:" + std::string(name_of(opt_.algorithm));
+  }
   MatrixXcd design(const Cluster& c) const override;
 
  private:

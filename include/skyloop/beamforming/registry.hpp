@@ -10,34 +10,24 @@
 //
 // A spec is "name" or "name=arg" (e.g. "ga=pso", later "gnn=models/gnn/model.pt").
 #include <functional>
-#include <map>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "skyloop/beamforming/beamformer.hpp"
 #include "skyloop/core/config.hpp"
+#include "skyloop/core/registry.hpp"
 
 namespace skyloop {
 
 using BeamformerFactory = std::function<std::unique_ptr<Beamformer>(const Config& cfg, const std::string& arg)>;
 
-class BeamformerRegistry {
+/// The beamformers by name, sorted (skyloop/core/registry.hpp); a spec is "name" or "name=arg".
+class BeamformerRegistry : public Registry<BeamformerFactory> {
  public:
-  /// Adds (or replaces) a factory.
-  void add(const std::string& name, std::string description, BeamformerFactory factory);
+  BeamformerRegistry() : Registry("method '{}'", {}, Order::Name) {}
   /// Builds "name" or "name=arg"; throws InputError naming the spec and the known names.
   std::unique_ptr<Beamformer> create(const std::string& spec, const Config& cfg) const;
-  bool contains(const std::string& name) const { return entries_.count(name) > 0; }
-  /// (name, description), sorted by name.
-  std::vector<std::pair<std::string, std::string>> list() const;
-
- private:
-  struct Entry {
-    std::string description;
-    BeamformerFactory factory;
-  };
-  std::map<std::string, Entry> entries_;
 };
 
 /// Registers the Eigen-only beamformers: mrt, zf, zfsel, rzf, wmmse (per cluster) and nwmmse, crzf,

@@ -14,7 +14,7 @@
 // drive that user's power to zero and still ends in a worse local optimum (measured: 31.8 vs
 // 37.4 bit/s/Hz mean at K_n = L = 4, 30 dBm). skyloop therefore starts WMMSE from ZF with greedy
 // user selection (zf_select); a user with w_k = 0 stays off (u_k = 0), so WMMSE then refines
-// the selected set. wmmse.init = "rzf" gives the textbook start.
+// the selected set. wmmse.init = rzf gives the textbook start.
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -43,17 +43,17 @@ WmmseTrace wmmse_run(const Cluster& c, const MatrixXcd& W0, const WmmseOptions& 
 
 class WmmseBeamformer final : public Beamformer {
  public:
-  /// init: "zfsel" (ZF with greedy user selection, the default) | "rzf" | "mrt" | "random". `restarts` extra runs from random complex-Gaussian points
+  /// init: wmmse.init (ZF with greedy user selection by default, RZF, MRT or a random point). `restarts` extra runs from random complex-Gaussian points
   /// (seeded by `seed` and the cluster); the best final sum rate is kept. The result is scaled
   /// onto the budget with `scaling`.
-  WmmseBeamformer(WmmseOptions opt, std::string init, int restarts, std::uint64_t seed,
+  WmmseBeamformer(WmmseOptions opt, WmmseInit init, int restarts, std::uint64_t seed,
                   PowerScaling scaling = PowerScaling::Full);
   std::string name() const override { return "wmmse"; }
   MatrixXcd design(const Cluster& c) const override;
 
  private:
   WmmseOptions opt_;
-  std::string init_;
+  WmmseInit init_;
   int restarts_;
   std::uint64_t seed_;
   PowerScaling scaling_;

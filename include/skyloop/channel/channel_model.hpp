@@ -55,6 +55,9 @@ class PathLossModel {
   virtual double path_loss_db(const LinkGeometry& g, bool los) const = 0;
   /// Standard deviation of the log-normal shadowing of the state (dB).
   virtual double shadowing_std_db(const LinkGeometry& g, bool los) const = 0;
+  /// True for the paper's beta0 (d0 / d)^2 itself, which the channel then computes in closed
+  /// form, bit for bit as the paper's formula (free-space).
+  virtual bool paper() const { return false; }
 };
 
 /// The model named by channel.pathloss (with channel.carrier_ghz, channel.environment).

@@ -12,7 +12,7 @@
 //
 // g's entries are pure functions of a key per (channel.seed, UAV position, user position, fast
 // slot) and the antenna: revisiting a position sees the same realisations, so the memo and the DP
-// stay exact. docs/extending/channel-model.md: adding a model (a class and a row of kFadingModels).
+// stay exact. docs/extending/channel-model.md: adding a model (a class and a row of fading_models()).
 #include <array>
 #include <cstdint>
 #include <memory>
@@ -20,22 +20,12 @@
 #include <utility>
 
 #include "skyloop/core/config.hpp"
+#include "skyloop/core/registry.hpp"
 #include "skyloop/core/types.hpp"
 
 namespace skyloop {
 
 struct LinkState;
-
-struct FadingInfo {
-  std::string_view name;
-  std::string_view description;
-};
-
-/// channel.fading's allowed values, the paper's first.
-inline constexpr std::array<FadingInfo, 2> kFadingModels{{
-    {"none", "the paper: h = sqrt(beta) a, no scattered part"},
-    {"rician", "Rician with K per channel.rician_k; Rayleigh on NLoS links"},
-}};
 
 class FadingModel {
  public:
@@ -51,7 +41,12 @@ class FadingModel {
   virtual VectorXcd realise(const LinkState& s, const VectorXcd& a, std::uint64_t draws) const = 0;
 };
 
-/// The model named by channel.fading (with channel.rician_k and its K settings, channel.fast_slots).
+/// A model's factory, from channel.fading's settings (channel.rician_k and its K, channel.fast_slots).
+using FadingFactory = std::unique_ptr<FadingModel> (*)(const ChannelConfig&);
+/// Every model, the paper's first: channel.fading's allowed values, their help and factories.
+const Registry<FadingFactory>& fading_models();
+
+/// The model named by channel.fading.
 std::unique_ptr<FadingModel> make_fading(const ChannelConfig& c);
 
 /// Two independent standard normals that are a pure function of `key` (Box-Muller on two mixed words).

@@ -1,8 +1,9 @@
 #pragma once
-// The air-to-ground path-loss models skyloop knows: one table, read by the configuration's allowed
-// values, the CLI's help, Python and the channel model (channel_model.hpp). Each model gives, for a
+// The air-to-ground path-loss models skyloop knows: one registry (path_loss_models(), its rows in
+// channel_model.cpp beside the models), read by the configuration's allowed values, the CLI's help,
+// Python and the channel model (channel_model.hpp). Each model gives, for a
 // link of geometry (d_2D, d_3D, UAV height h, elevation theta), its LoS probability P_LoS, its mean
-// path loss in each state and the shadowing spread in each state. Dependency-free.
+// path loss in each state and the shadowing spread in each state.
 //
 //   free-space   the paper: beta = beta0 (d0 / d_3D)^2, always LoS, no shadowing.
 //   3gpp-uma-av  3GPP TR 36.777 Annex B, urban macro, aerial end at 22.5 m < h <= 300 m,
@@ -14,25 +15,27 @@
 //                (mean excess losses; the source gives no shadowing spread, so none is drawn).
 // The UAV is the aerial end (TR 36.777's h_UT is the UAV's altitude), the user the ground end.
 #include <array>
+#include <memory>
 #include <string>
 #include <string_view>
 
+#include "skyloop/core/registry.hpp"
+
 namespace skyloop {
 
+class PathLossModel;   // channel_model.hpp
+struct ChannelConfig;  // core/config.hpp
+
+/// A path-loss model's row: where its formulas hold, and its factory (from channel.carrier_ghz,
+/// channel.environment, ...).
 struct PathLossInfo {
-  std::string_view name;
-  std::string_view description;
   double min_height_m, max_height_m;  // the UAV altitude the formulas hold for (exclusive, inclusive)
   double max_horizontal_m;            // the largest d_2D they hold for (0: no limit)
+  std::unique_ptr<PathLossModel> (*make)(const ChannelConfig&);
 };
 
-inline constexpr std::array<PathLossInfo, 5> kPathLossModels{{
-    {"free-space", "the paper: beta0 (d0/d)^2, line of sight everywhere", 0, 1e300, 0},
-    {"3gpp-uma-av", "3GPP TR 36.777 urban macro, aerial UAV (22.5 m < H <= 300 m, d_2D <= 4 km)", 22.5, 300, 4000},
-    {"3gpp-umi-av", "3GPP TR 36.777 urban micro, aerial UAV (22.5 m < H <= 300 m, d_2D <= 4 km)", 22.5, 300, 4000},
-    {"3gpp-rma-av", "3GPP TR 36.777 rural macro, aerial UAV (10 m < H <= 300 m, d_2D <= 10 km)", 10, 300, 10000},
-    {"al-hourani", "Al-Hourani et al. (IEEE WCL 2014): sigmoid P_LoS in elevation, excess losses over free space", 0, 1e300, 0},
-}};
+/// Every model, the paper's first: channel.pathloss's allowed values and their help.
+const Registry<PathLossInfo>& path_loss_models();
 
 /// Al-Hourani et al.'s environments (IEEE WCL 2014, Table I, at 2 GHz): the S-curve parameters a
 /// and b (theta in degrees), the mean excess losses eta_LoS and eta_NLoS (dB) over free space, and
@@ -50,10 +53,9 @@ inline constexpr std::array<AirToGroundEnvironment, 4> kAlHouraniEnvironments{{
     {"highrise-urban", 27.23, 0.08, 2.3, 34.0, 75.52},
 }};
 
-inline const PathLossInfo* find_path_loss(std::string_view name) {
-  for (const auto& m : kPathLossModels)
-    if (m.name == name) return &m;
-  return nullptr;
+inline const PathLossInfo* find_path_loss(const std::string& name) {
+  const auto* row = path_loss_models().find(name);
+  return row ? &row->entry : nullptr;
 }
 
 inline const AirToGroundEnvironment* find_environment(std::string_view name) {

@@ -8,6 +8,7 @@
 #include <variant>
 #include <vector>
 
+#include "skyloop/core/choices.hpp"
 #include "skyloop/core/types.hpp"
 
 namespace skyloop {
@@ -17,27 +18,6 @@ namespace skyloop {
 /// before anything is allocated.
 constexpr int kMaxUavs = 64;
 constexpr int kMaxUsers = 4096;
-
-/// How a beamformer's raw output is scaled onto the power budget (eq:power_constraint).
-enum class PowerScaling {
-  /// alpha = sqrt(P / ||W||_F^2): always transmit at full power. The default, because in the
-  /// paper's model (orthogonal bands) scaling W up by c > 1 multiplies every signal and
-  /// interference term by c^2 and so raises every SINR; the optimum of P2.1 therefore always uses
-  /// the full budget. Under the shared spectrum that no longer holds (a UAV's power is other
-  /// clusters' interference); coordinated beamformers then choose their power below the budget.
-  Full,
-  /// alpha = min(1, sqrt(P / ||W||_F^2)): the paper's scaling (Section IV); never scales up.
-  Cap,
-};
-
-/// Spectrum model (channel.spectrum; equations in skyloop/channel/network.hpp).
-enum class Spectrum {
-  Orthogonal,       // the paper: each UAV its own band of the full bandwidth
-  OrthogonalSplit,  // N bands of 1/N of the bandwidth each (equal total bandwidth)
-  Shared,           // every UAV on the same band: inter-cluster interference
-};
-Spectrum parse_spectrum(const std::string& s);  // throws InputError naming channel.spectrum
-std::string to_string(Spectrum s);
 
 struct RunConfig {            // [run]
   std::uint64_t seed = 1;     // base seed; every stochastic stage derives its streams from it
@@ -50,7 +30,7 @@ struct ScenarioConfig {       // [scenario]
   double altitude_m = 100.0;  // UAV flight altitude H
   int uavs = 3;               // N for random snapshots (and for a generated trajectory layout)
   int users = 12;             // K for random snapshots
-  std::string user_layout = "uniform";  // uniform (the paper) | hotspot | mixed (per layout, even odds)
+  UserLayout user_layout = UserLayout::Uniform;  // uniform (the paper) | hotspot | mixed (per layout, even odds)
   int hotspots = 4;                     // hotspot centres, uniform in the area
   double hotspot_radius_m = 40.0;       // std of a hotspot user's offset from its centre (each axis)
   double hotspot_fraction = 0.8;        // share of users in hotspots; the rest uniform
@@ -65,7 +45,7 @@ struct ChannelConfig {                     // [channel]
   double beta0_db = -20.0;                 // channel gain at the reference distance
   double d0_m = 1.0;                       // reference distance d_0
   double coverage_radius_m = 150.0;        // R_c, on the 3-D UAV-user distance
-  std::string spectrum = "orthogonal";     // "orthogonal" (the paper) | "orthogonal-split" | "shared"
+  Spectrum spectrum = Spectrum::Orthogonal;  // orthogonal (the paper) | orthogonal-split | shared
   double bandwidth_hz = 1e6;               // B: turns R (bit/s/Hz) into bits for bits per joule (noise stays noise_dbm)
   // The air-to-ground channel (channel/channel_model.hpp; the models in channel/path_loss.hpp).
   std::string pathloss = "free-space";     // "free-space" (the paper) | "3gpp-uma-av" | "3gpp-umi-av" | "3gpp-rma-av" | "al-hourani"
@@ -73,7 +53,7 @@ struct ChannelConfig {                     // [channel]
   double carrier_ghz = 2.0;                // carrier frequency f_c (3GPP and al-hourani)
   bool shadowing = true;                   // draw log-normal shadowing with the model's spread
   std::string fading = "none";             // "none" (the paper) | "rician"
-  std::string rician_k = "fixed";          // "fixed" (rician_k_db) | "elevation" (k_min_db at 0 deg to k_max_db at 90 deg)
+  RicianK rician_k = RicianK::Fixed;       // fixed (rician_k_db) | elevation (k_min_db at 0 deg to k_max_db at 90 deg)
   double rician_k_db = 10.0;               // K of a LoS link under rician_k = "fixed"
   double rician_k_min_db = 5.0;            // K at elevation 0 under rician_k = "elevation"
   double rician_k_max_db = 15.0;           // K at elevation 90 deg under rician_k = "elevation"
@@ -87,19 +67,19 @@ struct ChannelConfig {                     // [channel]
 
 struct BeamformingConfig {                  // [beamforming]
   PowerScaling power_scaling = PowerScaling::Full;
-  std::string zf_power_allocation = "waterfilling";  // "waterfilling" | "equal"
+  PowerAllocation zf_power_allocation = PowerAllocation::WaterFilling;  // waterfilling | equal
 };
 
 struct WmmseConfig {                // [wmmse]
   double tolerance = 1e-6;          // stop when the relative sum-rate gain of an iteration is below
   int max_iterations = 1000;        // iteration cap per run
   int restarts = 0;                 // extra runs from random points; the best sum rate is kept
-  std::string init = "zfsel";       // first run's starting point: "zfsel" | "rzf" | "mrt" | "random"
+  WmmseInit init = WmmseInit::ZfSel;  // first run's starting point: zfsel | rzf | mrt | random
   double bisection_tolerance = 1e-10;  // relative tolerance of the power constraint in the mu bisection
 };
 
 struct GaConfig {                   // [ga]
-  std::string algorithm = "sga";    // pagmo optimiser: sga | de | sade | pso | cmaes | xnes | gwo | bee_colony
+  GaAlgorithm algorithm = GaAlgorithm::Sga;  // pagmo optimiser: sga | de | sade | pso | cmaes | xnes | gwo | bee_colony
   int population = 100;             // individuals
   int generations = 2000;           // generations (the paper's 2000)
 };
@@ -110,7 +90,7 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   double d_fly_m = 20.0;            // distance flown per slot
   double d_min_m = 25.0;            // minimum UAV separation (eq:collision_constraint)
   int t_max = 24;                   // mission horizon in slots
-  std::string layout = "given";     // given (starts, destinations above) | generated (scenario.uavs UAVs from layout_seed)
+  LayoutSource layout = LayoutSource::Given;  // given (starts, destinations above) | generated (scenario.uavs UAVs from layout_seed)
   std::uint64_t layout_seed = 1;    // seed of a generated layout
   // Mobility (skyloop/env/dynamics.hpp; beyond the paper but the grid model, which is the paper's).
   std::string mobility = "grid";    // grid (the paper's five moves of D_fly) | headings (8 headings x speeds_mps) | continuous
@@ -118,7 +98,7 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
   double slot_s = 2.0;              // slot duration delta_t (s); the grid model flies V = D_fly / delta_t
   double v_max_mps = 20.0;          // continuous: the velocity lies in the disc of this radius (m/s)
   double a_max_mps2 = 5.0;          // continuous: |V[t] - V[t-1]| <= a_max slot_s (m/s^2)
-  std::string command = "velocity";  // continuous: what u in [-1, 1]^2 commands: velocity | polar (speed, turn)
+  Command command = Command::Velocity;  // continuous: what u in [-1, 1]^2 commands: velocity | polar (speed, turn)
   double arrival_m = 1.0;           // continuous: a UAV within this distance of its destination has arrived (m)
   double climb_m = 20.0;            // grid-3d: the altitude a climb or descent changes in one slot (m)
   double altitude_min_m = 60.0;     // grid-3d: the lowest altitude a UAV may fly at (m)
@@ -127,7 +107,7 @@ struct TrajectoryConfig {           // [trajectory] (used by the environment)
 
 struct EnergyConfig {               // [energy] propulsion (skyloop/env/energy.hpp; beyond the paper)
   // Rotary-wing power P(V) of Zeng, Xu and Zhang, IEEE TWC 2019, eq. (12), Table I values.
-  std::string model = "rotary-wing";  // rotary-wing | none (no propulsion energy)
+  Propulsion model = Propulsion::RotaryWing;  // rotary-wing | none (no propulsion energy)
   double p0_w = 79.86;              // blade profile power in hover P0 (W)
   double pi_w = 88.63;              // induced power in hover Pi (W)
   double u_tip_mps = 120.0;         // rotor blade tip speed U_tip (m/s)
@@ -136,7 +116,7 @@ struct EnergyConfig {               // [energy] propulsion (skyloop/env/energy.h
   double rho_kgm3 = 1.225;          // air density rho (kg/m^3)
   double solidity = 0.05;           // rotor solidity s
   double rotor_area_m2 = 0.503;     // rotor disc area A (m^2)
-  std::string acceleration = "none";  // none | kinetic: + max(0, m (V[t]^2 - V[t-1]^2) / 2) per slot
+  Acceleration acceleration = Acceleration::None;  // none | kinetic: + max(0, m (V[t]^2 - V[t-1]^2) / 2) per slot
   double mass_kg = 2.04;            // aircraft mass m (Table I: weight W = 20 N)
   double budget_j = 0.0;            // energy budget per UAV over a mission (J; 0 = none)
   double weight = 0.0;              // env.objective = weighted: w in (bit/s/Hz) per W of fleet power
@@ -153,13 +133,13 @@ struct EnvConfig {                  // [env] the trajectory environment (Section
   // Reward: paper (eq:total_reward with the weights above) | objective (beyond the paper): the
   // increment of R-bar, R-bar[t+1] - R-bar[t], whose sum over an episode is the P2.2 objective
   // less R[1], minus w_bud N_bud and w_col N_col; arrival comes from the action mask.
-  std::string reward = "paper";
+  Reward reward = Reward::Paper;
   bool resample_users = false;      // draw new users at every reset (else fixed per environment)
   std::string users_file;           // TOML with users = [[x, y], ...]; empty = uniform from the seed
   int users_min = 0;                // a sampled layout's K is uniform in [users_min, users_max] (0 = scenario.users)
   int users_max = 0;
-  std::string objective = "sum-rate";  // sum-rate (P2.2) | energy-efficiency (kbit/J) | weighted (R-bar - w P-bar)
-  std::string state = "paper";      // global state of the critics / mixers: paper (4N + 2K reals) | compact (independent of N and K)
+  Objective objective = Objective::SumRate;  // sum-rate (P2.2) | energy-efficiency (kbit/J) | weighted (R-bar - w P-bar)
+  StateKind state = StateKind::Paper;  // global state of the critics / mixers: paper (4N + 2K reals) | compact (independent of N and K)
 };
 
 constexpr int kMaxRateMap = 6;  // marl.rate_map's largest radius: 2 r (r + 1) = 84 cells of the radio map
@@ -179,9 +159,9 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   double entropy_coef = 0.03;       // c2 (the paper uses 0.01; see README "Multi-agent trajectory learning")
   int rollout = 256;                // steps per environment between updates
   int minibatches = 4;
-  std::string minibatch = "samples";  // PPO: samples (agent samples shuffled apart) | steps (whole steps: every agent of a step together)
+  MinibatchLayout minibatch = MinibatchLayout::Samples;  // PPO: samples (agent samples shuffled apart) | steps (whole steps: every agent of a step together)
   int epochs = 10;
-  std::string critic_state = "agent";  // mappo critic input: global (s[t]) | agent (s[t] + id + o_n)
+  CriticState critic_state = CriticState::Agent;  // mappo critic input: global (s[t]) | agent (s[t] + id + o_n)
   bool value_norm = true;           // normalise value targets with running statistics
   double grad_clip = 10.0;          // max global gradient norm (0 = off)
   // value decomposition (VDN / QMIX)
@@ -197,16 +177,16 @@ struct MarlConfig {                 // [marl] trajectory learning (Section V, VI
   bool action_mask = true;          // reachability mask (in the area, destination reachable in the slots left)
   bool shield = true;               // collision shield over the joint action
   int slack_margin = 0;             // slots of slack the mask keeps for the shield to spend (safety.hpp)
-  std::string mask_clearance = "none";  // what the mask counts the moves home around (safety.hpp)
+  Clearance mask_clearance = Clearance::None;  // what the mask counts the moves home around (safety.hpp)
   int reserve_slack = -1;           // UAVs with at most this slack reserve their ways home (ways_home.hpp; -1: none); execution only
-  std::string encoder = "mlp";      // mlp (the paper's 11-real observation) | set (users and neighbours as sets)
+  ObservationKind encoder = ObservationKind::Paper;  // mlp (the paper's 11-real observation) | set (users and neighbours as sets)
   bool lookahead = false;           // set observation: each move's one-slot change of R (UavEnv::write_move_gains)
   int rate_map = 0;                 // set observation: R around the UAV within this many lattice steps (UavEnv::write_rate_map; 0 = none, at most kMaxRateMap)
   bool sequential = false;          // the UAVs choose one after another in shield order, each seeing the landings chosen before it (UavEnv::show_decided)
   int sequential_passes = 1;        // with sequential: the turns taken this many times a slot, each pass showing the UAVs after a UAV at their last pass's moves
-  std::string lr_schedule = "constant";       // constant | linear: the learning rate falls linearly to 0 over total_steps
-  std::string entropy_schedule = "constant";  // constant | linear: PPO's entropy_coef falls linearly to 0 over total_steps
-  std::string backend = "fast";     // PPO networks: fast (fused float32, CPU) | torch (LibTorch autograd)
+  StepSchedule lr_schedule = StepSchedule::Constant;       // constant | linear: the learning rate falls linearly to 0 over total_steps
+  StepSchedule entropy_schedule = StepSchedule::Constant;  // constant | linear: PPO's entropy_coef falls linearly to 0 over total_steps
+  PpoBackend backend = PpoBackend::Fast;  // PPO networks: fast (fused float32, CPU) | torch (LibTorch autograd)
   double average_decay = 0;         // PPO: Polyak average of the actor's weights, a <- d a + (1 - d) w per step; policy.pt and validation use it (0 = off)
   int val_layouts = 0;              // validation layouts scored at each checkpoint; policy.pt = the best (0 = last)
 };
@@ -216,7 +196,7 @@ struct NnConfig {                   // [nn] learned beamformers (Section IV and 
   int hidden = 128;                 // d_gnn (GNN embedding size); baselines use 2x, see README
   int layers = 3;                   // L_g message-passing layers (GNN)
   double learning_rate = 1e-3;      // Adam
-  std::string lr_schedule = "constant";  // constant (the paper) | cosine (decays per step to 1% at the last epoch)
+  LrSchedule lr_schedule = LrSchedule::Constant;  // constant (the paper) | cosine (decays per step to 1% at the last epoch)
   double weight_decay = 1e-6;       // Adam L2 penalty
   int epochs = 25;                  // E_gnn
   int batch_samples = 64;           // snapshots per mini-batch (all their clusters)
@@ -224,13 +204,13 @@ struct NnConfig {                   // [nn] learned beamformers (Section IV and 
   int val_samples = 1000;           // validation snapshots (model selection)
   int test_samples = 1000;          // held-out test snapshots (reported figures)
   std::uint64_t data_seed = 2024;   // seed of the data sets; train/val/test use disjoint streams
-  std::string device = "cpu";       // cpu | cuda
+  ComputeDevice device = ComputeDevice::Cpu;       // cpu | cuda
   double grad_clip = 0.0;           // max global gradient norm; 0 = off
-  std::string readout = "direct";   // direct (the paper: 2L reals per user) | structured (beyond the paper)
-  std::string features = "linear";  // encoders' input: linear (the paper, eq:node_feature) | log (norm compressed)
-  std::string precision = "float32";  // serving arithmetic: float32 (training's) | float64 (a reference for checks)
-  std::string inference = "fast";     // serving path: fast (fused float32 kernels) | torch (LibTorch, the reference)
-  std::string selection = "soft";     // what a served per-cluster model's beams become: soft (as trained) | ranked (nn.selection in config_fields.cpp)
+  Readout readout = Readout::Direct;  // direct (the paper: 2L reals per user) | structured (beyond the paper)
+  Features features = Features::Linear;  // encoders' input: linear (the paper, eq:node_feature) | log (norm compressed)
+  Precision precision = Precision::Float32;  // serving arithmetic: float32 (training's) | float64 (a reference for checks)
+  Inference inference = Inference::Fast;     // serving path: fast (fused float32 kernels) | torch (LibTorch, the reference)
+  Selection selection = Selection::Soft;     // what a served per-cluster model's beams become: soft (as trained) | ranked (nn.selection in config_fields.cpp)
 };
 
 struct Config {
@@ -246,8 +226,6 @@ struct Config {
   EnvConfig env;
   MarlConfig marl;
 };
-
-std::string to_string(PowerScaling s);
 
 // ---- the field table -------------------------------------------------------------------------
 

@@ -28,7 +28,7 @@ class ContinuousDynamics : public Dynamics {
   double dv_max() const { return dv_max_; }
   double arrival_m() const { return arrival_m_; }
   /// trajectory.command.
-  const std::string& command() const { return command_; }
+  Command command() const { return command_; }
   /// The HOME primitive's index.
   int home() const { return home_; }
   /// The velocity (m/s) of command u in [-1, 1]^2 (each coordinate clamped first): u stretched
@@ -58,7 +58,7 @@ class ContinuousDynamics : public Dynamics {
   /// would meet the boundary (then *blocked, when given, is true).
   int home_slots(const Flight& from, double dx, double dy, const Mission& m, int limit, bool* blocked = nullptr) const;
 
-  std::string command_mode() const override { return command_; }
+  std::string command_mode() const override { return name_of(command_); }
   Flight fly(int n, const Flight& now, int a, const Mission& m) const override;
   Flight fly_command(int n, const Flight& now, double vx, double vy, const Mission& m) const override;
   void command_velocity(int n, const Flight& now, double u0, double u1, const Mission& m, double& vx, double& vy) const override;
@@ -72,8 +72,8 @@ class ContinuousDynamics : public Dynamics {
 
  private:
   double v_max_ = 0, dv_max_ = 0, arrival_m_ = 0, a_max_ = 0, a_max_mps2_ = 0;  // a_max_: dv_max / slot_s
-  std::string command_ = "velocity";
-  bool polar_ = false;  // command_ == "polar", resolved once
+  Command command_ = Command::Velocity;
+  bool polar_ = false;  // command_ == Command::Polar
   std::vector<double> prim_vx_, prim_vy_;
   int home_ = -1;
 };

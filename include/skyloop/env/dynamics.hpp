@@ -48,6 +48,7 @@
 #include <vector>
 
 #include "skyloop/core/config.hpp"
+#include "skyloop/core/registry.hpp"
 #include "skyloop/core/types.hpp"
 #include "skyloop/env/energy.hpp"
 #include "skyloop/env/spec.hpp"
@@ -250,16 +251,10 @@ class LatticeDynamics : public Dynamics {
   double floor_ = 0, climb_ = 0;
 };
 
-/// One entry of the registry: trajectory.mobility's value, one line of help, the factory (which
-/// validates the model's settings: InputError naming the field).
-struct DynamicsInfo {
-  const char* name;
-  const char* description;
-  std::shared_ptr<const Dynamics> (*make)(const Config&);
-};
-/// Every model, the paper's first: trajectory.mobility's allowed values and their help.
-const std::vector<DynamicsInfo>& dynamics_models();
-std::vector<std::string> dynamics_names();
+/// A model's factory; it validates the model's settings (InputError naming the field).
+using DynamicsFactory = std::shared_ptr<const Dynamics> (*)(const Config&);
+/// Every model, the paper's first: trajectory.mobility's allowed values, their help and factories.
+const Registry<DynamicsFactory>& dynamics_models();
 /// The model of cfg.trajectory.mobility (InputError for another name, listing the allowed).
 std::shared_ptr<const Dynamics> make_dynamics(const Config& cfg);
 /// "grid or headings": the models on the lattice (what the DP and ways home accept).

@@ -17,12 +17,13 @@
 #include <string>
 #include <vector>
 
+#include "skyloop/core/choices.hpp"
+
 namespace skyloop {
 
 struct Config;
 
-enum class ObservationKind { Paper, Set };  // marl.encoder: mlp | set
-enum class StateKind { Paper, Compact };    // env.state: paper | compact
+// ObservationKind (marl.encoder) and StateKind (env.state): skyloop/core/choices.hpp.
 
 /// One named field of a row: `size` consecutive values from `offset`, each in [low, high].
 struct SpecField {
@@ -179,9 +180,5 @@ EnvSpec make_env_spec(const Config& cfg, int agents, int users);
 /// (environments of one VecEnv hold one spec between them); keyed by the spec's own contents.
 std::shared_ptr<const EnvSpec> shared_env_spec(const SpecParams& p);
 
-ObservationKind parse_observation_kind(const std::string& encoder);  // marl.encoder
-StateKind parse_state_kind(const std::string& state);                // env.state
-std::string to_string(ObservationKind k);
-std::string to_string(StateKind k);
 
 }  // namespace skyloop

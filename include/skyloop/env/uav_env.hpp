@@ -41,7 +41,7 @@
 #include <unordered_map>
 #include <vector>
 
-#include "skyloop/core/objective.hpp"
+#include "skyloop/core/choices.hpp"
 #include "skyloop/env/energy.hpp"
 #include "skyloop/env/dynamics.hpp"
 #include "skyloop/env/rate_oracle.hpp"

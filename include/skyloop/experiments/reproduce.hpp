@@ -65,8 +65,8 @@ ExperimentSpec parse_experiment(const std::string& toml_text, const std::string&
 Config resolve_experiment(const ExperimentSpec& s, const std::vector<std::string>& before = {},
                           const std::vector<std::string>& after = {});
 
-/// The kinds an experiment file may name (each has a stage in reproduce's kind table).
-const std::vector<std::string>& experiment_kinds();
+/// The kinds an experiment file may name: the names of reproduce's stage registry.
+std::vector<std::string> experiment_kinds();
 
 /// Every *.toml in `dir`, in file-name order.
 std::vector<ExperimentSpec> load_experiments(const std::string& dir, const std::string& profile);

@@ -6,12 +6,14 @@
 #include <string>
 #include <vector>
 
+#include "skyloop/core/registry.hpp"
+
 namespace skyloop {
 
+/// What a learner is, beside its name and help (its registry row).
 struct LearnerInfo {
   enum class Core { Ppo, ValueDecomposition };
   enum class Mixer { None, Sum, Qmix };  // value decomposition: how the agents' Q values combine
-  std::string name, description;
   Core core;
   bool local_critic = false;  // PPO: the critic reads the agent's own observation (IPPO)
   Mixer mixer = Mixer::None;
@@ -19,25 +21,27 @@ struct LearnerInfo {
   bool acts_by_q() const { return core == Core::ValueDecomposition; }
 };
 
-/// Every learner, in display order.
-inline const std::vector<LearnerInfo>& learners() {
-  static const std::vector<LearnerInfo> table = {
-      {"mappo", "PPO with a centralised critic on the global or agent-specific state (the paper's learner)",
-       LearnerInfo::Core::Ppo, false, LearnerInfo::Mixer::None},
-      {"ippo", "PPO with each agent's critic on its own observation", LearnerInfo::Core::Ppo, true, LearnerInfo::Mixer::None},
-      {"vdn", "value decomposition: the team Q is the sum of the agents' Q", LearnerInfo::Core::ValueDecomposition, false,
-       LearnerInfo::Mixer::Sum},
-      {"qmix", "value decomposition: a monotonic mixing network conditioned on the state",
-       LearnerInfo::Core::ValueDecomposition, false, LearnerInfo::Mixer::Qmix},
-  };
+/// Every learner, in display order (skyloop/core/registry.hpp).
+inline const Registry<LearnerInfo>& learners() {
+  using L = LearnerInfo;
+  static const Registry<LearnerInfo> table(
+      "marl.algo = \"{}\"",
+      {
+          {"mappo", "PPO with a centralised critic on the global or agent-specific state (the paper's learner)",
+           {L::Core::Ppo, false, L::Mixer::None}},
+          {"ippo", "PPO with each agent's critic on its own observation", {L::Core::Ppo, true, L::Mixer::None}},
+          {"vdn", "value decomposition: the team Q is the sum of the agents' Q", {L::Core::ValueDecomposition, false, L::Mixer::Sum}},
+          {"qmix", "value decomposition: a monotonic mixing network conditioned on the state",
+           {L::Core::ValueDecomposition, false, L::Mixer::Qmix}},
+      });
   return table;
 }
 
 /// The names, in display order.
-std::vector<std::string> learner_names();
+inline std::vector<std::string> learner_names() { return learners().names(); }
 /// "mappo, ippo, vdn, qmix".
-std::string learner_names_text();
+inline std::string learner_names_text() { return learners().names_text(); }
 /// The learner called `name`; throws InputError "marl.algo = "x" is unknown: allowed mappo, ...".
-const LearnerInfo& find_learner(const std::string& name);
+inline const LearnerInfo& find_learner(const std::string& name) { return learners().at(name); }
 
 }  // namespace skyloop

@@ -23,8 +23,8 @@ struct ModelInfo {
   std::string model;            // gnn | deepsets | mspointnet (per cluster) | ignn (network, interference-aware)
   int antennas = 0;             // L the model was trained for
   int hidden = 0, layers = 0;
-  std::string readout = "direct";  // direct (the paper) | structured (see src/nn/models.hpp)
-  std::string features = "linear";  // what the encoders see: linear (the paper) | log (see src/nn/models.hpp)
+  Readout readout = Readout::Direct;    // nn.readout: direct (the paper) | structured (see src/nn/models.hpp)
+  Features features = Features::Linear;  // nn.features: what the encoders see (see src/nn/models.hpp)
   double feature_scale = 1.0;   // input normalisation: x = [Re h, Im h] * feature_scale
   int epoch = 0;                // epochs completed
   double best_val_sum_rate = 0; // mean network sum rate on the validation set (bit/s/Hz)

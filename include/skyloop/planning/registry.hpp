@@ -14,6 +14,7 @@
 #include <utility>
 #include <vector>
 
+#include "skyloop/core/registry.hpp"
 #include "skyloop/planning/planners.hpp"
 
 namespace skyloop {
@@ -27,25 +28,12 @@ struct PlannerArgs {
 
 using PlannerFactory = std::function<std::unique_ptr<Planner>(const PlannerArgs&)>;
 
-class PlannerRegistry {
+/// The planners by name, in registration order (skyloop/core/registry.hpp).
+class PlannerRegistry : public Registry<PlannerFactory> {
  public:
-  /// Adds (or replaces) a planner; names keep the order of their first registration.
-  void add(const std::string& name, std::string description, PlannerFactory factory);
+  PlannerRegistry() : Registry("planner '{}'") {}
   /// Builds the planner; throws InputError "planner 'x' is unknown: allowed a, b, c".
-  std::unique_ptr<Planner> create(const std::string& name, const PlannerArgs& args = {}) const;
-  bool contains(const std::string& name) const;
-  std::vector<std::string> names() const;
-  /// "random, greedy, ..." for help texts and errors.
-  std::string names_text() const;
-  /// (name, description) in registration order.
-  std::vector<std::pair<std::string, std::string>> list() const;
-
- private:
-  struct Entry {
-    std::string name, description;
-    PlannerFactory factory;
-  };
-  std::vector<Entry> entries_;
+  std::unique_ptr<Planner> create(const std::string& name, const PlannerArgs& args = {}) const { return at(name)(args); }
 };
 
 /// The built-in planners: random, greedy, seqgreedy, bestknown, optimal.

@@ -43,9 +43,9 @@
 
 namespace skyloop {
 
-/// What the reachability mask counts the moves home around (marl.mask_clearance): nothing; the
-/// parked UAVs; the other UAVs' destinations, then the parked UAVs (where the slots left allow).
-enum class Clearance { None, Parked, Destinations };
+// Clearance (marl.mask_clearance, skyloop/core/choices.hpp): what the reachability mask counts the
+// moves home around: nothing; the parked UAVs; the other UAVs' destinations, then the parked UAVs
+// (where the slots left allow).
 
 struct SafetyOptions {
   bool mask = true;    // reachability mask

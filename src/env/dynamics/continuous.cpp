@@ -18,12 +18,12 @@ constexpr const char* kHeadingNames[8] = {"E", "NE", "N", "NW", "W", "SW", "S", 
 
 ContinuousDynamics::ContinuousDynamics(const Config& cfg) : Dynamics(cfg) {
   const auto& t = cfg.trajectory;
-  if (cfg.energy.model != "none" && t.v_max_mps >= cfg.energy.u_tip_mps)
+  if (cfg.energy.model != Propulsion::None && t.v_max_mps >= cfg.energy.u_tip_mps)
     throw InputError("trajectory.v_max_mps = " + format_double(t.v_max_mps) + " is at or above energy.u_tip_mps = " +
                      format_double(cfg.energy.u_tip_mps) + ": allowed a ground speed below the tip speed (the power model's range)");
   v_max_ = t.v_max_mps, dv_max_ = t.a_max_mps2 * slot_s_, arrival_m_ = t.arrival_m, a_max_ = dv_max_ / slot_s_;
   a_max_mps2_ = t.a_max_mps2;
-  command_ = t.command, polar_ = command_ == "polar";
+  command_ = t.command, polar_ = command_ == Command::Polar;
   actions_.dims = 2;
   for (const double v : {v_max_ / 2, v_max_})
     for (int h = 0; h < 8; ++h) {

@@ -18,37 +18,27 @@ std::shared_ptr<const Dynamics> make_headings_dynamics(const Config& cfg);
 std::shared_ptr<const Dynamics> make_continuous_dynamics(const Config& cfg);
 std::shared_ptr<const Dynamics> make_grid3d_dynamics(const Config& cfg);
 
-const std::vector<DynamicsInfo>& dynamics_models() {
-  static const std::vector<DynamicsInfo> models = {
-      {"grid", "the paper's five moves of D_fly", make_grid_dynamics},
-      {"headings", "8 headings x trajectory.speeds_mps on the D_fly lattice", make_headings_dynamics},
-      {"continuous", "a velocity in the disc of v_max_mps, its change bounded by a_max_mps2", make_continuous_dynamics},
-      {"grid-3d", "the grid's moves, each holding, climbing or descending by climb_m in [altitude_min_m, altitude_max_m]",
-       make_grid3d_dynamics},
-  };
+const Registry<DynamicsFactory>& dynamics_models() {
+  static const Registry<DynamicsFactory> models(
+      "trajectory.mobility = \"{}\"",
+      {
+          {"grid", "the paper's five moves of D_fly", make_grid_dynamics},
+          {"headings", "8 headings x trajectory.speeds_mps on the D_fly lattice", make_headings_dynamics},
+          {"continuous", "a velocity in the disc of v_max_mps, its change bounded by a_max_mps2", make_continuous_dynamics},
+          {"grid-3d", "the grid's moves, each holding, climbing or descending by climb_m in [altitude_min_m, altitude_max_m]",
+           make_grid3d_dynamics},
+      });
   return models;
 }
 
-std::vector<std::string> dynamics_names() {
-  std::vector<std::string> out;
-  for (const auto& m : dynamics_models()) out.push_back(m.name);
-  return out;
-}
-
-std::shared_ptr<const Dynamics> make_dynamics(const Config& cfg) {
-  for (const auto& m : dynamics_models())
-    if (cfg.trajectory.mobility == m.name) return m.make(cfg);
-  std::string allowed;
-  for (const auto& name : dynamics_names()) allowed += (allowed.empty() ? "" : ", ") + name;
-  throw InputError("trajectory.mobility = \"" + cfg.trajectory.mobility + "\" is not allowed: allowed one of " + allowed);
-}
+std::shared_ptr<const Dynamics> make_dynamics(const Config& cfg) { return dynamics_models().at(cfg.trajectory.mobility)(cfg); }
 
 std::string lattice_dynamics_names() {
   std::vector<std::string> names;
-  for (const auto& m : dynamics_models()) {
+  for (const auto& m : dynamics_models().rows()) {
     Config c;
     c.trajectory.mobility = m.name;
-    if (m.make(c)->lattice()) names.push_back(m.name);
+    if (m.entry(c)->lattice()) names.push_back(m.name);
   }
   std::string out;
   for (std::size_t i = 0; i < names.size(); ++i) out += (i == 0 ? "" : i + 1 == names.size() ? " or " : ", ") + names[i];

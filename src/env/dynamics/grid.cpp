@@ -32,7 +32,7 @@ class GridDynamics : public LatticeDynamics {
  public:
   explicit GridDynamics(const Config& cfg) : LatticeDynamics(cfg) {
     const auto& t = cfg.trajectory;
-    if (cfg.energy.model != "none" && t.d_fly_m / t.slot_s >= cfg.energy.u_tip_mps)
+    if (cfg.energy.model != Propulsion::None && t.d_fly_m / t.slot_s >= cfg.energy.u_tip_mps)
       throw InputError("trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m per trajectory.slot_s = " + format_double(t.slot_s) +
                        " s flies " + format_double(t.d_fly_m / t.slot_s) + " m/s, at or above energy.u_tip_mps = " +
                        format_double(cfg.energy.u_tip_mps) + ": allowed a ground speed below the tip speed (the power model's range)");

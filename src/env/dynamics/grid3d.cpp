@@ -67,7 +67,7 @@ class Grid3dDynamics : public LatticeDynamics {
       throw InputError("trajectory.altitude_min_m .. altitude_max_m = " + format_double(lo) + " .. " + format_double(hi) +
                        " m leaves channel.pathloss = \"" + cfg.channel.pathloss + "\"'s range: allowed " + format_double(pl->min_height_m) +
                        " < altitude <= " + format_double(pl->max_height_m) + " m");
-    if (cfg.energy.model != "none" && t.d_fly_m / t.slot_s >= cfg.energy.u_tip_mps)
+    if (cfg.energy.model != Propulsion::None && t.d_fly_m / t.slot_s >= cfg.energy.u_tip_mps)
       throw InputError("trajectory.d_fly_m = " + format_double(t.d_fly_m) + " m per trajectory.slot_s = " + format_double(t.slot_s) + " s flies " +
                        format_double(t.d_fly_m / t.slot_s) + " m/s, at or above energy.u_tip_mps = " + format_double(cfg.energy.u_tip_mps) +
                        ": allowed a ground speed below the tip speed (the power model's range)");

@@ -33,7 +33,7 @@ void validate_speeds(const Config& c) {
       if (t.speeds_mps[j] == v)
         throw InputError("trajectory.speeds_mps[" + std::to_string(i) + "] = " + format_double(v) + " repeats entry " +
                          std::to_string(j) + ": allowed distinct speeds");
-    if (std::sqrt(2.0) * v >= c.energy.u_tip_mps && c.energy.model != "none")
+    if (std::sqrt(2.0) * v >= c.energy.u_tip_mps && c.energy.model != Propulsion::None)
       throw InputError("trajectory.speeds_mps[" + std::to_string(i) + "] = " + format_double(v) + " m/s flies " +
                        format_double(std::sqrt(2.0) * v) + " m/s on a diagonal, at or above energy.u_tip_mps = " +
                        format_double(c.energy.u_tip_mps) + ": allowed ground speeds below the tip speed (the power model's range)");

@@ -105,9 +105,9 @@ constexpr double kMarlMachine = 2.4, kMarlRunSetup = 3.0;
 double marl_cost(const Config& cfg) {
   const auto& learner = find_learner(cfg.marl.algo);
   const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? 1.2e-5
-                      : cfg.marl.backend == "torch"                          ? 1.3e-4
+                      : cfg.marl.backend == PpoBackend::Torch                        ? 1.3e-4
                                                                              : 1.3e-5;
-  const double per_step = base + (cfg.marl.encoder == "set" ? 5e-5 : 0.0) + (cfg.channel.spectrum == "shared" ? 4e-5 : 0.0);
+  const double per_step = base + (cfg.marl.encoder == ObservationKind::Set ? 5e-5 : 0.0) + (cfg.channel.spectrum == Spectrum::Shared ? 4e-5 : 0.0);
   return kMarlRunSetup +
          kMarlMachine * per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
 }
@@ -119,10 +119,10 @@ double dp_cost(const Config& cfg, int users) {
   const double cells = (std::floor(cfg.scenario.area_x_m / cfg.trajectory.d_fly_m) + 1) *
                        (std::floor(cfg.scenario.area_y_m / cfg.trajectory.d_fly_m) + 1);
   const double states = std::pow(cells, static_cast<double>(cfg.trajectory.starts.size())) / std::pow(121.0, 3);
-  return 0.3 * users * states * (cfg.channel.spectrum == "shared" ? 90.0 : 1.0) + 0.3;
+  return 0.3 * users * states * (cfg.channel.spectrum == Spectrum::Shared ? 90.0 : 1.0) + 0.3;
 }
 double planner_cost(const Config& cfg, const std::string& p) {
-  const double shared = cfg.channel.spectrum == "shared" ? 3.0 : 1.0;
+  const double shared = cfg.channel.spectrum == Spectrum::Shared ? 3.0 : 1.0;
   if (p == "optimal") return dp_cost(cfg, cfg.scenario.users);
   if (p == "greedy") return 0.1 * shared;
   return 0.05;

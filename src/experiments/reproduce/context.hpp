@@ -18,6 +18,7 @@
 #include "piece_cache.hpp"
 #include "skyloop/core/config.hpp"
 #include "skyloop/core/csv.hpp"
+#include "skyloop/core/registry.hpp"
 #include "skyloop/experiments/layout_eval.hpp"
 #include "skyloop/experiments/reproduce.hpp"
 
@@ -136,7 +137,6 @@ std::string episode_columns(const CsvTable& summary, std::size_t r);
 
 /// One kind of experiment: the pieces it needs and how its CSVs are assembled from them.
 struct StageKind {
-  std::string name;
   int phase = 1;  // 0: its pieces decide others' cache keys (the models), so they run first
   std::function<std::vector<Piece>(StageContext&, const ExperimentSpec&)> pieces;
   /// Writes the experiment's CSVs (computing any piece that is missing); returns their paths.
@@ -144,9 +144,10 @@ struct StageKind {
   std::function<nlohmann::json(StageContext&, const ExperimentSpec&)> assemble;
 };
 
+/// Every kind, by name (skyloop/core/registry.hpp): experiment.kind's allowed values.
+const Registry<StageKind>& stage_kinds();
 /// The kind named `name`; an unknown kind throws InputError naming the kinds there are.
-const StageKind& stage_kind(const std::string& name);
-const std::vector<StageKind>& stage_kinds();
+inline const StageKind& stage_kind(const std::string& name) { return stage_kinds().at(name); }
 
 // Defined in stage_*.cpp.
 StageKind models_stage();

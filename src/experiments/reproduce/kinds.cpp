@@ -1,22 +1,30 @@
-// The table of stage kinds: an experiment file's `kind` is looked up here.
+// The registry of stage kinds: an experiment file's `kind` is looked up here. Adding a kind: its
+// stage_*.cpp (a StageKind: pieces, assemble) and its row below (docs/extending/experiment-kind.md).
 #include "context.hpp"
-#include "skyloop/core/error.hpp"
+#include "skyloop/experiments/reproduce.hpp"
 
-namespace skyloop::repro {
+namespace skyloop {
+namespace repro {
 
-const std::vector<StageKind>& stage_kinds() {
-  static const std::vector<StageKind> kinds = {models_stage(), sweep_stage(), marl_training_stage(), planning_users_stage(),
-                                               trajectories_stage(), generalisation_stage(), rate_energy_stage(), altitude_profile_stage()};
+const Registry<StageKind>& stage_kinds() {
+  static const Registry<StageKind> kinds(
+      "experiment kind '{}'",
+      {
+          {"models", "trains (or reuses) the learned beamformers the other experiments name", models_stage()},
+          {"beamform_sweep", "every method's sum rate over a swept setting (power, users, antennas, ...)", sweep_stage()},
+          {"marl_training", "trains the learners over seeds and scores their policies beside the planners", marl_training_stage()},
+          {"planning_users", "every planner's objective and the exact optimum over the number of users", planning_users_stage()},
+          {"trajectories", "one layout's flown trajectories, planner by planner", trajectories_stage()},
+          {"generalisation", "trained policies on held-out layouts, sizes and user counts", generalisation_stage()},
+          {"rate_energy", "the rate-energy front: the optimum of R-bar - w P-bar over the weight w", rate_energy_stage()},
+          {"altitude_profile", "the exact optimum's altitudes under each channel beside the fixed-altitude optimum",
+           altitude_profile_stage()},
+      });
   return kinds;
 }
 
-const StageKind& stage_kind(const std::string& name) {
-  std::string all;
-  for (const auto& k : stage_kinds()) {
-    if (k.name == name) return k;
-    all += (all.empty() ? "" : ", ") + k.name;
-  }
-  throw InputError("experiment kind '" + name + "' has no stage: allowed " + all);
-}
+}  // namespace repro
 
-}  // namespace skyloop::repro
+std::vector<std::string> experiment_kinds() { return repro::stage_kinds().names(); }
+
+}  // namespace skyloop

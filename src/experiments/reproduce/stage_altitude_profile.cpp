@@ -63,6 +63,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind altitude_profile_stage() { return {"altitude_profile", 1, pieces, assemble}; }
+StageKind altitude_profile_stage() { return {1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

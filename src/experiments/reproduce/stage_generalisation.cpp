@@ -109,6 +109,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind generalisation_stage() { return {"generalisation", 1, pieces, assemble}; }
+StageKind generalisation_stage() { return {1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

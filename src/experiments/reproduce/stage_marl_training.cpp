@@ -67,6 +67,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind marl_training_stage() { return {"marl_training", 1, pieces, assemble}; }
+StageKind marl_training_stage() { return {1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

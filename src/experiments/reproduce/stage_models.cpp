@@ -97,6 +97,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind models_stage() { return {"models", 0, pieces, assemble}; }
+StageKind models_stage() { return {0, pieces, assemble}; }
 
 }  // namespace skyloop::repro

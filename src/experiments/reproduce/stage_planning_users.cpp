@@ -58,6 +58,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind planning_users_stage() { return {"planning_users", 1, pieces, assemble}; }
+StageKind planning_users_stage() { return {1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

@@ -107,6 +107,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind rate_energy_stage() { return {"rate_energy", 1, pieces, assemble}; }
+StageKind rate_energy_stage() { return {1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

@@ -148,6 +148,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind sweep_stage() { return {"beamform_sweep", 1, pieces, assemble}; }
+StageKind sweep_stage() { return {1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

@@ -84,6 +84,6 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
 
 }  // namespace
 
-StageKind trajectories_stage() { return {"trajectories", 1, pieces, assemble}; }
+StageKind trajectories_stage() { return {1, pieces, assemble}; }
 
 }  // namespace skyloop::repro

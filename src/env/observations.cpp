@@ -1,7 +1,8 @@
-// UavEnv's observation and state writers: each fills the rows of its spec entry
-// (skyloop/env/spec.hpp) for one agent or for the environment, the paper's 11 reals, the set
-// observation (Gaussian kernels of the users and UAVs on two grids), its move gains and radio map,
-// the sequential turns' decided landings, and the critic's state.
+// The observation and state fields (skyloop/env/spec.hpp): one row per field in observation_fields()
+// and state_fields(), its layout and its writer together; the spec lays the arrays out from those
+// rows, and UavEnv writes an array by calling each field's writer at its offset. Here too the set
+// observation's Gaussian kernels (with their cache), its move gains and radio map, and the
+// sequential turns' decided landings.
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -13,28 +14,11 @@
 
 namespace skyloop {
 
-void UavEnv::write_observation(int n, float* o) const {
-  const auto& users = oracle_->users();
-  double mx = 0, my = 0;
-  for (Eigen::Index k = 0; k < users.rows(); ++k) mx += users(k, 0) - pos_(n, 0), my += users(k, 1) - pos_(n, 1);
-  const double K = static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
-  o[0] = static_cast<float>(pos_(n, 0) / mission_.area_x);
-  o[1] = static_cast<float>(pos_(n, 1) / mission_.area_y);
-  o[2] = static_cast<float>(mx / K / mission_.area_x);
-  o[3] = static_cast<float>(my / K / mission_.area_y);
-  o[4] = static_cast<float>((mission_.destinations(n, 0) - pos_(n, 0)) / mission_.area_x);
-  o[5] = static_cast<float>((mission_.destinations(n, 1) - pos_(n, 1)) / mission_.area_y);
-  write_previous_action(n, o + 6);
-  write_optional(n, o + 6 + (spec_->action.continuous() ? spec_->action.dims : actions()), ObservationField::kPaper);
+void UavEnv::write_array(const ArraySpec& a, int n, float* out) const {
+  for (const auto& f : a.fields) f.write(*this, n, out + f.offset);
 }
 
-void UavEnv::write_optional(int n, float* o, int array) const {
-  for (const auto& f : observation_fields())
-    if ((f.arrays & array) && f.on(spec_params_)) {
-      f.write(*this, n, o);
-      o += f.size(spec_params_);
-    }
-}
+void UavEnv::write_observation(int n, float* o) const { write_array(spec_->paper_obs, n, o); }
 
 float UavEnv::altitude_share(int n) const {
   const LatticeDynamics& l = *dynamics_->lattice();
@@ -120,19 +104,11 @@ void add_kernel(float* map, int G, double step, double width, double dx, double 
 }
 }  // namespace
 
-void UavEnv::write_set_observation(int n, float* o) const {
+void UavEnv::write_set_observation(int n, float* o) const { write_array(spec_->set_obs, n, o); }
+
+void UavEnv::write_users_density(int n, float* o) const {
   const double x = pos_(n, 0), y = pos_(n, 1);
-  const int left = t_max_ - t_;
-  *o++ = static_cast<float>(x / mission_.area_x);
-  *o++ = static_cast<float>(y / mission_.area_y);
-  *o++ = static_cast<float>((mission_.destinations(n, 0) - x) / mission_.area_x);
-  *o++ = static_cast<float>((mission_.destinations(n, 1) - y) / mission_.area_y);
-  *o++ = static_cast<float>(left - min_moves(n, x, y, pos_(n, 2))) / static_cast<float>(t_max_);
-  *o++ = static_cast<float>(t_) / static_cast<float>(t_max_);
-  write_previous_action(n, o);
-  o += spec_->action.continuous() ? spec_->action.dims : actions();
-  constexpr int W = kWideGrid * kWideGrid, Q = kNearGrid * kNearGrid;
-  std::fill(o, o + 2 * W + Q, 0.0f);
+  std::fill(o, o + kWideGrid * kWideGrid, 0.0f);
   const auto& users = oracle_->users();
   const double per_user = 4.0 / static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
   // The users' factors along each axis depend on the UAV's coordinate alone (the users are fixed
@@ -166,28 +142,84 @@ void UavEnv::write_set_observation(int n, float* o) const {
   const KernelAxes::Axis& fewer = ax.count <= ay.count ? ax : ay;
   add_kernels(o, kernel_axes_.f.data() + ax.factors, kernel_axes_.f.data() + ay.factors,
               kernel_axes_.reach.data() + fewer.reach, fewer.count, per_user);
-  const Positions& seen = seen_positions();
-  for (int m = 0; m < n_; ++m) {
-    if (m == n) continue;
-    add_kernel(o + W, kWideGrid, 2 * d_fly_, 2 * d_fly_, seen(m, 0) - x, seen(m, 1) - y, 1.0);
-    add_kernel(o + 2 * W, kNearGrid, d_fly_, d_fly_ / 2, seen(m, 0) - x, seen(m, 1) - y, 1.0);
-  }
-  o += 2 * W + Q;
-  write_optional(n, o, ObservationField::kSet);
 }
 
+void UavEnv::write_uav_kernels(int n, float* o, int G, double step, double width) const {
+  std::fill(o, o + G * G, 0.0f);
+  const Positions& seen = seen_positions();
+  for (int m = 0; m < n_; ++m)
+    if (m != n) add_kernel(o, G, step, width, seen(m, 0) - pos_(n, 0), seen(m, 1) - pos_(n, 1), 1.0);
+}
+
+// Every observation field, in the order the observations hold them (the paper's 11 reals: the
+// rows marked kPaper; the set observation: kSet). A row is the field's whole definition: where it
+// appears, when it is on, its size and bounds, and its writer.
 const std::vector<ObservationField>& observation_fields() {
   using F = ObservationField;
+  using P = const SpecParams&;
   static const std::vector<ObservationField> fields = {
+      // (x, y) / area side.
+      {"own_position", F::kPaper | F::kSet, [](P) { return true; }, [](P) { return 2; }, 0, 1,
+       [](const UavEnv& e, int n, float* o) {
+         o[0] = static_cast<float>(e.pos_(n, 0) / e.mission_.area_x);
+         o[1] = static_cast<float>(e.pos_(n, 1) / e.mission_.area_y);
+       }},
+      // The mean over the users of (u - x) / area side.
+      {"users_mean_displacement", F::kPaper, [](P) { return true; }, [](P) { return 2; }, -1, 1,
+       [](const UavEnv& e, int n, float* o) {
+         const auto& users = e.oracle_->users();
+         double mx = 0, my = 0;
+         for (Eigen::Index k = 0; k < users.rows(); ++k) mx += users(k, 0) - e.pos_(n, 0), my += users(k, 1) - e.pos_(n, 1);
+         const double K = static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
+         o[0] = static_cast<float>(mx / K / e.mission_.area_x);
+         o[1] = static_cast<float>(my / K / e.mission_.area_y);
+       }},
+      // (destination - x) / area side.
+      {"destination_displacement", F::kPaper | F::kSet, [](P) { return true; }, [](P) { return 2; }, -1, 1,
+       [](const UavEnv& e, int n, float* o) {
+         o[0] = static_cast<float>((e.mission_.destinations(n, 0) - e.pos_(n, 0)) / e.mission_.area_x);
+         o[1] = static_cast<float>((e.mission_.destinations(n, 1) - e.pos_(n, 1)) / e.mission_.area_y);
+       }},
+      // (moves left - moves needed) / T_max; the moves needed are at most the grid's Manhattan
+      // distance across the area, or t_max + 1 (out of reach, UavEnv::min_moves) under other models.
+      {"slack", F::kSet, [](P) { return true; }, [](P) { return 1; }, 0, 1,
+       [](const UavEnv& e, int n, float* o) {
+         const int left = e.t_max_ - e.t_;
+         *o = static_cast<float>(left - e.min_moves(n, e.pos_(n, 0), e.pos_(n, 1), e.pos_(n, 2))) / static_cast<float>(e.t_max_);
+       },
+       [](P p, float& low, float&) {
+         const double moves = std::max(std::ceil(p.area_x / p.d_fly) + std::ceil(p.area_y / p.d_fly), p.t_max + 1.0);
+         low = static_cast<float>(-moves / p.t_max);
+       }},
+      // t / T_max.
+      {"time", F::kSet, [](P) { return true; }, [](P) { return 1; }, 0, 1,
+       [](const UavEnv& e, int, float* o) { *o = static_cast<float>(e.t_) / static_cast<float>(e.t_max_); }},
+      // One-hot over a discrete model's actions (Dynamics::write_previous_action) ...
+      {"previous_action", F::kPaper | F::kSet, [](P p) { return !p.action.continuous(); }, [](P p) { return p.action.count(); }, 0, 1,
+       [](const UavEnv& e, int n, float* o) { e.write_previous_action(n, o); }},
+      // ... or a commanding model's last velocity / v_max.
+      {"previous_velocity", F::kPaper | F::kSet, [](P p) { return p.action.continuous(); }, [](P p) { return p.action.dims; }, -1, 1,
+       [](const UavEnv& e, int n, float* o) { e.write_previous_action(n, o); }},
+      // (4 / K) sum_k of the users' Gaussian kernels on the wide grid around the UAV.
+      {"users_density", F::kSet, [](P) { return true; }, [](P) { return kWideGrid * kWideGrid; }, 0, 4,
+       [](const UavEnv& e, int n, float* o) { e.write_users_density(n, o); }},
+      // The other UAVs' kernels on the wide grid (spacing and width 2 D_fly), and on the near one
+      // (spacing D_fly, width D_fly / 2: who is one move away); at most N - 1 each.
+      {"uavs_wide", F::kSet, [](P) { return true; }, [](P) { return kWideGrid * kWideGrid; }, 0, 0,
+       [](const UavEnv& e, int n, float* o) { e.write_uav_kernels(n, o, kWideGrid, 2 * e.d_fly_, 2 * e.d_fly_); },
+       [](P p, float&, float& high) { high = static_cast<float>(std::max(0, p.agents - 1)); }},
+      {"uavs_near", F::kSet, [](P) { return true; }, [](P) { return kNearGrid * kNearGrid; }, 0, 0,
+       [](const UavEnv& e, int n, float* o) { e.write_uav_kernels(n, o, kNearGrid, e.d_fly_, e.d_fly_ / 2); },
+       [](P p, float&, float& high) { high = static_cast<float>(std::max(0, p.agents - 1)); }},
       // marl.lookahead: tanh(kGainScale (R_a - R) / R) of each action (continuous: each primitive).
-      {"move_gains", F::kSet, [](const SpecParams& p) { return p.lookahead; }, [](const SpecParams& p) { return p.action.count(); }, -1, 1,
+      {"move_gains", F::kSet, [](P p) { return p.lookahead; }, [](P p) { return p.action.count(); }, -1, 1,
        [](const UavEnv& e, int n, float* o) { e.write_move_gains(n, o); }},
       // marl.rate_map = r: tanh(kGainScale (R_c - R) / R) at each cell c of rate_map_offsets(r); -1 outside the area.
-      {"rate_map", F::kSet, [](const SpecParams& p) { return p.rate_map > 0; },
-       [](const SpecParams& p) { return static_cast<int>(rate_map_offsets(p.rate_map).size()); }, -1, 1,
+      {"rate_map", F::kSet, [](P p) { return p.rate_map > 0; },
+       [](P p) { return static_cast<int>(rate_map_offsets(p.rate_map).size()); }, -1, 1,
        [](const UavEnv& e, int n, float* o) { e.write_rate_map(n, o); }},
       // Dynamics that choose the altitude: (z - altitude_min_m) / (altitude_max_m - altitude_min_m).
-      {"altitude", F::kPaper | F::kSet, [](const SpecParams& p) { return p.altitude; }, [](const SpecParams&) { return 1; }, 0, 1,
+      {"altitude", F::kPaper | F::kSet, [](P p) { return p.altitude; }, [](P) { return 1; }, 0, 1,
        [](const UavEnv& e, int n, float* o) { *o = e.altitude_share(n); }},
   };
   return fields;
@@ -247,60 +279,100 @@ void UavEnv::write_move_gains(int n, float* o) const {
   for (int a = 0; a < A; ++a) o[a] = static_cast<float>(std::tanh(kGainScale * (r[static_cast<std::size_t>(a) + 1] - now) / now));
 }
 
-void UavEnv::write_compact_state(float* s) const {
-  const auto& users = oracle_->users();
-  {
-    constexpr int G = kStateGrid;
-    std::fill(s, s + compact_state_size(), 0.0f);
-    auto cell = [&](double x, double y) {
-      const int ix = std::min(G - 1, std::max(0, static_cast<int>(x / mission_.area_x * G)));
-      const int iy = std::min(G - 1, std::max(0, static_cast<int>(y / mission_.area_y * G)));
-      return iy * G + ix;
-    };
-    const float per_user = 1.0f / static_cast<float>(std::max<Eigen::Index>(1, users.rows()));
-    const float per_uav = 1.0f / static_cast<float>(n_);
-    for (Eigen::Index k = 0; k < users.rows(); ++k) s[cell(users(k, 0), users(k, 1))] += per_user;
-    int home = 0;
-    for (int n = 0; n < n_; ++n) {
-      s[G * G + cell(pos_(n, 0), pos_(n, 1))] += per_uav;
-      if (arrived(n)) ++home;
-      else s[2 * G * G + cell(mission_.destinations(n, 0), mission_.destinations(n, 1))] += per_uav;
-    }
-    s[3 * G * G] = static_cast<float>(t_) / static_cast<float>(t_max_);
-    s[3 * G * G + 1] = static_cast<float>(home) * per_uav;
-  }
+namespace {
+/// The compact state's cell of point (x, y): a G x G grid over the area.
+int state_cell(const Mission& m, double x, double y) {
+  constexpr int G = kStateGrid;
+  const int ix = std::min(G - 1, std::max(0, static_cast<int>(x / m.area_x * G)));
+  const int iy = std::min(G - 1, std::max(0, static_cast<int>(y / m.area_y * G)));
+  return iy * G + ix;
+}
+}  // namespace
+
+// Every state field, in the order its array holds them.
+const std::vector<StateField>& state_fields() {
+  using F = StateField;
+  using P = const SpecParams&;
+  constexpr int G2 = kStateGrid * kStateGrid;
+  static const std::vector<StateField> fields = {
+      // The paper's s[t]: every UAV's position, every user's, every destination, each / area side.
+      {"uav_positions", F::kPaperState, [](P p) { return 2 * p.agents; }, 0, 1,
+       [](const UavEnv& e, int, float* s) {
+         for (int n = 0; n < e.n_; ++n)
+           *s++ = static_cast<float>(e.pos_(n, 0) / e.mission_.area_x), *s++ = static_cast<float>(e.pos_(n, 1) / e.mission_.area_y);
+       }},
+      {"user_positions", F::kPaperState, [](P p) { return 2 * p.users; }, 0, 1,
+       [](const UavEnv& e, int, float* s) {
+         const auto& users = e.oracle_->users();
+         for (Eigen::Index k = 0; k < users.rows(); ++k)
+           *s++ = static_cast<float>(users(k, 0) / e.mission_.area_x), *s++ = static_cast<float>(users(k, 1) / e.mission_.area_y);
+       }},
+      {"destinations", F::kPaperState, [](P p) { return 2 * p.agents; }, 0, 1,
+       [](const UavEnv& e, int, float* s) {
+         for (int n = 0; n < e.n_; ++n)
+           *s++ = static_cast<float>(e.mission_.destinations(n, 0) / e.mission_.area_x),
+           *s++ = static_cast<float>(e.mission_.destinations(n, 1) / e.mission_.area_y);
+       }},
+      // The compact state: shares per cell of a kStateGrid x kStateGrid grid over the area.
+      {"user_density", F::kCompactState, [](P) { return G2; }, 0, 1,
+       [](const UavEnv& e, int, float* s) {
+         const auto& users = e.oracle_->users();
+         std::fill(s, s + G2, 0.0f);
+         const float per_user = 1.0f / static_cast<float>(std::max<Eigen::Index>(1, users.rows()));
+         for (Eigen::Index k = 0; k < users.rows(); ++k) s[state_cell(e.mission_, users(k, 0), users(k, 1))] += per_user;
+       }},
+      {"uav_density", F::kCompactState, [](P) { return G2; }, 0, 1,
+       [](const UavEnv& e, int, float* s) {
+         std::fill(s, s + G2, 0.0f);
+         const float per_uav = 1.0f / static_cast<float>(e.n_);
+         for (int n = 0; n < e.n_; ++n) s[state_cell(e.mission_, e.pos_(n, 0), e.pos_(n, 1))] += per_uav;
+       }},
+      // The not-yet-arrived UAVs' destinations.
+      {"destination_density", F::kCompactState, [](P) { return G2; }, 0, 1,
+       [](const UavEnv& e, int, float* s) {
+         std::fill(s, s + G2, 0.0f);
+         const float per_uav = 1.0f / static_cast<float>(e.n_);
+         for (int n = 0; n < e.n_; ++n)
+           if (!e.arrived(n)) s[state_cell(e.mission_, e.mission_.destinations(n, 0), e.mission_.destinations(n, 1))] += per_uav;
+       }},
+      {"time", F::kCompactState, [](P) { return 1; }, 0, 1,  // t / T_max
+       [](const UavEnv& e, int, float* s) { *s = static_cast<float>(e.t_) / static_cast<float>(e.t_max_); }},
+      {"arrived_share", F::kCompactState, [](P) { return 1; }, 0, 1,
+       [](const UavEnv& e, int, float* s) {
+         int home = 0;
+         for (int n = 0; n < e.n_; ++n) home += e.arrived(n) ? 1 : 0;
+         *s = static_cast<float>(home) * (1.0f / static_cast<float>(e.n_));
+       }},
+      // Who agent n is, under the paper's state: a one-hot id.
+      {"agent_id", F::kIdContext, [](P p) { return p.agents; }, 0, 1,
+       [](const UavEnv& e, int n, float* out) {
+         for (int m = 0; m < e.n_; ++m) out[m] = m == n ? 1.0f : 0.0f;
+       }},
+      // Under the compact state: displacements / area to the kNeighbours nearest other UAVs
+      // (distance, then index), nearest first, zeros past N - 1.
+      {"neighbour_displacements", F::kNeighbourContext, [](P) { return 2 * kNeighbours; }, -1, 1,
+       [](const UavEnv& e, int n, float* out) {
+         std::vector<std::pair<double, int>> near;
+         for (int m = 0; m < e.n_; ++m)
+           if (m != n) near.emplace_back(std::hypot(e.pos_(m, 0) - e.pos_(n, 0), e.pos_(m, 1) - e.pos_(n, 1)), m);
+         const std::size_t take = std::min<std::size_t>(kNeighbours, near.size());
+         std::partial_sort(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(take), near.end());
+         std::fill(out, out + 2 * kNeighbours, 0.0f);
+         for (std::size_t i = 0; i < take; ++i) {
+           const int m = near[i].second;
+           out[2 * i] = static_cast<float>((e.pos_(m, 0) - e.pos_(n, 0)) / e.mission_.area_x);
+           out[2 * i + 1] = static_cast<float>((e.pos_(m, 1) - e.pos_(n, 1)) / e.mission_.area_y);
+         }
+       }},
+  };
+  return fields;
 }
 
-void UavEnv::write_state(float* s) const {
-  const auto& users = oracle_->users();
-  if (compact_) {
-    write_compact_state(s);
-    return;
-  }
-  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(pos_(n, 0) / mission_.area_x), *s++ = static_cast<float>(pos_(n, 1) / mission_.area_y);
-  for (Eigen::Index k = 0; k < users.rows(); ++k)
-    *s++ = static_cast<float>(users(k, 0) / mission_.area_x), *s++ = static_cast<float>(users(k, 1) / mission_.area_y);
-  for (int n = 0; n < n_; ++n) *s++ = static_cast<float>(mission_.destinations(n, 0) / mission_.area_x), *s++ = static_cast<float>(mission_.destinations(n, 1) / mission_.area_y);
-}
+void UavEnv::write_compact_state(float* s) const { write_array(compact_state_spec(), 0, s); }
 
-void UavEnv::write_agent_context(int n, float* out) const {
-  if (!compact_) {
-    for (int m = 0; m < n_; ++m) out[m] = m == n ? 1.0f : 0.0f;
-    return;
-  }
-  // The kNeighbours nearest other UAVs (distance, then index), nearest first.
-  std::vector<std::pair<double, int>> near;
-  for (int m = 0; m < n_; ++m)
-    if (m != n) near.emplace_back(std::hypot(pos_(m, 0) - pos_(n, 0), pos_(m, 1) - pos_(n, 1)), m);
-  const std::size_t take = std::min<std::size_t>(kNeighbours, near.size());
-  std::partial_sort(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(take), near.end());
-  std::fill(out, out + 2 * kNeighbours, 0.0f);
-  for (std::size_t i = 0; i < take; ++i) {
-    const int m = near[i].second;
-    out[2 * i] = static_cast<float>((pos_(m, 0) - pos_(n, 0)) / mission_.area_x);
-    out[2 * i + 1] = static_cast<float>((pos_(m, 1) - pos_(n, 1)) / mission_.area_y);
-  }
-}
+void UavEnv::write_state(float* s) const { write_array(spec_->state, 0, s); }
+
+void UavEnv::write_agent_context(int n, float* out) const { write_array(spec_->agent_context, n, out); }
 
 std::vector<float> UavEnv::state() const {
   std::vector<float> s(static_cast<std::size_t>(state_size()));
@@ -308,11 +380,7 @@ std::vector<float> UavEnv::state() const {
   return s;
 }
 
-void UavEnv::write_agent_state(int n, float* out) const {
-  write_state(out);
-  write_agent_context(n, out + state_size());
-  write_observation(n, out + state_size() + agent_context_size());
-}
+void UavEnv::write_agent_state(int n, float* out) const { write_array(spec_->agent_state, n, out); }
 
 std::vector<float> UavEnv::agent_state(int n) const {
   std::vector<float> s(static_cast<std::size_t>(agent_state_size()));
@@ -320,9 +388,6 @@ std::vector<float> UavEnv::agent_state(int n) const {
   return s;
 }
 
-void UavEnv::write_obs(int n, float* out) const {
-  if (spec_->observation_kind == ObservationKind::Set) write_set_observation(n, out);
-  else write_observation(n, out);
-}
+void UavEnv::write_obs(int n, float* out) const { write_array(spec_->obs, n, out); }
 
 }  // namespace skyloop

@@ -10,14 +10,14 @@
 
 namespace skyloop {
 
-ArraySpec& ArraySpec::add(const std::string& field, int count, float lo, float hi) {
-  fields.push_back({field, size, count, lo, hi});
+ArraySpec& ArraySpec::add(const std::string& field, int count, float lo, float hi, FieldWriter write) {
+  fields.push_back({field, size, count, lo, hi, write});
   size += count;
   return *this;
 }
 
 ArraySpec& ArraySpec::append(const ArraySpec& other, const std::string& prefix) {
-  for (const auto& f : other.fields) add(prefix + "." + f.name, f.size, f.low, f.high);
+  for (const auto& f : other.fields) add(prefix + "." + f.name, f.size, f.low, f.high, f.write);
   return *this;
 }
 
@@ -49,15 +49,6 @@ ArraySpec named(const std::string& name, const std::string& kind, const std::str
 }
 }  // namespace
 
-namespace {
-/// The previous action: one-hot over a discrete model's actions, or the continuous model's last
-/// velocity / v_max.
-ArraySpec& add_previous_action(ArraySpec& s, const ActionSpec& actions) {
-  if (actions.continuous()) return s.add("previous_velocity", actions.dims, -1, 1);
-  return s.add("previous_action", actions.count(), 0, 1);
-}
-}  // namespace
-
 const std::vector<std::array<int, 2>>& rate_map_offsets(int radius) {
   static const auto tables = [] {
     std::vector<std::vector<std::array<int, 2>>> t(kMaxRateMap + 1);
@@ -77,20 +68,25 @@ const std::vector<std::array<int, 2>>& rate_map_offsets(int radius) {
 }
 
 namespace {
-/// The optional fields of observation_fields() that `array` carries under p, appended to s.
-void add_optional(ArraySpec& s, const SpecParams& p, int array) {
+/// The fields of observation_fields() that `array` carries under p, appended to s.
+void add_observation_fields(ArraySpec& s, const SpecParams& p, int array) {
   for (const auto& f : observation_fields())
-    if ((f.arrays & array) && f.on(p)) s.add(f.name, f.size(p), f.low, f.high);
+    if ((f.arrays & array) && f.on(p)) {
+      float low = f.low, high = f.high;
+      if (f.bounds) f.bounds(p, low, high);
+      s.add(f.name, f.size(p), low, high, f.write);
+    }
+}
+/// The fields of state_fields() in `array`, appended to s.
+void add_state_fields(ArraySpec& s, const SpecParams& p, int array) {
+  for (const auto& f : state_fields())
+    if (f.arrays & array) s.add(f.name, f.size(p), f.low, f.high, f.write);
 }
 }  // namespace
 
 ArraySpec paper_observation_spec(const SpecParams& p) {
   ArraySpec s = named("obs", "paper", "float32", true);
-  s.add("own_position", 2, 0, 1)                 // (x, y) / area side
-      .add("users_mean_displacement", 2, -1, 1)   // mean over the users of (u - x) / area side
-      .add("destination_displacement", 2, -1, 1);  // (destination - x) / area side
-  add_previous_action(s, p.action);
-  add_optional(s, p, ObservationField::kPaper);
+  add_observation_fields(s, p, ObservationField::kPaper);
   return s;
 }
 
@@ -110,32 +106,15 @@ SpecParams spec_params(const Config& cfg, int agents, int users) {
 }
 
 ArraySpec set_observation_spec(const SpecParams& p) {
-  // Moves needed: at most the grid's Manhattan distance across the area, or t_max + 1 (out of
-  // reach, UavEnv::min_moves) under the other models.
-  const double moves = std::max(std::ceil(p.area_x / p.d_fly) + std::ceil(p.area_y / p.d_fly), p.t_max + 1.0);
-  const float others = static_cast<float>(std::max(0, p.agents - 1));
   ArraySpec s = named("obs", "set", "float32", true);
-  s.add("own_position", 2, 0, 1)
-      .add("destination_displacement", 2, -1, 1)
-      .add("slack", 1, static_cast<float>(-moves / p.t_max), 1)  // (moves left - moves needed) / T_max
-      .add("time", 1, 0, 1);                                                   // t / T_max
-  add_previous_action(s, p.action)
-      .add("users_density", kWideGrid * kWideGrid, 0, 4)  // (4 / K) sum_k of Gaussian kernels
-      .add("uavs_wide", kWideGrid * kWideGrid, 0, others)
-      .add("uavs_near", kNearGrid * kNearGrid, 0, others);
-  add_optional(s, p, ObservationField::kSet);  // move gains, the radio map, the altitude
+  add_observation_fields(s, p, ObservationField::kSet);
   return s;
 }
 
 const ArraySpec& compact_state_spec() {
   static const ArraySpec spec = [] {
-    constexpr int G2 = kStateGrid * kStateGrid;
     ArraySpec s = named("state", "compact", "float32", false);
-    s.add("user_density", G2, 0, 1)           // share of the users in each cell
-        .add("uav_density", G2, 0, 1)         // share of the UAVs
-        .add("destination_density", G2, 0, 1)  // share of the not-yet-arrived UAVs' destinations
-        .add("time", 1, 0, 1)                  // t / T_max
-        .add("arrived_share", 1, 0, 1);
+    add_state_fields(s, SpecParams{}, StateField::kCompactState);  // sizes independent of N and K
     return s;
   }();
   return spec;
@@ -191,12 +170,12 @@ EnvSpec make_env_spec(const SpecParams& p) {
   if (e.state_kind == StateKind::Compact) {
     e.state = e.compact_state;
     e.agent_context = named("agent_context", "neighbours", "float32", true);
-    e.agent_context.add("neighbour_displacements", 2 * kNeighbours, -1, 1);  // nearest first, zeros past N - 1
+    add_state_fields(e.agent_context, p, StateField::kNeighbourContext);
   } else {
     e.state = named("state", "paper", "float32", false);
-    e.state.add("uav_positions", 2 * agents, 0, 1).add("user_positions", 2 * users, 0, 1).add("destinations", 2 * agents, 0, 1);
+    add_state_fields(e.state, p, StateField::kPaperState);
     e.agent_context = named("agent_context", "id", "float32", true);
-    e.agent_context.add("agent_id", agents, 0, 1);  // one-hot
+    add_state_fields(e.agent_context, p, StateField::kIdContext);
   }
   e.agent_state = named("agent_state", e.state.kind, "float32", true);
   e.agent_state.append(e.state, "state").append(e.agent_context, "context").append(e.paper_obs, "obs");

@@ -1,5 +1,5 @@
 // The environment's spec is the one layout: every writer fills exactly the row its spec describes
-// (no value left unwritten, nothing written past it), for every state kind and encoder and for
+// (no value left unwritten, nothing written past it), each field's own writer exactly its slice, for every state kind and encoder and for
 // agent counts on both sides of the compact context's kNeighbours.
 #include <gtest/gtest.h>
 
@@ -83,6 +83,15 @@ TEST(Spec, EveryWriterFillsExactlyItsRow) {
             expect_fills_exactly(s.agent_context, [&](float* o) { env.write_agent_context(n, o); }, what + " context");
             expect_fills_exactly(s.agent_state, [&](float* o) { env.write_agent_state(n, o); }, what + " agent state");
             EXPECT_EQ(env.agent_state(n).size(), static_cast<std::size_t>(s.agent_state.size));
+            // Each field's own writer (its row of observation_fields() or state_fields()) fills
+            // exactly its slice: an array is its fields' writers, each at its offset.
+            for (const ArraySpec* a : {&s.paper_obs, &s.set_obs, &s.state, &s.compact_state, &s.agent_context})
+              for (const SpecField& f : a->fields) {
+                ASSERT_NE(f.write, nullptr) << what << ": " << a->name << "." << f.name << " has no writer";
+                ArraySpec one;
+                one.add(f.name, f.size, f.low, f.high);
+                expect_fills_exactly(one, [&](float* o) { f.write(env, n, o); }, what + " " + a->kind + " " + f.name);
+              }
           }
           std::vector<int> a(static_cast<std::size_t>(N));
           for (auto& x : a) x = static_cast<int>(rng.below(kGridActions));

@@ -26,11 +26,17 @@ struct Config;
 // ObservationKind (marl.encoder) and StateKind (env.state): skyloop/core/choices.hpp.
 
 /// One named field of a row: `size` consecutive values from `offset`, each in [low, high].
+class UavEnv;
+/// Writes a field's values for agent n (or, in an environment-wide array, for the environment)
+/// into out[0 .. size - 1].
+using FieldWriter = void (*)(const UavEnv& env, int n, float* out);
+
 struct SpecField {
   std::string name;
   int offset = 0;
   int size = 1;
   float low = 0, high = 0;
+  FieldWriter write = nullptr;  // the field's writer (observation_fields(), state_fields())
 };
 
 /// One array: its rows' fields, in order, without gaps.
@@ -43,7 +49,7 @@ struct ArraySpec {
   int size = 0;         // values in one row (sum of the fields' sizes)
 
   /// Appends a field at the current end of the row.
-  ArraySpec& add(const std::string& field, int count, float low, float high);
+  ArraySpec& add(const std::string& field, int count, float low, float high, FieldWriter write = nullptr);
   /// Appends every field of `other`, each name prefixed with "<prefix>.".
   ArraySpec& append(const ArraySpec& other, const std::string& prefix);
   /// The field named so; throws InputError naming the fields there are.
@@ -147,14 +153,13 @@ struct SpecParams {
 };
 SpecParams spec_params(const Config& cfg, int agents, int users);
 
-/// The paper's observation (its 6 reals and the previous action), then the optional fields of
-/// observation_fields() that it carries under p.
+/// The paper's observation: the fields of observation_fields() it carries under p (its 6 reals,
+/// the previous action, then the optional ones).
 ArraySpec paper_observation_spec(const SpecParams& p);
 
-class UavEnv;
-/// An optional observation field, appended after the fixed ones of the arrays it joins when a
-/// setting turns it on: its layout and its writer in one row, the one place a new such field is
-/// written (src/env/observations.cpp; docs/extending/observation-field.md).
+/// One field of the observations: its layout and its writer in one row, the one place a field is
+/// laid out and written (src/env/observations.cpp; docs/extending/observation-field.md). Each
+/// observation is the rows that join it and are on, in table order.
 struct ObservationField {
   enum Arrays { kPaper = 1, kSet = 2 };
   const char* name;
@@ -162,10 +167,25 @@ struct ObservationField {
   bool (*on)(const SpecParams&);      // whether the configuration turns it on
   int (*size)(const SpecParams&);     // its values under p
   float low, high;                    // its bounds
-  void (*write)(const UavEnv&, int n, float* out);  // UAV n's values into out[0 .. size - 1]
+  FieldWriter write;                  // UAV n's values into out[0 .. size - 1]
+  /// Bounds that depend on the scenario (the slack's floor, the UAV count), else low and high.
+  void (*bounds)(const SpecParams&, float& low, float& high) = nullptr;
 };
-/// The optional fields, in the order they follow the fixed ones.
+/// Every observation field, in the order the observations hold them.
 const std::vector<ObservationField>& observation_fields();
+
+/// One field of the environment's states (the critics' and mixers' inputs): the paper's state,
+/// the compact state, and the agent contexts that make them agent-specific.
+struct StateField {
+  enum Arrays { kPaperState = 1, kCompactState = 2, kIdContext = 4, kNeighbourContext = 8 };
+  const char* name;
+  int arrays;                      // the one array it belongs to
+  int (*size)(const SpecParams&);  // its values under p
+  float low, high;
+  FieldWriter write;               // the environment's values (agent n's for a context)
+};
+/// Every state field, in the order its array holds them.
+const std::vector<StateField>& state_fields();
 
 /// The set observation (sizes independent of K and N); bounds from the scenario.
 ArraySpec set_observation_spec(const SpecParams& p);

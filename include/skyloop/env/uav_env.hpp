@@ -167,9 +167,6 @@ class UavEnv {
   /// the users / area, displacement to the destination / area, one-hot previous action (as wide
   /// as the action space: 5 under the grid model).
   void write_observation(int n, float* out) const;
-  /// The observations' previous-action field (Dynamics::write_previous_action: one-hot, or a
-  /// commanding model's last velocity / v_max).
-  void write_previous_action(int n, float* out) const;
   std::vector<float> observation(int n) const;
   int observation_size() const { return spec_->paper_obs.size; }
   /// s[t] (spec().state) under env.state = "paper": all UAV positions, all user positions, all
@@ -201,36 +198,18 @@ class UavEnv {
   ///  - UAVs, near (kNearGrid^2): spacing D_fly, width D_fly / 2: who is one move away;
   ///  - with marl.lookahead, move gains (one per action): write_move_gains;
   ///  - with marl.rate_map = r, the radio map within r lattice steps: write_rate_map.
+  /// Each field is a row of observation_fields() (src/env/observations.cpp).
   /// Reordering the users or the other UAVs leaves it unchanged (tests/unit/env_test.cpp).
   void write_set_observation(int n, float* out) const;
-  /// For each action a of UAV n (continuous model: each primitive), tanh(kGainScale (R_a - R) / R):
-  /// R_a the sum rate with UAV n landed where a takes it (landing(n, a)) and every other UAV where
-  /// it is, R the sum rate now; the one-slot look-ahead Greedy ranks moves by (its sign and order),
-  /// so a learner sees a rate landscape its user-density features cannot show (3GPP LoS states,
-  /// WMMSE's steep rates). Zeros for an arrived UAV and where R = 0. The oracle is asked for the
-  /// A + 1 position sets in one batched call (memoised).
-  void write_move_gains(int n, float* out) const;
   /// Sequential decisions (marl.sequential): the landing UAV m has chosen this slot, which the set
   /// observations of the agents written after it show in place of where m is (its kernels in the
   /// UAV grids, and its position in the move gains' and the radio map's position sets), so an agent
   /// choosing later sees the slot's joint rate with the earlier choices made. Cleared by
   /// clear_decided, reset and every step; nothing else reads it.
   void show_decided(int m, double x, double y, double z);
-  /// UAV n's altitude within the dynamics' band, in [0, 1] (the observations' altitude field).
-  float altitude_share(int n) const;
-  /// The optional fields of observation_fields() that `array` (ObservationField::kPaper or kSet)
-  /// carries under this environment's settings, written from `out` on.
-  void write_optional(int n, float* out, int array) const;
   void clear_decided();
   /// Where the set observation sees the UAVs: positions(), with the decided landings in place.
   const Positions& seen_positions() const { return any_decided_ ? seen_ : pos_; }
-  /// The radio map around UAV n: at each cell c of rate_map_offsets(marl.rate_map), the point
-  /// x + D_fly c (x the UAV's position, on or off the lattice), tanh(kGainScale (R_c - R) / R) with
-  /// R_c the sum rate with UAV n there and every other UAV where it is; -1 at a point outside the
-  /// area. Beyond the moves' gains it shows where the rate is two or more slots away (a 3GPP LoS
-  /// patch, WMMSE's peaks), which the optimum plans towards and a one-slot look-ahead cannot see.
-  /// Zeros for an arrived UAV and where R = 0; the cells in one batched, memoised oracle call.
-  void write_rate_map(int n, float* out) const;
   int set_observation_size() const { return spec_->set_obs.size; }
   int users() const;
   /// The compact state (spec().compact_state, whatever env.state says).
@@ -360,6 +339,36 @@ class UavEnv {
     }
   };
   mutable KernelAxes kernel_axes_;
+
+  // ---- the field writers (src/env/observations.cpp): observation_fields() and state_fields()
+  // hold a row per field whose writer reads the state below --------------------------------------
+  friend const std::vector<ObservationField>& observation_fields();
+  friend const std::vector<StateField>& state_fields();
+  /// Every field of `a` by its writer at its offset (agent n's, or the environment's).
+  void write_array(const ArraySpec& a, int n, float* out) const;
+  /// The observations' previous-action field (Dynamics::write_previous_action: one-hot, or a
+  /// commanding model's last velocity / v_max).
+  void write_previous_action(int n, float* out) const;
+  /// For each action a of UAV n (continuous model: each primitive), tanh(kGainScale (R_a - R) / R):
+  /// R_a the sum rate with UAV n landed where a takes it (landing(n, a)) and every other UAV where
+  /// it is, R the sum rate now; the one-slot look-ahead Greedy ranks moves by (its sign and order),
+  /// so a learner sees a rate landscape its user-density features cannot show (3GPP LoS states,
+  /// WMMSE's steep rates). Zeros for an arrived UAV and where R = 0. The oracle is asked for the
+  /// A + 1 position sets in one batched call (memoised).
+  void write_move_gains(int n, float* out) const;
+  /// The radio map around UAV n: at each cell c of rate_map_offsets(marl.rate_map), the point
+  /// x + D_fly c (x the UAV's position, on or off the lattice), tanh(kGainScale (R_c - R) / R) with
+  /// R_c the sum rate with UAV n there and every other UAV where it is; -1 at a point outside the
+  /// area. Beyond the moves' gains it shows where the rate is two or more slots away (a 3GPP LoS
+  /// patch, WMMSE's peaks), which the optimum plans towards and a one-slot look-ahead cannot see.
+  /// Zeros for an arrived UAV and where R = 0; the cells in one batched, memoised oracle call.
+  void write_rate_map(int n, float* out) const;
+  /// UAV n's altitude within the dynamics' band, in [0, 1] (the observations' altitude field).
+  float altitude_share(int n) const;
+  /// The users' kernels around UAV n (kernel_axes_: its cache).
+  void write_users_density(int n, float* out) const;
+  /// The other UAVs' kernels (where seen_positions() has them) on a G x G grid around UAV n.
+  void write_uav_kernels(int n, float* out, int G, double step, double width) const;
   std::vector<int> prev_action_, prev_tmin_;
   std::vector<double> rates_;
   double rate_sum_ = 0;

@@ -1,7 +1,13 @@
 #include <gtest/gtest.h>
 
 #include "skyloop/beamforming/linear.hpp"
+#include "skyloop/channel/fading.hpp"
+#include "skyloop/channel/path_loss.hpp"
+#include "skyloop/core/config.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/registry.hpp"
+#include "skyloop/env/dynamics.hpp"
+#include "skyloop/marl/learners.hpp"
 #include "skyloop/experiments/builtin.hpp"
 
 using namespace skyloop;
@@ -48,4 +54,56 @@ TEST(Registry, SplitMethods) {
   EXPECT_EQ(split_methods("mrt,zf,gnn=a/b.pt"), (std::vector<std::string>{"mrt", "zf", "gnn=a/b.pt"}));
   EXPECT_THROW(split_methods("mrt,,zf"), InputError);
   EXPECT_THROW(split_methods(""), InputError);
+}
+
+// The one registry template every open set is built on (skyloop/core/registry.hpp): rows keep the
+// order of their first registration (or sort by name), a name registered again replaces its row
+// in place, and a name it lacks is one error line quoting it as the registry says and listing
+// every name.
+TEST(Registry, TemplateKeepsOrderReplacesInPlaceAndNamesTheUnknown) {
+  Registry<int> r("trajectory.mobility = \"{}\"", {{"grid", "five moves", 1}, {"headings", "eight", 2}});
+  r.add("continuous", "a velocity", 3);
+  r.add("grid", "five moves, again", 10);
+  EXPECT_EQ(r.names(), (std::vector<std::string>{"grid", "headings", "continuous"}));
+  EXPECT_EQ(r.at("grid"), 10);
+  EXPECT_EQ(r.find("grid")->help, "five moves, again");
+  EXPECT_EQ(r.help_text(), "grid: five moves, again; headings: eight; continuous: a velocity");
+  EXPECT_FALSE(r.contains("grid3"));
+  try {
+    r.at("grid3");
+    FAIL() << "an unknown name was found";
+  } catch (const InputError& e) {
+    EXPECT_STREQ(e.what(), "trajectory.mobility = \"grid3\" is unknown: allowed grid, headings, continuous");
+  }
+  Registry<int> sorted("method '{}'", {{"zf", "", 1}, {"mrt", "", 2}}, Registry<int>::Order::Name);
+  sorted.add("gnn", "", 3);
+  EXPECT_EQ(sorted.names_text(), "gnn, mrt, zf");
+  // Every registry the program holds is one of these: its names are the configuration's allowed values.
+  EXPECT_EQ(find_field("trajectory.mobility")->choices, dynamics_models().names());
+  EXPECT_EQ(find_field("channel.fading")->choices, fading_models().names());
+  EXPECT_EQ(find_field("channel.pathloss")->choices, path_loss_models().names());
+  EXPECT_EQ(find_field("marl.algo")->choices, learners().names());
+}
+
+// Every closed choice's table (skyloop/core/choices.hpp) names each value once, and its field's
+// allowed values are the table's names, read back to the same value through TOML's text.
+TEST(Registry, EveryChoiceTableRoundTripsThroughItsField) {
+  auto check = [](const char* key, auto value_of) {
+    const Field* f = find_field(key);
+    ASSERT_NE(f, nullptr) << key;
+    for (const auto& name : f->choices) {
+      Config c;
+      set_field(c, *f, FieldValue(name));
+      EXPECT_EQ(std::get<std::string>(f->get(c)), name) << key;
+      EXPECT_STREQ(name_of(value_of(c)), name.c_str()) << key;
+    }
+  };
+  check("channel.spectrum", [](const Config& c) { return c.channel.spectrum; });
+  check("marl.encoder", [](const Config& c) { return c.marl.encoder; });
+  check("marl.mask_clearance", [](const Config& c) { return c.marl.mask_clearance; });
+  check("env.objective", [](const Config& c) { return c.env.objective; });
+  check("nn.selection", [](const Config& c) { return c.nn.selection; });
+  check("ga.algorithm", [](const Config& c) { return c.ga.algorithm; });
+  EXPECT_EQ(find_field("marl.encoder")->choices, choice_names<ObservationKind>());
+  EXPECT_THROW(parse_choice<Spectrum>("channel.spectrum", "reuse"), InputError);
 }

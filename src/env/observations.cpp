@@ -22,11 +22,11 @@ void UavEnv::write_observation(int n, float* o) const { write_array(spec_->paper
 
 float UavEnv::altitude_share(int n) const {
   const LatticeDynamics& l = *dynamics_->lattice();
-  return static_cast<float>((pos_(n, 2) - l.floor_m()) / (l.climb_m() * (l.levels() - 1)));
+  return static_cast<float>((world_.positions(n, 2) - l.floor_m()) / (l.climb_m() * (l.levels() - 1)));
 }
 
 void UavEnv::write_previous_action(int n, float* o) const {
-  dynamics_->write_previous_action(prev_action_[static_cast<std::size_t>(n)], current(n), o);
+  dynamics_->write_previous_action(world_.previous_action[static_cast<std::size_t>(n)], current(n), o);
 }
 
 std::vector<float> UavEnv::observation(int n) const {
@@ -107,7 +107,7 @@ void add_kernel(float* map, int G, double step, double width, double dx, double 
 void UavEnv::write_set_observation(int n, float* o) const { write_array(spec_->set_obs, n, o); }
 
 void UavEnv::write_users_density(int n, float* o) const {
-  const double x = pos_(n, 0), y = pos_(n, 1);
+  const double x = world_.positions(n, 0), y = world_.positions(n, 1);
   std::fill(o, o + kWideGrid * kWideGrid, 0.0f);
   const auto& users = oracle_->users();
   const double per_user = 4.0 / static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
@@ -148,7 +148,7 @@ void UavEnv::write_uav_kernels(int n, float* o, int G, double step, double width
   std::fill(o, o + G * G, 0.0f);
   const Positions& seen = seen_positions();
   for (int m = 0; m < n_; ++m)
-    if (m != n) add_kernel(o, G, step, width, seen(m, 0) - pos_(n, 0), seen(m, 1) - pos_(n, 1), 1.0);
+    if (m != n) add_kernel(o, G, step, width, seen(m, 0) - world_.positions(n, 0), seen(m, 1) - world_.positions(n, 1), 1.0);
 }
 
 // Every observation field, in the order the observations hold them (the paper's 11 reals: the
@@ -161,15 +161,15 @@ const std::vector<ObservationField>& observation_fields() {
       // (x, y) / area side.
       {"own_position", F::kPaper | F::kSet, [](P) { return true; }, [](P) { return 2; }, 0, 1,
        [](const UavEnv& e, int n, float* o) {
-         o[0] = static_cast<float>(e.pos_(n, 0) / e.mission_.area_x);
-         o[1] = static_cast<float>(e.pos_(n, 1) / e.mission_.area_y);
+         o[0] = static_cast<float>(e.world_.positions(n, 0) / e.mission_.area_x);
+         o[1] = static_cast<float>(e.world_.positions(n, 1) / e.mission_.area_y);
        }},
       // The mean over the users of (u - x) / area side.
       {"users_mean_displacement", F::kPaper, [](P) { return true; }, [](P) { return 2; }, -1, 1,
        [](const UavEnv& e, int n, float* o) {
          const auto& users = e.oracle_->users();
          double mx = 0, my = 0;
-         for (Eigen::Index k = 0; k < users.rows(); ++k) mx += users(k, 0) - e.pos_(n, 0), my += users(k, 1) - e.pos_(n, 1);
+         for (Eigen::Index k = 0; k < users.rows(); ++k) mx += users(k, 0) - e.world_.positions(n, 0), my += users(k, 1) - e.world_.positions(n, 1);
          const double K = static_cast<double>(std::max<Eigen::Index>(1, users.rows()));
          o[0] = static_cast<float>(mx / K / e.mission_.area_x);
          o[1] = static_cast<float>(my / K / e.mission_.area_y);
@@ -177,15 +177,15 @@ const std::vector<ObservationField>& observation_fields() {
       // (destination - x) / area side.
       {"destination_displacement", F::kPaper | F::kSet, [](P) { return true; }, [](P) { return 2; }, -1, 1,
        [](const UavEnv& e, int n, float* o) {
-         o[0] = static_cast<float>((e.mission_.destinations(n, 0) - e.pos_(n, 0)) / e.mission_.area_x);
-         o[1] = static_cast<float>((e.mission_.destinations(n, 1) - e.pos_(n, 1)) / e.mission_.area_y);
+         o[0] = static_cast<float>((e.mission_.destinations(n, 0) - e.world_.positions(n, 0)) / e.mission_.area_x);
+         o[1] = static_cast<float>((e.mission_.destinations(n, 1) - e.world_.positions(n, 1)) / e.mission_.area_y);
        }},
       // (moves left - moves needed) / T_max; the moves needed are at most the grid's Manhattan
       // distance across the area, or t_max + 1 (out of reach, UavEnv::min_moves) under other models.
       {"slack", F::kSet, [](P) { return true; }, [](P) { return 1; }, 0, 1,
        [](const UavEnv& e, int n, float* o) {
-         const int left = e.t_max_ - e.t_;
-         *o = static_cast<float>(left - e.min_moves(n, e.pos_(n, 0), e.pos_(n, 1), e.pos_(n, 2))) / static_cast<float>(e.t_max_);
+         const int left = e.t_max_ - e.world_.slot;
+         *o = static_cast<float>(left - e.min_moves(n, e.world_.positions(n, 0), e.world_.positions(n, 1), e.world_.positions(n, 2))) / static_cast<float>(e.t_max_);
        },
        [](P p, float& low, float&) {
          const double moves = std::max(std::ceil(p.area_x / p.d_fly) + std::ceil(p.area_y / p.d_fly), p.t_max + 1.0);
@@ -193,7 +193,7 @@ const std::vector<ObservationField>& observation_fields() {
        }},
       // t / T_max.
       {"time", F::kSet, [](P) { return true; }, [](P) { return 1; }, 0, 1,
-       [](const UavEnv& e, int, float* o) { *o = static_cast<float>(e.t_) / static_cast<float>(e.t_max_); }},
+       [](const UavEnv& e, int, float* o) { *o = static_cast<float>(e.world_.slot) / static_cast<float>(e.t_max_); }},
       // One-hot over a discrete model's actions (Dynamics::write_previous_action) ...
       {"previous_action", F::kPaper | F::kSet, [](P p) { return !p.action.continuous(); }, [](P p) { return p.action.count(); }, 0, 1,
        [](const UavEnv& e, int n, float* o) { e.write_previous_action(n, o); }},
@@ -227,7 +227,7 @@ const std::vector<ObservationField>& observation_fields() {
 
 void UavEnv::show_decided(int m, double x, double y, double z) {
   if (m < 0 || m >= n_) throw std::out_of_range("UavEnv::show_decided: no UAV " + std::to_string(m));
-  if (!any_decided_) seen_ = pos_;
+  if (!any_decided_) seen_ = world_.positions;
   any_decided_ = true;
   seen_(m, 0) = x, seen_(m, 1) = y, seen_(m, 2) = z;
 }
@@ -243,8 +243,8 @@ void UavEnv::write_rate_map(int n, float* o) const {
   std::vector<Positions> sets(1, seen);  // sets[0]: where the UAVs are now (the decided ones landed)
   std::vector<int> at(static_cast<std::size_t>(C), -1);
   for (int c = 0; c < C; ++c) {
-    const double x = pos_(n, 0) + d_fly_ * cells[static_cast<std::size_t>(c)][0];
-    const double y = pos_(n, 1) + d_fly_ * cells[static_cast<std::size_t>(c)][1];
+    const double x = world_.positions(n, 0) + d_fly_ * cells[static_cast<std::size_t>(c)][0];
+    const double y = world_.positions(n, 1) + d_fly_ * cells[static_cast<std::size_t>(c)][1];
     if (x < 0 || y < 0 || x > mission_.area_x || y > mission_.area_y) {
       o[c] = -1.0f;
       continue;
@@ -299,7 +299,7 @@ const std::vector<StateField>& state_fields() {
       {"uav_positions", F::kPaperState, [](P p) { return 2 * p.agents; }, 0, 1,
        [](const UavEnv& e, int, float* s) {
          for (int n = 0; n < e.n_; ++n)
-           *s++ = static_cast<float>(e.pos_(n, 0) / e.mission_.area_x), *s++ = static_cast<float>(e.pos_(n, 1) / e.mission_.area_y);
+           *s++ = static_cast<float>(e.world_.positions(n, 0) / e.mission_.area_x), *s++ = static_cast<float>(e.world_.positions(n, 1) / e.mission_.area_y);
        }},
       {"user_positions", F::kPaperState, [](P p) { return 2 * p.users; }, 0, 1,
        [](const UavEnv& e, int, float* s) {
@@ -325,7 +325,7 @@ const std::vector<StateField>& state_fields() {
        [](const UavEnv& e, int, float* s) {
          std::fill(s, s + G2, 0.0f);
          const float per_uav = 1.0f / static_cast<float>(e.n_);
-         for (int n = 0; n < e.n_; ++n) s[state_cell(e.mission_, e.pos_(n, 0), e.pos_(n, 1))] += per_uav;
+         for (int n = 0; n < e.n_; ++n) s[state_cell(e.mission_, e.world_.positions(n, 0), e.world_.positions(n, 1))] += per_uav;
        }},
       // The not-yet-arrived UAVs' destinations.
       {"destination_density", F::kCompactState, [](P) { return G2; }, 0, 1,
@@ -336,7 +336,7 @@ const std::vector<StateField>& state_fields() {
            if (!e.arrived(n)) s[state_cell(e.mission_, e.mission_.destinations(n, 0), e.mission_.destinations(n, 1))] += per_uav;
        }},
       {"time", F::kCompactState, [](P) { return 1; }, 0, 1,  // t / T_max
-       [](const UavEnv& e, int, float* s) { *s = static_cast<float>(e.t_) / static_cast<float>(e.t_max_); }},
+       [](const UavEnv& e, int, float* s) { *s = static_cast<float>(e.world_.slot) / static_cast<float>(e.t_max_); }},
       {"arrived_share", F::kCompactState, [](P) { return 1; }, 0, 1,
        [](const UavEnv& e, int, float* s) {
          int home = 0;
@@ -354,14 +354,14 @@ const std::vector<StateField>& state_fields() {
        [](const UavEnv& e, int n, float* out) {
          std::vector<std::pair<double, int>> near;
          for (int m = 0; m < e.n_; ++m)
-           if (m != n) near.emplace_back(std::hypot(e.pos_(m, 0) - e.pos_(n, 0), e.pos_(m, 1) - e.pos_(n, 1)), m);
+           if (m != n) near.emplace_back(std::hypot(e.world_.positions(m, 0) - e.world_.positions(n, 0), e.world_.positions(m, 1) - e.world_.positions(n, 1)), m);
          const std::size_t take = std::min<std::size_t>(kNeighbours, near.size());
          std::partial_sort(near.begin(), near.begin() + static_cast<std::ptrdiff_t>(take), near.end());
          std::fill(out, out + 2 * kNeighbours, 0.0f);
          for (std::size_t i = 0; i < take; ++i) {
            const int m = near[i].second;
-           out[2 * i] = static_cast<float>((e.pos_(m, 0) - e.pos_(n, 0)) / e.mission_.area_x);
-           out[2 * i + 1] = static_cast<float>((e.pos_(m, 1) - e.pos_(n, 1)) / e.mission_.area_y);
+           out[2 * i] = static_cast<float>((e.world_.positions(m, 0) - e.world_.positions(n, 0)) / e.mission_.area_x);
+           out[2 * i + 1] = static_cast<float>((e.world_.positions(m, 1) - e.world_.positions(n, 1)) / e.mission_.area_y);
          }
        }},
   };

@@ -48,7 +48,6 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, std::share
       bandwidth_hz_(cfg.channel.bandwidth_hz),
       w_energy_(cfg.energy.weight),
       budget_j_(cfg.energy.budget_j),
-      compact_(cfg.env.state == StateKind::Compact),
       objective_reward_(cfg.env.reward == Reward::Objective),
       spec_params_(spec_params(cfg, n_, 0)),
       oracle_(std::move(oracle)) {
@@ -68,7 +67,7 @@ UavEnv::UavEnv(const Config& cfg, std::shared_ptr<RateOracle> oracle, std::share
   spec_params_.action = dynamics_->actions();
   spec_params_.altitude = dynamics_->chooses_altitude();
   spec_ = shared_env_spec(spec_params_);
-  vel_ = Positions::Zero(n_, 2);
+  world_.velocity = Positions::Zero(n_, 2);
   require_table_memory(cfg, *dynamics_, 1);
   tables_ = std::make_shared<SharedTables>();
   tables_->destinations.resize(static_cast<std::size_t>(n_));
@@ -99,31 +98,31 @@ void UavEnv::set_oracle(std::shared_ptr<RateOracle> oracle, double start_rate) {
 void UavEnv::reset() { reset(oracle_->sum_rate(mission_.starts)); }
 
 void UavEnv::reset(double start_rate) {
-  pos_ = mission_.starts;
+  world_.positions = mission_.starts;
   any_decided_ = false;
-  t_ = 1;
-  arrived_.assign(static_cast<std::size_t>(n_), false);
+  world_.slot = 1;
+  world_.arrived.assign(static_cast<std::size_t>(n_), false);
   parked_ = 0;
   parked_tables_.resize(static_cast<std::size_t>(n_));
   for (DistanceTable& table : parked_tables_) table.version = -1;  // made again as the UAVs arrive
-  prev_action_.assign(static_cast<std::size_t>(n_), hover());
-  energy_.assign(static_cast<std::size_t>(n_), 0.0);
-  speed_.assign(static_cast<std::size_t>(n_), 0.0);
-  power_.assign(static_cast<std::size_t>(n_), propulsion_.hover_power());
-  vel_ = Positions::Zero(n_, 2);
-  energy_total_ = 0;
+  world_.previous_action.assign(static_cast<std::size_t>(n_), hover());
+  world_.energy_j.assign(static_cast<std::size_t>(n_), 0.0);
+  world_.speed_mps.assign(static_cast<std::size_t>(n_), 0.0);
+  world_.power_w.assign(static_cast<std::size_t>(n_), propulsion_.hover_power());
+  world_.velocity = Positions::Zero(n_, 2);
+  world_.energy_total_j = 0;
   prev_tmin_.assign(static_cast<std::size_t>(n_), 0);
   bool all = true;
   for (int n = 0; n < n_; ++n) {
-    arrived_[static_cast<std::size_t>(n)] =
-        dynamics_->arrived(pos_(n, 0), pos_(n, 1), mission_.destinations(n, 0), mission_.destinations(n, 1)) && same(pos_(n, 2), mission_.destinations(n, 2));
-    all = all && arrived_[static_cast<std::size_t>(n)];
-    parked_ += arrived_[static_cast<std::size_t>(n)] ? 1 : 0;
-    const double d = std::hypot(mission_.destinations(n, 0) - pos_(n, 0), mission_.destinations(n, 1) - pos_(n, 1));
+    world_.arrived[static_cast<std::size_t>(n)] =
+        dynamics_->arrived(world_.positions(n, 0), world_.positions(n, 1), mission_.destinations(n, 0), mission_.destinations(n, 1)) && same(world_.positions(n, 2), mission_.destinations(n, 2));
+    all = all && world_.arrived[static_cast<std::size_t>(n)];
+    parked_ += world_.arrived[static_cast<std::size_t>(n)] ? 1 : 0;
+    const double d = std::hypot(mission_.destinations(n, 0) - world_.positions(n, 0), mission_.destinations(n, 1) - world_.positions(n, 1));
     prev_tmin_[static_cast<std::size_t>(n)] = static_cast<int>(std::ceil(d / dynamics_->reach() - 1e-9));
   }
-  rates_.assign(1, start_rate);
-  rate_sum_ = start_rate;
+  world_.rates.assign(1, start_rate);
+  world_.rate_sum = start_rate;
   done_ = all;
   tot_arr_ = tot_bud_ = tot_col_ = 0;
   tot_reward_ = 0;
@@ -132,7 +131,7 @@ void UavEnv::reset(double start_rate) {
 UavEnv::Landing UavEnv::landing(int n, int a) const {
   if (arrived(n)) {
     Landing l;
-    l.x = pos_(n, 0), l.y = pos_(n, 1), l.z = pos_(n, 2);
+    l.x = world_.positions(n, 0), l.y = world_.positions(n, 1), l.z = world_.positions(n, 2);
     return l;
   }
   return dynamics_->fly(n, current(n), a, mission_);
@@ -151,7 +150,7 @@ void UavEnv::command_velocity(int n, double u0, double u1, double& vx, double& v
 
 int UavEnv::min_moves(int n, double x, double y, double z) const {
   Landing from;  // at UAV n's current velocity
-  from.x = x, from.y = y, from.z = z, from.vx = vel_(n, 0), from.vy = vel_(n, 1);
+  from.x = x, from.y = y, from.z = z, from.vx = world_.velocity(n, 0), from.vy = world_.velocity(n, 1);
   return reach_->slots(n, from, t_max_);
 }
 
@@ -159,8 +158,8 @@ int UavEnv::min_moves(int n, const Landing& l) const { return reach_->slots(n, l
 
 UavEnv::Landing UavEnv::current(int n) const {
   Landing l;
-  l.x = pos_(n, 0), l.y = pos_(n, 1), l.z = pos_(n, 2), l.vx = vel_(n, 0), l.vy = vel_(n, 1);
-  l.speed = speed_[static_cast<std::size_t>(n)];
+  l.x = world_.positions(n, 0), l.y = world_.positions(n, 1), l.z = world_.positions(n, 2), l.vx = world_.velocity(n, 0), l.vy = world_.velocity(n, 1);
+  l.speed = world_.speed_mps[static_cast<std::size_t>(n)];
   return l;
 }
 
@@ -176,7 +175,7 @@ UavEnv::DistanceTable UavEnv::clear_table(int n, ClearOf what) const {
   const int r = static_cast<int>(std::ceil(d_min_ / d_fly_)) + 1;
   for (int m = 0; m < n_; ++m) {
     if (m == n || (parked && !arrived(m))) continue;
-    const Positions& at = parked ? pos_ : mission_.destinations;
+    const Positions& at = parked ? world_.positions : mission_.destinations;
     const double px = at(m, 0), py = at(m, 1), pz = at(m, 2);
     const long cx = std::lround((px - f.ox) / d_fly_), cy = std::lround((py - f.oy) / d_fly_);
     for (int iz = 0; iz < f.nz; ++iz) {
@@ -252,11 +251,11 @@ bool UavEnv::feasible(int n, int a) const {
   if (arrived(n)) return a == hover();
   const Landing l = landing(n, a);
   if (!l.inside) return false;
-  return min_moves(n, l) <= t_max_ - (t_ + 1);
+  return min_moves(n, l) <= t_max_ - (world_.slot + 1);
 }
 
 Positions UavEnv::next_positions(const std::vector<int>& actions) const {
-  Positions next = pos_;
+  Positions next = world_.positions;
   for (int n = 0; n < n_; ++n) {
     place(next, n, landing(n, arrived(n) ? hover() : actions[static_cast<std::size_t>(n)]));
   }
@@ -298,18 +297,18 @@ void UavEnv::check_step(std::size_t count) const {
 void UavEnv::land(int n, const Landing& l, StepInfo& info) {
   const auto i = static_cast<std::size_t>(n);
   if (!l.inside) ++info.boundary;  // cancelled: the UAV hovers
-  const double e = propulsion_.slot_energy(l.speed, speed_[i], dynamics_->slot_s()) + propulsion_.climb_energy(l.z - pos_(n, 2));
-  speed_[i] = l.speed;
-  power_[i] = e / dynamics_->slot_s();
-  energy_[i] += e;
+  const double e = propulsion_.slot_energy(l.speed, world_.speed_mps[i], dynamics_->slot_s()) + propulsion_.climb_energy(l.z - world_.positions(n, 2));
+  world_.speed_mps[i] = l.speed;
+  world_.power_w[i] = e / dynamics_->slot_s();
+  world_.energy_j[i] += e;
   info.energy_j += e;
-  vel_(n, 0) = l.vx, vel_(n, 1) = l.vy;
+  world_.velocity(n, 0) = l.vx, world_.velocity(n, 1) = l.vy;
 }
 
 Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
   check_step(actions.size());
   any_decided_ = false;
-  Positions next = pos_;
+  Positions next = world_.positions;
   for (int n = 0; n < n_; ++n) {
     const int requested = actions[static_cast<std::size_t>(n)];
     if (requested < 0 || requested >= dynamics_->count())
@@ -319,7 +318,7 @@ Positions UavEnv::begin_step(const std::vector<int>& actions, StepInfo& info) {
     const int a = arrived(n) ? hover() : requested;  // arrival-aware: arrived UAVs are locked
     const Landing l = landing(n, a);
     place(next, n, l);
-    prev_action_[static_cast<std::size_t>(n)] = a;
+    world_.previous_action[static_cast<std::size_t>(n)] = a;
     land(n, l, info);
   }
   info.collisions = collisions(next);
@@ -332,13 +331,13 @@ Positions UavEnv::begin_step_velocities(const Positions& v, StepInfo& info) {
   if (!dynamics_->commands_velocities())
     throw std::invalid_argument("UavEnv::step_velocities: trajectory.mobility = " + dynamics_->name() +
                                 " takes discrete actions, not velocity commands");
-  Positions next = pos_;
+  Positions next = world_.positions;
   for (int n = 0; n < n_; ++n) {
     if (!std::isfinite(v(n, 0)) || !std::isfinite(v(n, 1)))
       throw std::invalid_argument("UavEnv::step_velocities: the command of UAV " + std::to_string(n) + " is not finite");
     const Landing l = arrived(n) ? landing(n, hover()) : landing_velocity(n, v(n, 0), v(n, 1));
     place(next, n, l);
-    prev_action_[static_cast<std::size_t>(n)] = hover();
+    world_.previous_action[static_cast<std::size_t>(n)] = hover();
     land(n, l, info);
   }
   info.collisions = collisions(next);
@@ -350,33 +349,33 @@ bool UavEnv::at_destination(const Positions& p, int n) const {
 }
 
 bool UavEnv::ends_episode(const Positions& next) const {
-  if (t_ + 1 >= t_max_) return true;
+  if (world_.slot + 1 >= t_max_) return true;
   for (int n = 0; n < n_; ++n)
     if (!arrived(n) && !at_destination(next, n)) return false;
   return true;
 }
 
 void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
-  pos_ = next;
-  ++t_;
+  world_.positions = next;
+  ++world_.slot;
   bool all = true;
   for (int n = 0; n < n_; ++n) {
-    auto&& arrived_n = arrived_[static_cast<std::size_t>(n)];
-    if (!arrived_n && at_destination(pos_, n)) {
+    auto&& arrived_n = world_.arrived[static_cast<std::size_t>(n)];
+    if (!arrived_n && at_destination(world_.positions, n)) {
       arrived_n = true;
       ++info.arrivals;
       ++parked_;
     }
     all = all && arrived_n;
-    info.feasibility += feasibility_indicator(n, pos_(n, 0), pos_(n, 1), t_);
+    info.feasibility += feasibility_indicator(n, world_.positions(n, 0), world_.positions(n, 1), world_.slot);
   }
-  const double before = rate_sum_ / static_cast<double>(t_ - 1);
-  const double j_before = objective_kind_ == Objective::SumRate ? before : objective_of(rate_sum_, t_ - 1, energy_total_);
-  energy_total_ += info.energy_j;
-  rates_.push_back(rate);
-  rate_sum_ += rate;
+  const double before = world_.rate_sum / static_cast<double>(world_.slot - 1);
+  const double j_before = objective_kind_ == Objective::SumRate ? before : objective_of(world_.rate_sum, world_.slot - 1, world_.energy_total_j);
+  world_.energy_total_j += info.energy_j;
+  world_.rates.push_back(rate);
+  world_.rate_sum += rate;
   info.sum_rate = rate;
-  info.avg_rate = rate_sum_ / static_cast<double>(t_);
+  info.avg_rate = world_.rate_sum / static_cast<double>(world_.slot);
   if (objective_reward_ && objective_kind_ == Objective::SumRate)
     info.reward = info.avg_rate - before - w_bud_ * info.boundary - w_col_ * info.collisions;
   else if (objective_reward_)
@@ -386,19 +385,19 @@ void UavEnv::end_step(const Positions& next, double rate, StepInfo& info) {
                   w_fea_ * info.feasibility;
   info.over_budget = over_budget();
   info.success = all && info.over_budget == 0;
-  info.done = done_ = all || t_ >= t_max_;
+  info.done = done_ = all || world_.slot >= t_max_;
   tot_arr_ += info.arrivals;
   tot_bud_ += info.boundary;
   tot_col_ += info.collisions;
   tot_reward_ += info.reward;
   info.objective = objective();
-  info.T = t_;
+  info.T = world_.slot;
   info.home = 0;
   for (int n = 0; n < n_; ++n) info.home += arrived(n);
   info.episode_collisions = tot_col_;
   info.episode_boundary = tot_bud_;
   info.episode_reward = tot_reward_;
-  info.episode_energy_j = energy_total_;
+  info.episode_energy_j = world_.energy_total_j;
   info.sum_rate_objective = sum_rate_objective();
   info.bits_per_joule = bits_per_joule();
 }
@@ -425,7 +424,7 @@ StepInfo UavEnv::step_velocities(const Positions& v) {
   return info;
 }
 
-double UavEnv::sum_rate_objective() const { return rate_sum_ / static_cast<double>(t_); }
+double UavEnv::sum_rate_objective() const { return world_.rate_sum / static_cast<double>(world_.slot); }
 
 double UavEnv::objective_of(double rate_sum, int T, double energy_j) const {
   const double dt = dynamics_->slot_s();
@@ -438,13 +437,13 @@ double UavEnv::objective_of(double rate_sum, int T, double energy_j) const {
   return 0;
 }
 
-double UavEnv::objective_at() const { return objective_of(rate_sum_, t_, energy_total_); }
+double UavEnv::objective_at() const { return objective_of(world_.rate_sum, world_.slot, world_.energy_total_j); }
 
 double UavEnv::step_energy(const std::vector<int>& actions) const {
   double e = 0;
   for (int n = 0; n < n_; ++n) {
     const Landing l = landing(n, arrived(n) ? hover() : actions[static_cast<std::size_t>(n)]);
-    e += propulsion_.slot_energy(l.speed, speed_[static_cast<std::size_t>(n)], dynamics_->slot_s()) + propulsion_.climb_energy(l.z - pos_(n, 2));
+    e += propulsion_.slot_energy(l.speed, world_.speed_mps[static_cast<std::size_t>(n)], dynamics_->slot_s()) + propulsion_.climb_energy(l.z - world_.positions(n, 2));
   }
   return e;
 }
@@ -452,13 +451,13 @@ double UavEnv::step_energy(const std::vector<int>& actions) const {
 double UavEnv::objective() const { return objective_at(); }
 
 double UavEnv::bits_per_joule() const {
-  return energy_total_ > 0 ? bandwidth_hz_ * dynamics_->slot_s() * rate_sum_ / energy_total_ : 0.0;
+  return world_.energy_total_j > 0 ? bandwidth_hz_ * dynamics_->slot_s() * world_.rate_sum / world_.energy_total_j : 0.0;
 }
 
 int UavEnv::over_budget() const {
   if (budget_j_ <= 0) return 0;
   int count = 0;
-  for (const double e : energy_) count += e > budget_j_;
+  for (const double e : world_.energy_j) count += e > budget_j_;
   return count;
 }
 

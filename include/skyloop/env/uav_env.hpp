@@ -53,6 +53,22 @@ namespace skyloop {
 /// Users of an environment: from env.users_file if set, else K uniform users from `seed`.
 Positions make_users(const Config& cfg, int users, std::uint64_t seed);
 
+/// The environment's world: what a step changes, and nothing else (the mission, the users and the
+/// models are fixed for an episode). Plain data; UavEnv::world() reads it.
+struct World {
+  Positions positions;                 // N x 3: x, y and altitude (m)
+  Positions velocity;                  // N x 2: each UAV's ground velocity in the last slot (m/s)
+  int slot = 1;                        // t: the slot about to be flown, 1 .. T_max
+  std::vector<bool> arrived;           // per UAV: at its destination (it hovers there from then on)
+  std::vector<int> previous_action;    // per UAV: its last action (the observations' previous action)
+  std::vector<double> energy_j;        // per UAV: propulsion energy so far (J)
+  std::vector<double> speed_mps;       // per UAV: ground speed in the last slot (m/s)
+  std::vector<double> power_w;         // per UAV: propulsion power in the last slot (W)
+  double energy_total_j = 0;           // the fleet's energy so far (J)
+  std::vector<double> rates;           // R[1 .. t - 1]
+  double rate_sum = 0;                 // their sum
+};
+
 class UavEnv {
  public:
   /// `oracle` holds the users; the environment takes the trajectory and reward settings of cfg.
@@ -70,14 +86,16 @@ class UavEnv {
   void set_oracle(std::shared_ptr<RateOracle> oracle);
 
   // ---- queries ------------------------------------------------------------------------------
+  /// What a step changes: positions, velocities, the slot, arrivals, energy, the rates so far.
+  const World& world() const { return world_; }
   int uavs() const { return n_; }
-  int t() const { return t_; }
+  int t() const { return world_.slot; }
   int t_max() const { return t_max_; }
   bool done() const { return done_; }
-  const Positions& positions() const { return pos_; }
+  const Positions& positions() const { return world_.positions; }
   const Positions& starts() const { return mission_.starts; }
   const Positions& destinations() const { return mission_.destinations; }
-  bool arrived(int n) const { return arrived_[static_cast<std::size_t>(n)]; }
+  bool arrived(int n) const { return world_.arrived[static_cast<std::size_t>(n)]; }
   /// The dynamics (trajectory.mobility): the action space (actions().count()), what a move does,
   /// reachability. Ask it, never which model it is.
   const Dynamics& dynamics() const { return *dynamics_; }
@@ -144,8 +162,8 @@ class UavEnv {
   /// Models that take commands: UAV n's velocity command (m/s) for primitive a.
   void primitive_velocity(int n, int a, double& vx, double& vy) const;
   /// UAV n's velocity in the last slot (m/s; 0 before the first step).
-  double velocity_x(int n) const { return vel_(n, 0); }
-  double velocity_y(int n) const { return vel_(n, 1); }
+  double velocity_x(int n) const { return world_.velocity(n, 0); }
+  double velocity_y(int n) const { return world_.velocity(n, 1); }
   /// Number of UAVs closer than D_min to another (separation).
   int collisions(const Positions& p) const;
   /// The distance between UAVs n and m of `p`: horizontal where they fly at one altitude, 3-D where
@@ -156,7 +174,7 @@ class UavEnv {
     return dz == 0 ? std::hypot(dx, dy) : std::sqrt(dx * dx + dy * dy + dz * dz);
   }
   /// UAV n's altitude (m).
-  double altitude(int n) const { return pos_(n, 2); }
+  double altitude(int n) const { return world_.positions(n, 2); }
 
   // ---- observations and states: the layouts are skyloop/env/spec.hpp's ---------------------
   /// Every array this environment exposes, field by field (sizes, offsets, bounds).
@@ -209,7 +227,7 @@ class UavEnv {
   void show_decided(int m, double x, double y, double z);
   void clear_decided();
   /// Where the set observation sees the UAVs: positions(), with the decided landings in place.
-  const Positions& seen_positions() const { return any_decided_ ? seen_ : pos_; }
+  const Positions& seen_positions() const { return any_decided_ ? seen_ : world_.positions; }
   int set_observation_size() const { return spec_->set_obs.size; }
   int users() const;
   /// The compact state (spec().compact_state, whatever env.state says).
@@ -217,17 +235,17 @@ class UavEnv {
   void write_compact_state(float* out) const;
 
   // ---- episode record -----------------------------------------------------------------------
-  const std::vector<double>& rates() const { return rates_; }  // R[1..t]
+  const std::vector<double>& rates() const { return world_.rates; }  // R[1..t]
   /// J of env.objective over the episode so far (T = current slot); sum-rate: (1/T) sum R[t].
   double objective() const;
   /// (1/T) sum R[t] (P2.2), whatever env.objective is.
   double sum_rate_objective() const;
   /// Propulsion energy (J) of UAV n and of the fleet so far; speed (m/s) and power (W) of UAV n
   /// in the last slot (0 and hover power before the first step).
-  double energy_j(int n) const { return energy_[static_cast<std::size_t>(n)]; }
-  double energy_j() const { return energy_total_; }
-  double last_speed(int n) const { return speed_[static_cast<std::size_t>(n)]; }
-  double last_power(int n) const { return power_[static_cast<std::size_t>(n)]; }
+  double energy_j(int n) const { return world_.energy_j[static_cast<std::size_t>(n)]; }
+  double energy_j() const { return world_.energy_total_j; }
+  double last_speed(int n) const { return world_.speed_mps[static_cast<std::size_t>(n)]; }
+  double last_power(int n) const { return world_.power_w[static_cast<std::size_t>(n)]; }
   /// Bits delivered so far per joule spent (bit/J): B delta_t sum R[t] / E; 0 before any energy.
   double bits_per_joule() const;
   /// UAVs whose energy passed energy.budget_j (0 without a budget).
@@ -237,7 +255,7 @@ class UavEnv {
   double objective_of(double rate_sum, int T, double energy_j) const;
   /// J one slot from now if that slot's sum rate is `rate` and the move costs `energy_j` (the
   /// one-step look-ahead the greedy planners rank moves by).
-  double objective_after(double rate, double energy_j) const { return objective_of(rate_sum_ + rate, t_ + 1, energy_total_ + energy_j); }
+  double objective_after(double rate, double energy_j) const { return objective_of(world_.rate_sum + rate, world_.slot + 1, world_.energy_total_j + energy_j); }
   /// Fleet energy (J) of a joint action from the current slot (arrived UAVs and cancelled moves hover).
   double step_energy(const std::vector<int>& actions) const;
   double budget_j() const { return budget_j_; }
@@ -247,8 +265,10 @@ class UavEnv {
   int total_boundary() const { return tot_bud_; }
   int total_collisions() const { return tot_col_; }
 
- private:
-  friend class VecEnv;
+ // ---- the two-phase step (VecEnv's protocol; envpool's send / recv) -------------------------
+  // step() is begin_step, the oracle's R at the new positions, then end_step. A batch of
+  // environments (VecEnv) runs phase 1 in each, asks the oracle for every environment's rates in
+  // one call, then runs phase 2 in each.
   /// reset() given R at the start (what the oracle says there).
   void reset(double start_rate);
   /// set_oracle() given R at the start under the new oracle.
@@ -257,16 +277,18 @@ class UavEnv {
   Positions begin_step(const std::vector<int>& actions, StepInfo& info);
   /// The same for velocity commands (continuous model).
   Positions begin_step_velocities(const Positions& v, StepInfo& info);
-  /// Phase 1's bookkeeping of UAV n landing at l (its energy, speed, velocity).
-  void land(int n, const Landing& l, StepInfo& info);
-  void check_step(std::size_t count) const;
   /// Phase 2: arrival, R, reward, termination, given R at the new positions.
   void end_step(const Positions& next, double rate, StepInfo& info);
-  /// Whether UAV n at `p` is at its destination (end_step's arrival rule).
-  bool at_destination(const Positions& p, int n) const;
   /// Whether end_step(next, ...) ends the episode (every UAV home, or T_max reached), without
   /// ending it: VecEnv prepares the next episode's oracle alongside the step's rates.
   bool ends_episode(const Positions& next) const;
+
+ private:
+  /// Phase 1's bookkeeping of UAV n landing at l (its energy, speed, velocity).
+  void land(int n, const Landing& l, StepInfo& info);
+  void check_step(std::size_t count) const;
+  /// Whether UAV n at `p` is at its destination (end_step's arrival rule).
+  bool at_destination(const Positions& p, int n) const;
   /// Phi_n at slot t for UAV n at (x, y); updates T_min[t-1].
   int feasibility_indicator(int n, double x, double y, int t);
 
@@ -292,9 +314,6 @@ class UavEnv {
   std::shared_ptr<SharedTables> tables_;
   /// min_moves_around's table of UAV n around `what`, made afresh.
   DistanceTable clear_table(int n, ClearOf what) const;
-  std::vector<double> energy_, speed_, power_;
-  Positions vel_;  // velocity in the last slot (m/s)
-  double energy_total_ = 0;
   double w_rate_, w_arr_, w_bud_, w_col_, w_fea_;
   std::shared_ptr<const Dynamics> dynamics_;
   Mission mission_;  // the area, starts, destinations and T_max the dynamics flies
@@ -302,15 +321,13 @@ class UavEnv {
   PropulsionModel propulsion_;
   Objective objective_kind_ = Objective::SumRate;
   double bandwidth_hz_ = 1e6, w_energy_ = 0, budget_j_ = 0;
-  bool compact_ = false;  // env.state = "compact"
   bool objective_reward_ = false;  // env.reward = "objective"
   SpecParams spec_params_;  // what spec_ is made from (N, K, area, horizon, env.state, marl.encoder)
   std::shared_ptr<const EnvSpec> spec_;
-  Positions pos_;
-  Positions seen_;             // pos_ with the decided landings (show_decided) in place
-  bool any_decided_ = false;   // seen_ differs from pos_
+  World world_;
+  Positions seen_;             // world_.positions with the decided landings (show_decided) in place
+  bool any_decided_ = false;   // seen_ differs from world_.positions
   std::shared_ptr<RateOracle> oracle_;
-  std::vector<bool> arrived_;
   int parked_ = 0;  // arrived UAVs so far this episode: the version of the Parked tables
   // min_moves_around's Parked tables, per UAV: a cache of a pure function of the state.
   mutable std::vector<DistanceTable> parked_tables_;
@@ -369,10 +386,7 @@ class UavEnv {
   void write_users_density(int n, float* out) const;
   /// The other UAVs' kernels (where seen_positions() has them) on a G x G grid around UAV n.
   void write_uav_kernels(int n, float* out, int G, double step, double width) const;
-  std::vector<int> prev_action_, prev_tmin_;
-  std::vector<double> rates_;
-  double rate_sum_ = 0;
-  int t_ = 1;
+  std::vector<int> prev_tmin_;
   bool done_ = false;
   int tot_arr_ = 0, tot_bud_ = 0, tot_col_ = 0;
   double tot_reward_ = 0;

@@ -1,5 +1,7 @@
 #include <gtest/gtest.h>
 
+#include <set>
+
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/channel/fading.hpp"
 #include "skyloop/channel/path_loss.hpp"
@@ -106,4 +108,29 @@ TEST(Registry, EveryChoiceTableRoundTripsThroughItsField) {
   check("ga.algorithm", [](const Config& c) { return c.ga.algorithm; });
   EXPECT_EQ(find_field("marl.encoder")->choices, choice_names<ObservationKind>());
   EXPECT_THROW(parse_choice<Spectrum>("channel.spectrum", "reuse"), InputError);
+}
+
+// Every choice table: its names and its values each once, every row's value named by that row.
+template <class... E>
+void expect_tables_one_to_one() {
+  auto one = [](auto tag) {
+    using T = decltype(tag);
+    std::set<std::string> names;
+    std::set<int> values;
+    for (const auto& c : choices<T>()) {
+      EXPECT_TRUE(names.insert(c.name).second) << c.name << " twice";
+      EXPECT_TRUE(values.insert(static_cast<int>(c.value)).second) << c.name << ": its value has another row";
+      EXPECT_STREQ(name_of(c.value), c.name);
+      EXPECT_TRUE(c.help && *c.help) << c.name << " has no help";
+    }
+    EXPECT_FALSE(names.empty());
+  };
+  (one(E{}), ...);
+}
+
+TEST(Registry, EveryChoiceTableIsOneToOne) {
+  expect_tables_one_to_one<UserLayout, Spectrum, RicianK, PowerScaling, PowerAllocation, WmmseInit, GaAlgorithm, LayoutSource,
+                           Command, Propulsion, Acceleration, Reward, Objective, StateKind, ObservationKind, MinibatchLayout,
+                           CriticState, Clearance, StepSchedule, PpoBackend, LrSchedule, ComputeDevice, Readout, Features,
+                           Precision, Inference, Selection>();
 }

@@ -136,7 +136,7 @@ SKYLOOP_CHOICES(ObservationKind,
                 {"mlp", ObservationKind::Paper, "the paper's 11-real observation"},
                 {"set", ObservationKind::Set,
                  "permutation-invariant encoder over user and neighbour displacements (any K and N)"})
-enum class MinibatchLayout { Samples, Steps };               // marl.minibatch
+enum class MinibatchLayout { Samples, Steps };         // marl.minibatch
 SKYLOOP_CHOICES(MinibatchLayout,
                 {"samples", MinibatchLayout::Samples, "agent samples shuffled one by one (the paper's and the MAPPO reference's)"},
                 {"steps", MinibatchLayout::Steps,
@@ -167,7 +167,7 @@ enum class LrSchedule { Constant, Cosine };            // nn.lr_schedule
 SKYLOOP_CHOICES(LrSchedule,
                 {"constant", LrSchedule::Constant, "the paper"},
                 {"cosine", LrSchedule::Cosine, "from nn.learning_rate per step down to 1% of it at the last epoch"})
-enum class ComputeDevice { Cpu, Cuda };                       // nn.device
+enum class ComputeDevice { Cpu, Cuda };                // nn.device
 SKYLOOP_CHOICES(ComputeDevice,
                 {"cpu", ComputeDevice::Cpu, "the CPU"},
                 {"cuda", ComputeDevice::Cuda, "the first CUDA device"})
@@ -196,7 +196,6 @@ SKYLOOP_CHOICES(Selection,
                  "the network chooses whom to serve, ZF how: in the order of the rates the network's beams give them, "
                  "each user joins while it raises the water-filled ZF sum rate (at most L); the result or the network's "
                  "own beams, whichever has the higher sum rate"})
-
 
 /// The names of E's values, in table order.
 template <class E>
@@ -227,7 +226,7 @@ template <class E>
 const char* name_of(E v) {
   for (const auto& c : choices<E>())
     if (c.value == v) return c.name;
-  return "?";  // unreachable: every enumerator has a row (a test checks every table)
+  return "?";  // an enumerator without a row of its table: add the row
 }
 
 /// The value named s; InputError "<field> = "s" is not allowed: allowed one of a, b" otherwise.

@@ -16,6 +16,9 @@ MarlTrainResult train_value_decomposition(const Config& cfg, const MarlTrainOpti
 MarlTrainResult train_marl(const Config& cfg, const MarlTrainOptions& opt) {
   if (opt.out_dir.empty()) throw InputError("--out is empty: allowed a directory for the run");
   if (!opt.registry) throw std::invalid_argument("train_marl: MarlTrainOptions::registry is required");
+  // The cross-field rules, whoever built cfg (a task's recipe with another learner, Python, a
+  // test): a combination the learners cannot run is one line here, never a run.
+  validate(cfg);
   switch (find_learner(cfg.marl.algo).core) {
     case LearnerInfo::Core::Ppo: return marl::train_ppo(cfg, opt);
     case LearnerInfo::Core::ValueDecomposition: break;
@@ -83,6 +86,9 @@ std::unique_ptr<MarlPolicy> MarlPolicy::load(const std::string& where) {
   const LearnerInfo* learner = row ? &row->entry : nullptr;
   if (!learner) throw InputError("policy '" + path + "' names algo '" + impl->algo + "': allowed " + learner_names_text());
   const bool q_based = learner->acts_by_q();
+  if (q_based && trained.marl.sequential)
+    throw InputError("policy '" + path + "' is a " + impl->algo + " policy with marl.sequential = true: allowed sequential turns "
+                     "for the PPO learners only (a Q-network has no turns to sample)");
   impl->q_based = q_based;
   impl->enc.context = q_based;
   // The Q-networks' agent context: a one-hot id (uavs reals; policies written before env.state),

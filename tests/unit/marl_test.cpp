@@ -490,6 +490,28 @@ TEST(Marl, UnknownLearnersAreRefusedWithTheRegisteredNames) {
   EXPECT_THROW(resolve_config(std::nullopt, {"marl.algo=sac"}), InputError);
 }
 
+// train_marl holds every configuration to the cross-field rules, however it was built: a task's
+// recipe handed to another learner (uma-rician-v1's sequential PPO turns given to VDN, which once
+// trained and then crashed in its first validation) is refused in one line, before the run exists.
+TEST(Marl, ACombinationTheLearnerCannotRunIsRefusedBeforeTraining) {
+  for (const char* algo : {"vdn", "qmix"}) {
+    Config cfg = small_scenario(algo, 1024);
+    cfg.marl.encoder = ObservationKind::Set;
+    cfg.marl.sequential = true;  // set directly, past apply_override's checks
+    MarlTrainOptions opt;
+    opt.out_dir = fresh(std::string("sequential_") + algo);
+    opt.registry = &zf_registry();
+    try {
+      train_marl(cfg, opt);
+      ADD_FAILURE() << algo << " trained with sequential turns";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("marl.sequential = true with marl.algo = \"" + std::string(algo) + "\""), std::string::npos)
+          << e.what();
+    }
+    EXPECT_FALSE(std::filesystem::exists(opt.out_dir + "/last.pt")) << algo;
+  }
+}
+
 // A policy trained with the look-ahead (marl.lookahead) flies an environment that writes it, and
 // one that does not is refused in one line (not a shape error from the network).
 /// A MAPPO policy on the set observation with the look-ahead, trained briefly into `dir`.

@@ -65,7 +65,7 @@ struct World {
   std::vector<double> speed_mps;       // per UAV: ground speed in the last slot (m/s)
   std::vector<double> power_w;         // per UAV: propulsion power in the last slot (W)
   double energy_total_j = 0;           // the fleet's energy so far (J)
-  std::vector<double> rates;           // R[1 .. t - 1]
+  std::vector<double> rates;           // R[1 .. t], R[1] at the starts (UavEnv::rates())
   double rate_sum = 0;                 // their sum
 };
 

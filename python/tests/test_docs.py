@@ -121,11 +121,29 @@ def test_every_relative_link_between_pages_resolves():
 
 
 def test_benchmark_page_is_made_from_its_data():
+    """Every figure on the benchmark page is the median of at least three runs, with its command,
+    date and machine, and says how a script measures it again (rows() refuses a row that names
+    neither a Google Benchmark nor what to read in its command's output)."""
     import bench_report
     rows = bench_report.rows()
     page = bench_report.page()
     assert rows and all(f"## {r['area']}" in page and r["quantity"] in page for r in rows)
-    assert all(r["date"] and r["machine"] and r["command"] and int(r["runs"]) >= 1 for r in rows)
+    assert all(r["date"] and r["machine"] and r["command"] for r in rows)
+    few = [r["quantity"] for r in rows if int(r["runs"]) < 3]
+    assert not few, f"figures over fewer than three runs: {few}"
+
+
+def test_a_commands_figure_is_read_from_what_it_prints(tmp_path):
+    import bench_report
+    row = {"command": 'mkdir -p "$DIR" && echo "warm-up 7 s" && echo "done: 1,234.5 steps in 9.25 s"',
+           "reads": r"done: ([0-9,.]+) steps"}
+    assert bench_report.run_once(row, root=str(tmp_path)) == 1234.5
+    assert bench_report.run_once(dict(row, reads=r"in ([0-9.]+) s"), root=str(tmp_path)) == 9.25
+    assert bench_report.run_once({"command": "sleep 0.2", "reads": "wall"}, root=str(tmp_path)) >= 0.2
+    with pytest.raises(ValueError, match="no line of the output matches"):
+        bench_report.run_once(dict(row, reads=r"took ([0-9.]+) h"), root=str(tmp_path))
+    with pytest.raises(RuntimeError, match="exited with 3"):
+        bench_report.run_once({"command": "echo 1 s; exit 3", "reads": r"([0-9]) s"}, root=str(tmp_path))
 
 
 def test_one_version_everywhere():

@@ -5,7 +5,7 @@ statistic, date, machine, command, and how the figure is read, which every row n
 
 - `gbench`: the Google Benchmark it comes from (`binary:name`). `scripts/bench --record FILTER`
   runs the suite and refreshes these rows from the CSVs that run wrote (results/bench/<binary>.csv).
-- `reads`: for a figure a command prints (a training run, a planner, the test suite), a regular
+- `reads`: for a figure a command prints (a training run, a planner, a Python benchmark), a regular
   expression whose first group, searched in the command's output (stdout and stderr, line by
   line), is the figure in the row's unit; `wall` reads the command's wall time in seconds.
   `scripts/bench --measure [--runs N] [PATTERN]` runs the command of every row whose quantity
@@ -50,8 +50,8 @@ def rows():
         if r["reads"] and r["reads"] != "wall":
             try:
                 groups = re.compile(r["reads"]).groups
-            except re.error as e:
-                groups, r["reads"] = -1, f"{r['reads']} ({e})"
+            except re.error:
+                groups = 0
             if groups < 1:
                 raise SystemExit(f"bench_report: {CURRENT}:{i} ({r['quantity']}): reads = {r['reads']!r}: allowed "
                                  "`wall` or a regular expression with a group (the figure)")
@@ -178,7 +178,10 @@ def measure(pattern, runs):
     for r in chosen:
         figures = []
         for i in range(runs):
-            figures.append(run_once(r))
+            try:
+                figures.append(run_once(r))
+            except (RuntimeError, ValueError) as e:
+                raise SystemExit(f"bench_report: {r['quantity']}: {e}")
             print(f"bench_report: {r['quantity']}: run {i + 1}/{runs}: {figures[-1]:g} {r['unit']}", flush=True)
         r["value"] = f"{statistics.median(figures):.4g}"
         r["runs"], r["statistic"], r["date"], r["machine"] = str(runs), "median of runs", today, machine

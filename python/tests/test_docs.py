@@ -133,6 +133,21 @@ def test_benchmark_page_is_made_from_its_data():
     assert not few, f"figures over fewer than three runs: {few}"
 
 
+def test_a_row_that_says_not_how_it_is_measured_is_refused(tmp_path, monkeypatch):
+    import bench_report
+    path = tmp_path / "current.csv"
+    head = ",".join(bench_report.COLUMNS)
+    row = "Area,a figure,1,s,3,median of runs,2026-01-01,a machine,skyloop plan --out $DIR,{},{}"
+    monkeypatch.setattr(bench_report, "CURRENT", str(path))
+    for gbench, reads, message in (("", "", "allowed exactly one"), ("b:BM_X", "x ([0-9]+)", "allowed exactly one"),
+                                   ("", "no group", "with a group"), ("", "bad ([0-9]", "with a group")):
+        path.write_text(head + "\n" + row.format(gbench, reads) + "\n")
+        with pytest.raises(SystemExit, match=message):
+            bench_report.rows()
+    path.write_text(head + "\n" + row.format("", "wall") + "\n")
+    assert bench_report.rows()[0]["reads"] == "wall"
+
+
 def test_a_commands_figure_is_read_from_what_it_prints(tmp_path):
     import bench_report
     row = {"command": 'mkdir -p "$DIR" && echo "warm-up 7 s" && echo "done: 1,234.5 steps in 9.25 s"',

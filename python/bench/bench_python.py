@@ -3,9 +3,10 @@
 
     PYTHONPATH=build/python /usr/bin/python3 python/bench/bench_python.py [--repeats 5]
 
-1. VecEnv.step from Python (observation, state, agent-state and mask arrays included) vs C++
-   VecEnv::step alone, on the same environments: paper scenario, warm cache (a random action
-   sequence replayed from reset(), so every position is already cached), M = 64 and M = 1, one core.
+1. VecEnv.step from Python vs the same work in C++ (VecEnv::step, then the observation, state,
+   agent-state and mask arrays written as the Python step writes them), on the same environments:
+   paper scenario, warm cache (a random action sequence replayed from reset(), so every position
+   is already cached), M = 64 and M = 1, one core. The difference is the binding's own cost.
 2. A beamformer batch from Python vs the C++ call: 1024 clusters, WMMSE.
 Prints medians over --repeats runs.
 """

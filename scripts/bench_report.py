@@ -151,42 +151,61 @@ def read_figure(reads, output):
     raise ValueError(f"no line of the output matches {reads!r}")
 
 
-def run_once(row, root=ROOT):
-    """Runs one row's command in `root` (build/ first on PATH, $DIR a fresh directory) and returns
-    the figure it printed, or its wall time for `reads = wall`."""
+def run_command(command, root=ROOT):
+    """Runs `command` in `root` (build/ first on PATH, $DIR a fresh directory); returns what it
+    printed (stdout and stderr) and its wall time in seconds."""
     d = tempfile.mkdtemp(prefix="skyloop-bench-")
     env = dict(os.environ, DIR=os.path.join(d, "run"),
                PATH=os.path.join(root, "build") + os.pathsep + os.environ.get("PATH", ""))
     try:
         t0 = time.perf_counter()
-        r = subprocess.run(["bash", "-o", "pipefail", "-c", row["command"]], cwd=root, env=env,
+        r = subprocess.run(["bash", "-o", "pipefail", "-c", command], cwd=root, env=env,
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         wall = time.perf_counter() - t0
     finally:
         shutil.rmtree(d, ignore_errors=True)
     if r.returncode != 0:
-        raise RuntimeError(f"`{row['command']}` exited with {r.returncode}:\n{r.stdout[-2000:]}")
-    return wall if row["reads"] == "wall" else read_figure(row["reads"], r.stdout)
+        raise RuntimeError(f"`{command}` exited with {r.returncode}:\n{r.stdout[-2000:]}")
+    return r.stdout, wall
 
 
-def measure(pattern, runs):
-    """Measures every command row whose quantity matches `pattern`: the median of `runs` runs."""
+def figure_of(row, output, wall):
+    """A row's figure from one run of its command: what it printed, or its wall time for `reads = wall`."""
+    return wall if row["reads"] == "wall" else read_figure(row["reads"], output)
+
+
+def run_once(row, root=ROOT):
+    """Runs one row's command and returns the figure it printed (or its wall time)."""
+    return figure_of(row, *run_command(row["command"], root))
+
+
+def measure(pattern, runs, root=ROOT):
+    """Measures every command row whose quantity matches `pattern`: the median of `runs` runs. Rows
+    that share a command share its runs: each run is read for all of them, so their figures (a
+    ratio and a rate, say) come from the same runs."""
     data, today, machine = rows(), datetime.date.today().isoformat(), _machine()
     chosen = [r for r in data if r["reads"] and re.search(pattern, r["quantity"])]
     if not chosen:
         raise SystemExit(f"bench_report: no command row's quantity matches {pattern!r}")
+    by_command = {}
     for r in chosen:
-        figures = []
+        by_command.setdefault(r["command"], []).append(r)
+    for command, group in by_command.items():
+        figures = [[] for _ in group]
         for i in range(runs):
             try:
-                figures.append(run_once(r))
+                output, wall = run_command(command, root)
+                for r, f in zip(group, figures):
+                    f.append(figure_of(r, output, wall))
             except (RuntimeError, ValueError) as e:
-                raise SystemExit(f"bench_report: {r['quantity']}: {e}")
-            print(f"bench_report: {r['quantity']}: run {i + 1}/{runs}: {figures[-1]:g} {r['unit']}", flush=True)
-        r["value"] = f"{statistics.median(figures):.4g}"
-        r["runs"], r["statistic"], r["date"], r["machine"] = str(runs), "median of runs", today, machine
-        _save(data)  # each row as soon as it is measured: an interrupted measurement keeps the rows before
-    print(f"bench_report: measured {len(chosen)} rows of {CURRENT}")
+                raise SystemExit(f"bench_report: {'; '.join(r['quantity'] for r in group)}: {e}")
+            for r, f in zip(group, figures):
+                print(f"bench_report: {r['quantity']}: run {i + 1}/{runs}: {f[-1]:g} {r['unit']}", flush=True)
+        for r, f in zip(group, figures):
+            r["value"] = f"{statistics.median(f):.4g}"
+            r["runs"], r["statistic"], r["date"], r["machine"] = str(runs), "median of runs", today, machine
+        _save(data)  # each command's rows as soon as they are measured: an interrupted measurement keeps those before
+    print(f"bench_report: measured {len(chosen)} rows of {CURRENT} ({len(by_command)} command{'s' if len(by_command) != 1 else ''}, {runs} runs each)")
 
 
 def main(argv):

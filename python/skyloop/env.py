@@ -132,13 +132,18 @@ class VecEnv:
         commands in [-1, 1] (a velocity, a change of velocity or a speed and a turn, as
         ``trajectory.command`` says; projected onto what each UAV can fly, then through the safety
         layer of marl.action_mask and marl.shield)."""
-        from ._check import as_actions, as_commands
         M, N = self.num_envs, self.num_agents
+        if type(actions) is np.ndarray and actions.dtype.kind in "iu" and actions.shape == (M, N):
+            return self._stepped(self._env.step(actions))  # the core checks each value itself (one line naming the entry)
+        from ._check import as_actions, as_commands
         if self.action_dims and np.ndim(actions) == 3:
             a = as_commands(actions, "actions", (M, N, self.action_dims))
         else:
             a = as_actions(actions, "actions", (M, N), self.num_actions)
-        d = self._env.step(a)
+        return self._stepped(self._env.step(a))
+
+    @staticmethod
+    def _stepped(d) -> StepResult:
         return StepResult(d["obs"], d["state"], d["agent_state"], d["action_mask"], d["reward"], d["terminated"],
                           d["truncated"], d["info"])
 
@@ -177,9 +182,7 @@ class VecEnv:
 
     def step_turns(self) -> StepResult:
         """Steps every environment with the moves its turns chose in the last pass (``step``'s result)."""
-        d = self._env.step_turns()
-        return StepResult(d["obs"], d["state"], d["agent_state"], d["action_mask"], d["reward"], d["terminated"],
-                          d["truncated"], d["info"])
+        return self._stepped(self._env.step_turns())
 
     def positions(self) -> dict:
         """Current UAV positions and destinations [M, N, 3] (x, y and altitude z, metres) and slots t [M]."""

@@ -161,6 +161,27 @@ def test_a_commands_figure_is_read_from_what_it_prints(tmp_path):
         bench_report.run_once({"command": "echo 1 s; exit 3", "reads": r"([0-9]) s"}, root=str(tmp_path))
 
 
+def test_rows_that_share_a_command_share_its_runs(tmp_path, monkeypatch):
+    """`scripts/bench --measure` runs a command once per run for all the rows that read it (a ratio
+    and a rate from the same runs), records each row's median and leaves the other rows alone."""
+    import bench_report
+    path = tmp_path / "current.csv"
+    monkeypatch.setattr(bench_report, "CURRENT", str(path))
+    count = tmp_path / "runs.txt"
+    command = f'echo run >> {count}; n=$(wc -l < {count}); echo "ratio 0.$n; rate $((n * 100)) a/s"'
+    head = ",".join(bench_report.COLUMNS)
+    row = "Area,{},1,{},1,median of runs,2026-01-01,a machine,{},,{}"
+    path.write_text("\n".join([head, row.format("ratio", "ratio", command, r"ratio ([0-9.]+);"),
+                               row.format("rate", "a/s", command, r"rate ([0-9]+) a/s"),
+                               row.format("other", "s", "exit 1", r"([0-9]+)")]) + "\n")
+    bench_report.measure("^ra", 3, root=str(tmp_path))
+    assert count.read_text().count("run") == 3
+    got = {r["quantity"]: r for r in bench_report.rows()}
+    assert got["ratio"]["value"] == "0.2" and got["rate"]["value"] == "200"  # the median of runs 1, 2, 3
+    assert got["ratio"]["runs"] == got["rate"]["runs"] == "3"
+    assert got["other"]["value"] == "1" and got["other"]["date"] == "2026-01-01"
+
+
 def test_one_version_everywhere():
     """VERSION is the one version: the module (through CMake), the CLI, CITATION.cff and the
     changelog's latest release say the same."""

@@ -41,9 +41,14 @@ _SCALE = {"ns": 1e-9, "us": 1e-6, "ms": 1e-3, "s": 1.0}
 def rows():
     with open(CURRENT, newline="") as f:
         out = list(csv.DictReader(f))
+    seen = {}
     for i, r in enumerate(out, start=2):
         if list(r) != COLUMNS:
             raise SystemExit(f"bench_report: {CURRENT} has columns {list(r)}: allowed {COLUMNS}")
+        if r["quantity"] in seen:
+            raise SystemExit(f"bench_report: {CURRENT}:{i} ({r['quantity']}): the same quantity as line {seen[r['quantity']]}: "
+                             "allowed one row per quantity (today's figure)")
+        seen[r["quantity"]] = i
         if bool(r["gbench"]) == bool(r["reads"]):
             raise SystemExit(f"bench_report: {CURRENT}:{i} ({r['quantity']}): gbench = {r['gbench']!r}, reads = "
                              f"{r['reads']!r}: allowed exactly one of the two (how the figure is measured)")
@@ -105,14 +110,18 @@ def _machine():
     return f"{os.cpu_count()}-core {model}"
 
 
-def record(reps):
-    """Refreshes every row naming a Google Benchmark whose median results/bench/<binary>.csv holds."""
+def record(reps, binaries, root=ROOT):
+    """Refreshes every row naming a Google Benchmark of `binaries` (the ones this run of scripts/bench
+    wrote results/bench/<binary>.csv for) whose median that file holds. A CSV left by an earlier
+    run is never read: its rows would take today's date without being measured."""
     data, today, machine, changed = rows(), datetime.date.today().isoformat(), _machine(), 0
     for r in data:
         if not r["gbench"]:
             continue
         binary, name = r["gbench"].split(":", 1)
-        path = os.path.join(ROOT, "results", "bench", binary + ".csv")
+        if binary not in binaries:
+            continue
+        path = os.path.join(root, "results", "bench", binary + ".csv")
         if not os.path.exists(path):
             continue
         text = open(path).read()
@@ -210,7 +219,7 @@ def measure(pattern, runs, root=ROOT):
 
 def main(argv):
     if argv[:1] == ["--record"]:
-        record(int(os.environ.get("REPS", "5")))
+        record(int(os.environ.get("REPS", "5")), set(argv[1:]))
     elif argv[:1] == ["--measure"]:
         args, runs = argv[1:], 3
         if args[:1] == ["--runs"]:
@@ -225,7 +234,7 @@ def main(argv):
             raise SystemExit(f"bench_report: PATTERN = {args[0]!r} is not a regular expression: {e}")
         measure(pattern, runs)
     elif argv:
-        raise SystemExit(f"bench_report: unknown arguments {argv}: allowed none, --record, or --measure [--runs N] [PATTERN]")
+        raise SystemExit(f"bench_report: unknown arguments {argv}: allowed none, --record BINARY..., or --measure [--runs N] [PATTERN]")
     else:
         print(page())
 

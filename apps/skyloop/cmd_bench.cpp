@@ -1,8 +1,11 @@
 // `skyloop bench`: the benchmark's tasks (skyloop/experiments/bench.hpp), their references, and
 // scoring planners and trained policies under the task's protocol.
+#include <chrono>
 #include <cmath>
+#include <mutex>
 #include <filesystem>
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <iostream>
 
 #include "common.hpp"
@@ -12,6 +15,7 @@
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/parallel.hpp"
+#include "skyloop/core/process.hpp"
 #include "skyloop/experiments/bench.hpp"
 #include "skyloop/env/layouts.hpp"
 #include "skyloop/env/spec.hpp"
@@ -77,7 +81,7 @@ bool trained_to(const std::string& dir, std::int64_t steps) {
 }
 
 struct BenchCliOptions {
-  std::string task, sample = "5", planners, seeds, label, out, threads, learners, steps;
+  std::string task, sample = "5", planners, seeds, label, out, threads, learners, steps, jobs;
   std::vector<std::string> policies;
   bool all = false, write = false, force = false;
 };
@@ -195,35 +199,71 @@ int bench_baselines(const BenchCliOptions& o) {
     else skipped += fmt::format("{}: not run ({})\n", p, why);
   }
   std::vector<BenchRow> rows = run_bench(t, planners, &std::cerr);
+  // Each learner's configuration is checked first: one that cannot run the task's settings is a
+  // row of its own, saying why (and is not trained).
+  auto learner_config = [&](const std::string& algo, std::uint64_t seed) {
+    Config cfg = t.config;
+    apply_override(cfg, "marl.algo=\"" + algo + "\"");
+    apply_override(cfg, "run.seed=" + std::to_string(seed));
+    apply_override(cfg, "marl.total_steps=" + std::to_string(steps));
+    return cfg;
+  };
+  std::vector<std::string> runnable;
   for (const auto& algo : algos) {
-    std::vector<std::string> dirs;
+    try {
+      validate(learner_config(algo, seeds.front()));
+      runnable.push_back(algo);
+    } catch (const InputError& e) {
+      skipped += fmt::format("{}: not run ({})\n", algo, e.what());
+    }
+  }
+  // The runs not yet trained to the budget, each by a child `skyloop train` (resuming from its
+  // last.pt), `jobs` at a time on an equal share of the hardware threads.
+  struct Job {
+    std::string algo, dir;
+    std::uint64_t seed;
+  };
+  std::vector<Job> todo;
+  for (const auto& algo : runnable)
     for (const auto seed : seeds) {
       const std::string dir = fmt::format("{}/train/{}-s{}", o.out, algo, seed);
-      Config cfg = t.config;
-      apply_override(cfg, "marl.algo=\"" + algo + "\"");
-      apply_override(cfg, "run.seed=" + std::to_string(seed));
-      apply_override(cfg, "marl.total_steps=" + std::to_string(steps));
-      if (!trained_to(dir, steps)) {
-        MarlTrainOptions opt;
-        opt.out_dir = dir;
-        opt.resume = fs::exists(fs::path(dir) / "last.pt");
-        opt.progress = &std::cerr;
-        opt.registry = &builtin_beamformers();
-        std::cerr << fmt::format("bench baselines {}: training {} seed {} ({} steps)\n", t.id, algo, seed, steps);
-        try {
-          train_marl(cfg, opt);
-        } catch (const InputError& e) {
-          // A learner that cannot run the task's settings is a row of its own, saying why.
-          skipped += fmt::format("{}: not run ({})\n", algo, e.what());
-          dirs.clear();
-          break;
-        }
-      }
-      dirs.push_back(dir);
+      if (!trained_to(dir, steps)) todo.push_back({algo, dir, seed});
     }
-    if (dirs.empty()) continue;
+  const int jobs = static_cast<int>(std::min<std::size_t>(o.jobs.empty() ? 1 : parse_count("--jobs", o.jobs, 1, 256), std::max<std::size_t>(todo.size(), 1)));
+  const int threads = std::max(1, resolve_threads(0) / jobs);
+  std::mutex mu;
+  std::vector<std::string> failed;
+  std::size_t finished = 0;
+  parallel_for(todo.size(), jobs, [&](std::size_t i) {
+    const Job& j = todo[i];
+    Config cfg = learner_config(j.algo, j.seed);
+    cfg.run.threads = threads;
+    fs::create_directories(fs::path(j.dir).parent_path());
+    const std::string request = j.dir + ".request.toml", log = j.dir + ".log";
+    write_file_atomic(request, to_toml(cfg));
+    std::vector<std::string> argv = {self_path(), "train", "--config", request, "--out", j.dir};
+    const bool resume = fs::exists(fs::path(j.dir) / "last.pt");
+    if (resume) argv.push_back("--resume");
+    {
+      std::lock_guard<std::mutex> hold(mu);
+      std::cerr << fmt::format("bench baselines {}: training {} seed {} ({} steps{}; log {})\n", t.id, j.algo, j.seed, steps,
+                               resume ? ", resumed" : "", log);
+    }
+    const auto t0 = std::chrono::steady_clock::now();
+    const int rc = run_process(argv, log);
+    const double sec = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    std::lock_guard<std::mutex> hold(mu);
+    ++finished;
+    if (rc != 0) failed.push_back(fmt::format("{} seed {} (exit status {}; see {})", j.algo, j.seed, rc, log));
+    std::cerr << fmt::format("bench baselines {}: {} seed {} {} in {:.0f} s ({}/{} runs)\n", t.id, j.algo, j.seed,
+                             rc == 0 ? "trained" : "failed", sec, finished, todo.size());
+  });
+  if (!failed.empty())
+    throw std::runtime_error(fmt::format("bench baselines {}: {} of {} trainings failed: {}; a rerun resumes every run", t.id,
+                                         failed.size(), todo.size(), fmt::join(failed, ", ")));
+  for (const auto& algo : runnable) {
     BenchRunOptions p;
-    p.policies = dirs;
+    for (const auto seed : seeds) p.policies.push_back(fmt::format("{}/train/{}-s{}", o.out, algo, seed));
     p.policy_label = algo;
     const auto r = run_bench(t, p, &std::cerr);
     rows.insert(rows.end(), r.begin(), r.end());
@@ -271,6 +311,7 @@ void add_bench_command(CLI::App& app, Action& action) {
   base->add_option("--learners", o->learners, "comma-separated: " + learner_names_text() + " (default all), or none (the planners alone)");
   base->add_option("--seeds", o->seeds, "training seeds (default 1..the protocol's seeds)");
   base->add_option("--steps", o->steps, "training steps (default the protocol's budget; another is labelled off-protocol)");
+  base->add_option("--jobs", o->jobs, "trainings at a time, each a child process on its share of the hardware threads (default 1)");
   base->final_callback([&action, o] { action = [o] { return bench_baselines(*o); }; });
 }
 

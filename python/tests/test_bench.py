@@ -153,3 +153,26 @@ def test_baselines_train_score_and_label_a_short_budget(tmp_path):
     rows = [r for r in csv.DictReader(open(out / "rows.csv")) if r["policy"] == "mappo"]
     assert len(rows) == 20 and all("trained 2048 steps" in r["protocol"] for r in rows)
     assert (out / "train" / "mappo-s1" / "policy.pt").exists()
+    # Two trainings at a time (child processes on a share of the threads each) give the same
+    # numbers; a rerun finds every run trained and only scores them.
+    par = tmp_path / "parallel"
+    r = run_cli("bench", "baselines", "paper-v1", "--learners", "mappo", "--seeds", "1,2", "--steps", "2048", "--jobs", "2",
+                "--out", str(par))
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stderr.count("training mappo seed") == 2 and (par / "train" / "mappo-s2.log").exists()
+    seed1 = [r for r in csv.DictReader(open(par / "rows.csv")) if r["policy"] == "mappo" and r["seed"] == "1"]
+    assert [(r["layout"], r["objective"]) for r in seed1] == [(r["layout"], r["objective"]) for r in rows]
+    r = run_cli("bench", "baselines", "paper-v1", "--learners", "mappo", "--seeds", "1,2", "--steps", "2048", "--jobs", "2",
+                "--out", str(par))
+    assert r.returncode == 0 and "training" not in r.stderr, r.stderr[-2000:]
+
+
+def test_baselines_say_which_learner_cannot_run_a_task(tmp_path):
+    # uma-rician-v1 trains its UAVs one after another (marl.sequential), which VDN and QMIX cannot:
+    # each is a line of not_run.txt saying why, and nothing is trained for it.
+    out = tmp_path / "board"
+    r = run_cli("bench", "baselines", "uma-rician-v1", "--learners", "vdn", "--seeds", "1", "--out", str(out))
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "vdn: not run (marl.sequential = true" in (out / "not_run.txt").read_text()
+    assert not (out / "train").exists()
+    assert {s["policy"] for s in csv.DictReader(open(out / "summary.csv"))} == {"random", "greedy", "seqgreedy", "rollout"}

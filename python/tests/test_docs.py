@@ -146,6 +146,9 @@ def test_a_row_that_says_not_how_it_is_measured_is_refused(tmp_path, monkeypatch
             bench_report.rows()
     path.write_text(head + "\n" + row.format("", "wall") + "\n")
     assert bench_report.rows()[0]["reads"] == "wall"
+    path.write_text(head + "\n" + row.format("", "wall") + "\n" + row.format("", "wall") + "\n")
+    with pytest.raises(SystemExit, match="the same quantity as line 2"):
+        bench_report.rows()
 
 
 def test_a_commands_figure_is_read_from_what_it_prints(tmp_path):
@@ -180,6 +183,26 @@ def test_rows_that_share_a_command_share_its_runs(tmp_path, monkeypatch):
     assert got["ratio"]["value"] == "0.2" and got["rate"]["value"] == "200"  # the median of runs 1, 2, 3
     assert got["ratio"]["runs"] == got["rate"]["runs"] == "3"
     assert got["other"]["value"] == "1" and got["other"]["date"] == "2026-01-01"
+
+
+def test_recording_reads_only_the_benchmarks_this_run_wrote(tmp_path, monkeypatch):
+    """`scripts/bench --record` refreshes the rows of the binaries it has just run; a CSV left in
+    results/bench by an earlier run is not read (its rows would take today's date unmeasured)."""
+    import bench_report
+    path = tmp_path / "current.csv"
+    monkeypatch.setattr(bench_report, "CURRENT", str(path))
+    (tmp_path / "results" / "bench").mkdir(parents=True)
+    gb = "name,iterations,real_time,cpu_time,time_unit,bytes_per_second,items_per_second,label,error_occurred,error_message\n"
+    for binary, t in (("fresh", 2000), ("stale", 9000)):
+        (tmp_path / "results" / "bench" / f"{binary}.csv").write_text(
+            "2026-01-01T00:00:00\n" + gb + f'"BM_X_median",3,{t},{t},us,,,,,\n')
+    head = ",".join(bench_report.COLUMNS)
+    row = "Area,{0},1,ms,3,median of repetition means,2026-01-01,a machine,REPS=3 scripts/bench 'BM_X',{0}:BM_X,"
+    path.write_text("\n".join([head, row.format("fresh"), row.format("stale")]) + "\n")
+    bench_report.record(3, {"fresh"}, root=str(tmp_path))
+    got = {r["quantity"]: r for r in bench_report.rows()}
+    assert got["fresh"]["value"] == "2" and got["fresh"]["date"] != "2026-01-01"
+    assert got["stale"]["value"] == "1" and got["stale"]["date"] == "2026-01-01"
 
 
 def test_one_version_everywhere():

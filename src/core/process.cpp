@@ -6,6 +6,7 @@
 #include <csignal>
 #include <cstring>
 #include <fcntl.h>
+#include <filesystem>
 #include <stdexcept>
 #include <sys/prctl.h>
 #include <sys/wait.h>
@@ -111,5 +112,7 @@ int run_process(const std::vector<std::string>& argv, const std::string& log_pat
   if (WIFSIGNALED(status)) return 128 + WTERMSIG(status);
   return 1;
 }
+
+std::string self_path() { return std::filesystem::read_symlink("/proc/self/exe").string(); }
 
 }  // namespace skyloop

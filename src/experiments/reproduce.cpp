@@ -423,7 +423,7 @@ class Runner {
         piece.id, [&] { return trained(piece); },
         [&] {
           write_file_atomic((dir / "request.toml").string(), to_toml(cfg));
-          std::vector<std::string> argv = {exe_path(), "train", "--config", (dir / "request.toml").string(), "--out", dir.string()};
+          std::vector<std::string> argv = {self_path(), "train", "--config", (dir / "request.toml").string(), "--out", dir.string()};
           if (fs::exists(dir / "last.pt")) *pool.out << restart_note(dir) << std::flush;
           argv.push_back("--force");
           const auto tr = Clock::now();
@@ -518,7 +518,6 @@ class Runner {
     return fs::exists(dir / "train.json") && fs::exists(dir / "policy.pt");
   }
 
-  static std::string exe_path() { return fs::read_symlink("/proc/self/exe").string(); }
 
   void assemble(const std::vector<const ExperimentSpec*>& selected, double compute_s, Clock::time_point t_all) {
     nlohmann::json manifest;

@@ -172,12 +172,6 @@ namespace {
 
 const Graph kNoGraph;  // Layer-norm blocks do not read the graph
 
-/// Mean of x [..., K, d] over the K axis (dim) where mask [..., K] is 1; 0 where none is.
-torch::Tensor masked_mean(const torch::Tensor& x, const torch::Tensor& mask, int64_t dim) {
-  const auto m = mask.unsqueeze(-1);
-  return (x * m).sum(dim) / torch::clamp_min(m.sum(dim), 1.0);
-}
-
 /// For each user slot, max over the other real users of its cluster: x [B, C, K, d], mask [B, C, K].
 /// Zeros for a single-user cluster (the max over an empty set), as max_over_others.
 torch::Tensor dense_max_over_others(const torch::Tensor& x, const torch::Tensor& mask) {
@@ -224,36 +218,57 @@ torch::Tensor IgnnImpl::head(const torch::Tensor&, const Graph&) {
 
 torch::Tensor IgnnImpl::forward_network(const NetBatch& b) {
   const auto& x = b.x;                                  // [B, C, C, K, 2L]
-  const auto xin = encode_features(x, features());      // what the encoders see
-  const int64_t B = x.size(0), C = x.size(1), K = x.size(3);
+  const int64_t B = x.size(0), C = x.size(1), K = x.size(3), L2 = x.size(4);
   const auto um = b.umask.unsqueeze(-1);                // [B, C, K, 1]
   const auto cm = b.cmask.unsqueeze(-1);                // [B, C, 1]
   const auto own = x.diagonal(0, 1, 2).permute({0, 3, 1, 2});  // [B, C, K, 2L]: h from the serving UAV
   // Interference edges (tx != rx, both real): [B, C_tx, C_rx, K].
   const auto off_diag = 1 - torch::eye(C, x.options()).view({1, C, C, 1});
   const auto emask = b.cmask.view({B, C, 1, 1}) * b.umask.view({B, 1, C, K}) * off_diag;
-  const auto em = emask.unsqueeze(-1);
-  const auto e = edge_enc_(xin, kNoGraph) * em;           // e_{m,k}  [B, C, C, K, d]
-  auto u = user_enc_(xin.diagonal(0, 1, 2).permute({0, 3, 1, 2}), kNoGraph) * um;  // u_k [B, C, K, d]
-  auto a = uav_enc_(masked_mean(u, b.umask, 2), kNoGraph) * cm;  // a_n [B, C, d]
-  const auto to_user = torch::clamp_min(emask.sum(1), 1.0).unsqueeze(-1);      // [B, C_rx, K, 1]
-  const auto to_uav = torch::clamp_min(emask.sum({2, 3}), 1.0).unsqueeze(-1);  // [B, C_tx, 1]
+  // Users and edges are computed as lists of the real ones only: a padded batch holds C x K user
+  // slots and C x C x K edge slots per network, of which the served users, and those times
+  // (C - 1), are real (on the paper's 3-UAV networks about half and a third). Every row's
+  // arithmetic is its own (the layer norms are per row), so the lists compute what the padded
+  // slots did, and sums over a list add the same terms in the same order as the padded sums,
+  // whose masked terms were zeros. Layout: user r = flat slot (b, c, k), ascending; edge e = flat
+  // slot (b, tx, rx, k), ascending, from cluster slot b C + tx to user slot (b C + rx) K + k.
+  // The clusters stay padded ([B C] rows, almost all real).
+  const auto users = b.umask.reshape({-1}).nonzero().squeeze(1);  // [U] user slots
+  const auto user_cl = users.div(K, "floor");                     // [U] cluster slot b C + c
+  const auto edges = emask.reshape({-1}).nonzero().squeeze(1);    // [E]
+  const auto k_of = edges.remainder(K), rest = edges.div(K, "floor");
+  const auto rx_of = rest.remainder(C), tx_slot = rest.div(C, "floor");  // tx_slot = b C + tx
+  const auto rx_slot = (tx_slot.div(C, "floor") * C + rx_of) * K + k_of;
+  const int64_t slots = B * C * K;
+  // Rows [U, .] back to padded slots [B, C, K, .] (zero where no user) and per-cluster means.
+  auto padded = [&](const torch::Tensor& rows) {
+    return torch::zeros({slots, rows.size(1)}, rows.options()).index_copy(0, users, rows).view({B, C, K, rows.size(1)});
+  };
+  const auto per_cluster = torch::clamp_min(b.umask.sum(2).reshape({B * C, 1}), 1.0);
+  auto cluster_mean = [&](const torch::Tensor& rows) {
+    return torch::zeros({B * C, rows.size(1)}, rows.options()).index_add(0, user_cl, rows) / per_cluster;
+  };
+  const auto e = edge_enc_(encode_features(x.reshape({-1, L2}).index_select(0, edges), features()), kNoGraph);  // [E, d]
+  auto u = user_enc_(encode_features(own.reshape({-1, L2}).index_select(0, users), features()), kNoGraph);  // u_k [U, d]
+  auto a = uav_enc_(cluster_mean(u), kNoGraph) * cm.reshape({B * C, 1});  // a_n [B C, d]
+  const auto to_user = torch::clamp_min(emask.sum(1), 1.0).reshape({slots, 1}).index_select(0, users);  // [U, 1]
+  const auto to_uav = torch::clamp_min(emask.sum({2, 3}), 1.0).reshape({B * C, 1});                   // [B C, 1]
   for (std::size_t l = 0; l < user_msg_->size(); ++l) {
-    const auto mu = user_msg_[l]->as<Mlp>()->forward(u, kNoGraph) * um;  // m_{u_k}  [B, C, K, d]
-    const auto ma = uav_msg_[l]->as<Mlp>()->forward(a, kNoGraph) * cm;   // m_{a_n}  [B, C, d]
+    const auto mu = user_msg_[l]->as<Mlp>()->forward(u, kNoGraph);                          // m_{u_k}  [U, d]
+    const auto ma = uav_msg_[l]->as<Mlp>()->forward(a, kNoGraph) * cm.reshape({B * C, 1});  // m_{a_n}  [B C, d]
     const int64_t d = mu.size(-1);
-    const auto ma_tx = ma.view({B, C, 1, 1, d}).expand({B, C, C, K, d});
-    const auto mu_rx = mu.view({B, 1, C, K, d}).expand({B, C, C, K, d});
-    const auto heard = (int_msg_[l]->as<Mlp>()->forward(torch::cat({ma_tx, e}, -1), kNoGraph) * em).sum(1) / to_user;
-    const auto leaked =
-        (leak_msg_[l]->as<Mlp>()->forward(torch::cat({mu_rx, e}, -1), kNoGraph) * em).sum({2, 3}) / to_uav;
-    const auto user_in =
-        torch::cat({u, ma.unsqueeze(2).expand({B, C, K, d}), dense_max_over_others(mu, b.umask), heard}, -1);
-    const auto uav_in = torch::cat({a, masked_mean(mu, b.umask, 2), leaked}, -1);
-    u = user_upd_[l]->as<Mlp>()->forward(user_in, kNoGraph) * um;
-    a = uav_upd_[l]->as<Mlp>()->forward(uav_in, kNoGraph) * cm;
+    const auto mu_slots = padded(mu);  // [B, C, K, d]
+    const auto heard_e = int_msg_[l]->as<Mlp>()->forward(torch::cat({ma.index_select(0, tx_slot), e}, -1), kNoGraph);
+    const auto leaked_e = leak_msg_[l]->as<Mlp>()->forward(torch::cat({mu_slots.reshape({slots, d}).index_select(0, rx_slot), e}, -1), kNoGraph);
+    const auto heard = torch::zeros({slots, d}, mu.options()).index_add(0, rx_slot, heard_e).index_select(0, users) / to_user;
+    const auto leaked = torch::zeros({B * C, d}, mu.options()).index_add(0, tx_slot, leaked_e) / to_uav;
+    const auto others = dense_max_over_others(mu_slots, b.umask).reshape({slots, d}).index_select(0, users);
+    const auto user_in = torch::cat({u, ma.index_select(0, user_cl), others, heard}, -1);
+    const auto uav_in = torch::cat({a, cluster_mean(mu), leaked}, -1);
+    u = user_upd_[l]->as<Mlp>()->forward(user_in, kNoGraph);
+    a = uav_upd_[l]->as<Mlp>()->forward(uav_in, kNoGraph) * cm.reshape({B * C, 1});
   }
-  const auto h = out_(u, kNoGraph);                     // [B, C, K, head]
+  const auto h = padded(out_(u, kNoGraph));             // [B, C, K, head]
   if (readout() == Readout::Direct) return h * um;
   // Structured: w_{n,k} ~ (I + sum_j lambda_j h_{n,j} h_{n,j}^H)^{-1} h_{n,k}, over every served j.
   const int64_t L = antennas_;

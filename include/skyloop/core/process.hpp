@@ -27,4 +27,7 @@ void set_interrupt_hint(const char* hint);
 /// call from several threads at once.
 int run_process(const std::vector<std::string>& argv, const std::string& log_path = "");
 
+/// The running program's own path (/proc/self/exe): what a command runs to start a child of itself.
+std::string self_path();
+
 }  // namespace skyloop

@@ -181,8 +181,7 @@ int bench_run(const BenchCliOptions& o) {
 int bench_baselines(const BenchCliOptions& o) {
   const auto t = load_bench_task(o.task);
   if (o.out.empty()) throw InputError("--out is missing: allowed a directory for the trained runs and the leaderboard");
-  check_output_dir(o.out);
-  RunDirLock lock(o.out);
+  const std::size_t max_jobs = o.jobs.empty() ? 1 : parse_count("--jobs", o.jobs, 1, 256);
   std::vector<std::string> algos = o.learners.empty() ? learner_names() : split_methods(o.learners, "--learners");
   if (algos == std::vector<std::string>{"none"}) algos.clear();  // the planners alone
   for (const auto& a : algos) find_learner(a);
@@ -191,6 +190,8 @@ int bench_baselines(const BenchCliOptions& o) {
     for (int s = 1; s <= t.protocol.seeds; ++s) seeds.push_back(static_cast<std::uint64_t>(s));
   const std::int64_t steps = o.steps.empty() ? t.protocol.budget_steps
                                               : static_cast<std::int64_t>(parse_count("--steps", o.steps, 1, std::uint64_t{1} << 40));
+  check_output_dir(o.out);  // every argument checked before anything is written
+  RunDirLock lock(o.out);
   BenchRunOptions planners;
   planners.seeds = seeds;
   std::string skipped;
@@ -229,7 +230,7 @@ int bench_baselines(const BenchCliOptions& o) {
       const std::string dir = fmt::format("{}/train/{}-s{}", o.out, algo, seed);
       if (!trained_to(dir, steps)) todo.push_back({algo, dir, seed});
     }
-  const int jobs = static_cast<int>(std::min<std::size_t>(o.jobs.empty() ? 1 : parse_count("--jobs", o.jobs, 1, 256), std::max<std::size_t>(todo.size(), 1)));
+  const int jobs = static_cast<int>(std::min<std::size_t>(max_jobs, std::max<std::size_t>(todo.size(), 1)));
   const int threads = std::max(1, resolve_threads(0) / jobs);
   std::mutex mu;
   std::vector<std::string> failed;

@@ -187,8 +187,11 @@ void JointDp::make_weights() {
 }
 
 void JointDp::evaluate_rates() {
-  // A state is possible at some slot if each UAV's cell lies on a path start -> dest of length <= T_max - 1,
-  // and no two UAVs are closer than D_min.
+  // A state is possible at some slot t when every UAV can have reached its cell from its start by
+  // t and can still reach its destination from it by T_max (alive_windows' window, which must not
+  // be empty: the slowest UAV from its start plus the slowest to its destination fit in
+  // T_max - 1 slots), and no two UAVs are closer than D_min. R is computed there only: on the
+  // paper's grid a third of the states whose UAVs could each be there alone are never alive.
   std::vector<std::vector<char>> useful(static_cast<std::size_t>(N_), std::vector<char>(static_cast<std::size_t>(G_), 0));
   for (int n = 0; n < N_; ++n)
     for (int c = 0; c < G_; ++c)
@@ -199,8 +202,14 @@ void JointDp::evaluate_rates() {
   Positions p(N_, 3);
   for (std::size_t s = 0; s < S_; ++s) {
     bool ok = true;
-    for (int n = 0; n < N_ && ok; ++n) ok = useful[static_cast<std::size_t>(n)][static_cast<std::size_t>(cell(s, n))];
-    if (!ok) continue;
+    int from = 0, to = 0;
+    for (int n = 0; n < N_ && ok; ++n) {
+      const auto c = static_cast<std::size_t>(cell(s, n));
+      ok = useful[static_cast<std::size_t>(n)][c];
+      from = std::max(from, from_start_[static_cast<std::size_t>(n)][c]);
+      to = std::max(to, to_dest_[static_cast<std::size_t>(n)][c]);
+    }
+    if (!ok || from + to > Tmax_ - 1) continue;
     place(p, s);
     if (env_.collisions(p) > 0) continue;
     need.push_back(s);

@@ -23,7 +23,7 @@ std::string source_dir() { return data_dir(); }
 namespace {
 
 const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "config", "set",   "models", "reuse_shipped",
-                                        "sweep", "values", "methods", "samples", "seed", "algos", "seeds",
+                                        "sweep", "values", "methods", "samples", "train_layouts", "seed", "algos", "seeds",
                                         "steps", "users",  "planners", "one_policy", "rollout", "series", "series_values"};
 
 std::string join(const std::vector<std::string>& v) {
@@ -135,6 +135,7 @@ void apply_table(ExperimentSpec& s, const toml::table& t, const Reader& r, const
         s.series_values.push_back(x.is_string() ? r.text(full, x) : format_double(r.number(full, x)));
     } else if (key == "methods") s.methods = r.texts(full, node);
     else if (key == "samples") s.samples = static_cast<int>(r.integer(full, node, 1, 1'000'000));
+    else if (key == "train_layouts") s.train_layouts = static_cast<int>(r.integer(full, node, 0, 1'000'000));
     else if (key == "seed") s.seed = static_cast<std::uint64_t>(r.integer(full, node, 0, INT64_MAX));
     else if (key == "algos") s.algos = r.texts(full, node);
     else if (key == "seeds") {

@@ -120,6 +120,7 @@ TEST(Experiments, BadFilesGiveOneClearError) {
       {"[experiment]\nname = \"x\"\nkind = \"nosuch\"\n[profile.quick]\n", "experiment.kind = \"nosuch\" is invalid"},
       {"[experiment]\nname = \"x\"\nkind = \"beamform_sweep\"\n[profile.quick]\n", "experiment.sweep is missing"},
       {ok + "samples = 0\n", "samples = 0 is invalid: allowed an integer in [1, 1000000]"},
+      {ok + "train_layouts = -1\n", "train_layouts = -1 is invalid: allowed an integer in [0, 1000000]"},
       {"[experiment\n", "invalid TOML"},
       {ok + "series = \"channel.environment\"\n", "experiment.series and experiment.series_values is missing"},
   };
@@ -399,6 +400,18 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
     for (const std::string f : {"generalisation/generalisation.csv", "generalisation/layouts.csv", "rate_energy/front.csv",
                                 "rate_energy/paths.csv"})
       EXPECT_EQ(untimed(slurp(one / f)), untimed(slurp(out / f))) << f;
+    // The tiny profile scores each run on `train_layouts` = 1 of the layouts it trained on and on
+    // `samples` = 2 test layouts.
+    const auto rows = csv_rows(slurp(out / "generalisation" / "layouts.csv"), true);
+    const auto col = [&](const std::string& name) {
+      return static_cast<std::size_t>(std::find(rows[0].begin(), rows[0].end(), name) - rows[0].begin());
+    };
+    std::map<std::string, std::set<std::string>> layouts;  // eval -> the layouts mappo flew
+    for (std::size_t i = 1; i < rows.size(); ++i)
+      if (rows[i].at(col("algo")) == "mappo" && rows[i].at(col("planner")).rfind("mappo", 0) == 0)
+        layouts[rows[i].at(col("eval")) + " K=" + rows[i].at(col("eval_users"))].insert(rows[i].at(col("layout")));
+    ASSERT_EQ(layouts.size(), 3u);  // train, test K = 6, test K = 9
+    for (const auto& [eval, set] : layouts) EXPECT_EQ(set.size(), eval.rfind("train", 0) == 0 ? 1u : 2u) << eval;
   }
 
   const auto a = means(slurp(out / "power_sweep" / "power_sweep.csv")), b = means(before);

@@ -47,8 +47,11 @@ struct ExperimentSpec {
   // (else one policy per K, the paper's figure)
   bool one_policy = false;
   // generalisation: `samples` = layouts per evaluation, `users` = the K of the test layouts;
-  // `rollout`: each trained policy also flies as the base of a multiagent rollout on the test
-  // layouts ("<algo>+rollout", skyloop eval --rollout)
+  // `train_layouts`: the layouts each run is scored on among those it trained on (0 = `samples`;
+  // fewer where each layout's optimum is costly: the gap to the test layouts needs fewer than the
+  // test mean); `rollout`: each trained policy also flies as the base of a multiagent rollout on
+  // the test layouts ("<algo>+rollout", skyloop eval --rollout)
+  int train_layouts = 0;
   bool rollout = false;
 };
 

@@ -59,10 +59,12 @@ std::vector<Item> items(const StageContext& ctx, const ExperimentSpec& s) {
       const std::string tag = fmt::format("{}_s{}", algo, seed);
       out.push_back({algo, std::to_string(seed), "", "", ctx.marl_piece(run)});
       // The layouts this run trained on (its first episodes), with the planners on them.
+      const int n_train = s.train_layouts > 0 ? s.train_layouts : s.samples;
       LayoutEvalOptions tr = options(s, LayoutSplit::Train, s.planners);
-      tr.users_seeds = training_layouts_of(run, s.samples);
+      tr.layouts = n_train;
+      tr.users_seeds = training_layouts_of(run, n_train);
       out.push_back({algo, std::to_string(seed), "train", trained_k,
-                     ctx.layouts_piece(run, ctx.eval_dir(run, tag + fmt::format("_train_n{}", s.samples), s.planners), tr, &run)});
+                     ctx.layouts_piece(run, ctx.eval_dir(run, tag + fmt::format("_train_n{}", n_train), s.planners), tr, &run)});
       for (int k : s.users) {
         const Config c = at_users(run, k);
         out.push_back({algo, std::to_string(seed), "test", std::to_string(k),

@@ -224,19 +224,19 @@ int bench_baselines(const BenchCliOptions& o) {
     std::string algo, dir;
     std::uint64_t seed;
   };
-  std::vector<Job> todo;
+  std::vector<Job> pending;
   for (const auto& algo : runnable)
     for (const auto seed : seeds) {
       const std::string dir = fmt::format("{}/train/{}-s{}", o.out, algo, seed);
-      if (!trained_to(dir, steps)) todo.push_back({algo, dir, seed});
+      if (!trained_to(dir, steps)) pending.push_back({algo, dir, seed});
     }
-  const int jobs = static_cast<int>(std::min<std::size_t>(max_jobs, std::max<std::size_t>(todo.size(), 1)));
+  const int jobs = static_cast<int>(std::min<std::size_t>(max_jobs, std::max<std::size_t>(pending.size(), 1)));
   const int threads = std::max(1, resolve_threads(0) / jobs);
   std::mutex mu;
   std::vector<std::string> failed;
   std::size_t finished = 0;
-  parallel_for(todo.size(), jobs, [&](std::size_t i) {
-    const Job& j = todo[i];
+  parallel_for(pending.size(), jobs, [&](std::size_t i) {
+    const Job& j = pending[i];
     Config cfg = learner_config(j.algo, j.seed);
     cfg.run.threads = threads;
     fs::create_directories(fs::path(j.dir).parent_path());
@@ -257,11 +257,11 @@ int bench_baselines(const BenchCliOptions& o) {
     ++finished;
     if (rc != 0) failed.push_back(fmt::format("{} seed {} (exit status {}; see {})", j.algo, j.seed, rc, log));
     std::cerr << fmt::format("bench baselines {}: {} seed {} {} in {:.0f} s ({}/{} runs)\n", t.id, j.algo, j.seed,
-                             rc == 0 ? "trained" : "failed", sec, finished, todo.size());
+                             rc == 0 ? "trained" : "failed", sec, finished, pending.size());
   });
   if (!failed.empty())
     throw std::runtime_error(fmt::format("bench baselines {}: {} of {} trainings failed: {}; a rerun resumes every run", t.id,
-                                         failed.size(), todo.size(), fmt::join(failed, ", ")));
+                                         failed.size(), pending.size(), fmt::join(failed, ", ")));
   for (const auto& algo : runnable) {
     BenchRunOptions p;
     for (const auto seed : seeds) p.policies.push_back(fmt::format("{}/train/{}-s{}", o.out, algo, seed));

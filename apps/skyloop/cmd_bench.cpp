@@ -2,11 +2,11 @@
 // scoring planners and trained policies under the task's protocol.
 #include <chrono>
 #include <cmath>
-#include <mutex>
 #include <filesystem>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 #include <iostream>
+#include <mutex>
 
 #include "common.hpp"
 #include "skyloop/beamforming/registry.hpp"

@@ -220,7 +220,6 @@ torch::Tensor IgnnImpl::forward_network(const NetBatch& b) {
   const auto& x = b.x;                                  // [B, C, C, K, 2L]
   const int64_t B = x.size(0), C = x.size(1), K = x.size(3), L2 = x.size(4);
   const auto um = b.umask.unsqueeze(-1);                // [B, C, K, 1]
-  const auto cm = b.cmask.unsqueeze(-1);                // [B, C, 1]
   const auto own = x.diagonal(0, 1, 2).permute({0, 3, 1, 2});  // [B, C, K, 2L]: h from the serving UAV
   // Interference edges (tx != rx, both real): [B, C_tx, C_rx, K].
   const auto off_diag = 1 - torch::eye(C, x.options()).view({1, C, C, 1});
@@ -250,12 +249,13 @@ torch::Tensor IgnnImpl::forward_network(const NetBatch& b) {
   };
   const auto e = edge_enc_(encode_features(x.reshape({-1, L2}).index_select(0, edges), features()), kNoGraph);  // [E, d]
   auto u = user_enc_(encode_features(own.reshape({-1, L2}).index_select(0, users), features()), kNoGraph);  // u_k [U, d]
-  auto a = uav_enc_(cluster_mean(u), kNoGraph) * cm.reshape({B * C, 1});  // a_n [B C, d]
+  const auto cm_rows = b.cmask.reshape({B * C, 1});  // 1 for a real cluster slot
+  auto a = uav_enc_(cluster_mean(u), kNoGraph) * cm_rows;  // a_n [B C, d]
   const auto to_user = torch::clamp_min(emask.sum(1), 1.0).reshape({slots, 1}).index_select(0, users);  // [U, 1]
   const auto to_uav = torch::clamp_min(emask.sum({2, 3}), 1.0).reshape({B * C, 1});                   // [B C, 1]
   for (std::size_t l = 0; l < user_msg_->size(); ++l) {
     const auto mu = user_msg_[l]->as<Mlp>()->forward(u, kNoGraph);                          // m_{u_k}  [U, d]
-    const auto ma = uav_msg_[l]->as<Mlp>()->forward(a, kNoGraph) * cm.reshape({B * C, 1});  // m_{a_n}  [B C, d]
+    const auto ma = uav_msg_[l]->as<Mlp>()->forward(a, kNoGraph) * cm_rows;  // m_{a_n}  [B C, d]
     const int64_t d = mu.size(-1);
     const auto mu_slots = padded(mu);  // [B, C, K, d]
     const auto heard_e = int_msg_[l]->as<Mlp>()->forward(torch::cat({ma.index_select(0, tx_slot), e}, -1), kNoGraph);
@@ -266,7 +266,7 @@ torch::Tensor IgnnImpl::forward_network(const NetBatch& b) {
     const auto user_in = torch::cat({u, ma.index_select(0, user_cl), others, heard}, -1);
     const auto uav_in = torch::cat({a, cluster_mean(mu), leaked}, -1);
     u = user_upd_[l]->as<Mlp>()->forward(user_in, kNoGraph);
-    a = uav_upd_[l]->as<Mlp>()->forward(uav_in, kNoGraph) * cm.reshape({B * C, 1});
+    a = uav_upd_[l]->as<Mlp>()->forward(uav_in, kNoGraph) * cm_rows;
   }
   const auto h = padded(out_(u, kNoGraph));             // [B, C, K, head]
   if (readout() == Readout::Direct) return h * um;

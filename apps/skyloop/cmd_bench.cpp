@@ -184,7 +184,13 @@ int bench_baselines(const BenchCliOptions& o) {
   const std::size_t max_jobs = o.jobs.empty() ? 1 : parse_count("--jobs", o.jobs, 1, 256);
   std::vector<std::string> algos = o.learners.empty() ? learner_names() : split_methods(o.learners, "--learners");
   if (algos == std::vector<std::string>{"none"}) algos.clear();  // the planners alone
-  for (const auto& a : algos) find_learner(a);
+  for (const auto& a : algos) {
+    try {
+      find_learner(a);
+    } catch (const InputError&) {
+      throw InputError("--learners = '" + a + "' is unknown: allowed " + learner_names_text() + " (comma-separated), or none");
+    }
+  }
   std::vector<std::uint64_t> seeds = o.seeds.empty() ? std::vector<std::uint64_t>{} : parse_seeds(o.seeds);
   if (seeds.empty())
     for (int s = 1; s <= t.protocol.seeds; ++s) seeds.push_back(static_cast<std::uint64_t>(s));

@@ -116,7 +116,8 @@ def test_the_command_line_lists_runs_and_checks(tmp_path):
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "allowed" in r.stderr
     r = run_cli("bench", "run", "paper-v1", "--planner", "optimal")
     assert r.returncode == 2 and "optimal" in r.stderr
-    for bad, field in ((["--jobs", "0"], "--jobs"), (["--steps", "0"], "--steps"), (["--seeds", "x"], "--seeds")):
+    for bad, field in ((["--jobs", "0"], "--jobs"), (["--steps", "0"], "--steps"), (["--seeds", "x"], "--seeds"),
+                       (["--learners", "mappo,nosuch"], "--learners = 'nosuch' is unknown")):
         r = run_cli("bench", "baselines", "paper-v1", *bad, "--out", str(tmp_path / "never"))
         assert r.returncode == 2 and field in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert not (tmp_path / "never").exists()  # refused before anything is written

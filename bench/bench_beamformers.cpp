@@ -63,8 +63,12 @@ static void network_run(benchmark::State& state, const std::string& method) {
 static void BM_NetworkWmmse(benchmark::State& s) { network_run(s, "nwmmse"); }
 static void BM_CoordinatedRzf(benchmark::State& s) { network_run(s, "crzf"); }
 static void BM_CoordinatedZf(benchmark::State& s) { network_run(s, "czf"); }
+static void BM_NetworkZfSelect(benchmark::State& s) { network_run(s, "czfsel"); }
+static void BM_NetworkWmmseFromZfSelect(benchmark::State& s) { network_run(s, "nwmmse=czfsel"); }
 BENCHMARK(BM_NetworkWmmse)->DenseRange(2, 6)->ArgName("N")->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_CoordinatedRzf)->DenseRange(2, 6)->ArgName("N")->Unit(benchmark::kMicrosecond);
 BENCHMARK(BM_CoordinatedZf)->DenseRange(2, 6)->ArgName("N")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_NetworkZfSelect)->DenseRange(2, 6)->ArgName("N")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_NetworkWmmseFromZfSelect)->DenseRange(2, 6)->ArgName("N")->Unit(benchmark::kMicrosecond);
 
 BENCHMARK_MAIN();

@@ -34,6 +34,7 @@ STYLE = {  # label, colour, marker, line style
     "nwmmse": ("Coordinated WMMSE (network, skyloop)", "#17becf", "P", "-"),
     "crzf": ("Coordinated RZF", "#e377c2", "*", "-."),
     "czf": ("Coordinated ZF", "#7f7f7f", "X", "-."),
+    "czfsel": ("Network ZF with user selection", "#393b79", "d", "-."),
     "ignn": ("Interference-aware GNN (skyloop)", "#d62728", "p", "-"),
     "ignn_structured": ("Interference-aware GNN, structured readout (skyloop)", "#ff7f0e", "h", "-"),
     "mrt": ("MRT", "#8c564b", ".", ":"),

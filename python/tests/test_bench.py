@@ -100,7 +100,7 @@ def test_bad_policies_and_tasks_are_one_line():
 def test_the_command_line_lists_runs_and_checks(tmp_path):
     r = run_cli("bench", "list")
     assert r.returncode == 0, r.stderr
-    for t in ("paper-v1", "uma-rician-v1", "shared-wmmse-v1", "energy-headings-v1", "continuous-v1", "fleet16-v1"):
+    for t in ("paper-v1", "uma-rician-v1", "shared-wmmse-v2", "energy-headings-v1", "continuous-v1", "fleet16-v1"):
         assert t in r.stdout
     out = tmp_path / "b"
     r = run_cli("bench", "run", "paper-v1", "--planner", "greedy", "--seeds", "1", "--out", str(out))

@@ -3,10 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <numeric>
+#include <optional>
 #include <stdexcept>
 
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/channel/rates.hpp"
+#include "skyloop/core/error.hpp"
 
 namespace skyloop {
 
@@ -81,21 +83,62 @@ NetworkWmmseTrace network_wmmse_run(const Network& net, const std::vector<Matrix
   return tr;
 }
 
-NetworkWmmseBeamformer::NetworkWmmseBeamformer(WmmseOptions opt, std::shared_ptr<const Beamformer> start)
-    : opt_(opt), start_(std::move(start)) {}
+const std::vector<std::string>& network_wmmse_starts() {
+  static const std::vector<std::string> names{"wmmse", "crzf", "czf", "czfsel"};
+  return names;
+}
+
+std::vector<std::string> parse_network_wmmse_starts(const std::string& spec) {
+  const auto& names = network_wmmse_starts();
+  if (spec.empty()) return names;
+  std::string allowed;
+  for (const auto& n : names) allowed += (allowed.empty() ? "" : ", ") + n;
+  const std::string what = "method 'nwmmse=" + spec + "' ";
+  const std::string rule = ": allowed 'nwmmse' (every start) or 'nwmmse=' and starts joined by '+', each once, of " + allowed;
+  std::vector<std::string> out;
+  std::size_t at = 0;
+  while (true) {
+    const auto plus = spec.find('+', at);
+    const std::string item = spec.substr(at, plus == std::string::npos ? std::string::npos : plus - at);
+    if (item.empty()) throw InputError(what + "has an empty start" + rule);
+    if (std::find(names.begin(), names.end(), item) == names.end()) throw InputError(what + "names no start '" + item + "'" + rule);
+    if (std::find(out.begin(), out.end(), item) != out.end()) throw InputError(what + "names '" + item + "' twice" + rule);
+    out.push_back(item);
+    if (plus == std::string::npos) break;
+    at = plus + 1;
+  }
+  std::vector<std::string> ordered;  // the run order is the list's, whatever order the spec named them in
+  for (const auto& n : names)
+    if (std::find(out.begin(), out.end(), n) != out.end()) ordered.push_back(n);
+  return ordered;
+}
+
+NetworkWmmseBeamformer::NetworkWmmseBeamformer(WmmseOptions opt, std::shared_ptr<const Beamformer> start,
+                                               std::vector<std::string> starts)
+    : opt_(opt), start_(std::move(start)), starts_(std::move(starts)) {
+  const auto& names = network_wmmse_starts();
+  if (starts_.empty()) throw std::invalid_argument("NetworkWmmseBeamformer: no start");
+  for (const auto& s : starts_)
+    if (std::find(names.begin(), names.end(), s) == names.end())
+      throw std::invalid_argument("NetworkWmmseBeamformer: unknown start '" + s + "'");
+}
 
 MatrixXcd NetworkWmmseBeamformer::design(const Cluster& c) const { return design_network(Network::of(c)).front(); }
 
 std::vector<MatrixXcd> NetworkWmmseBeamformer::design_network(const Network& net, int threads) const {
-  auto W0 = start_->design_batch(net.clusters, threads);
-  if (!net.interferes()) return W0;  // no coupling: the per-cluster WMMSE solution is the answer
-  // A non-convex problem: run from several structured starts and keep the best local optimum.
-  NetworkWmmseTrace best = network_wmmse_run(net, W0, opt_);
-  for (const auto& start : {coordinated_rzf(net), coordinated_zf(net)}) {
-    NetworkWmmseTrace t = network_wmmse_run(net, start, opt_);
-    if (t.sum_rate > best.sum_rate) best = std::move(t);
+  // No coupling: the per-cluster WMMSE solution is the answer, whatever the starts.
+  if (!net.interferes()) return start_->design_batch(net.clusters, threads);
+  // A non-convex problem: run from each start and keep the best local optimum (ties: the earlier).
+  std::optional<NetworkWmmseTrace> best;
+  for (const auto& name : starts_) {
+    const std::vector<MatrixXcd> W0 = name == "wmmse"  ? start_->design_batch(net.clusters, threads)
+                                      : name == "crzf" ? coordinated_rzf(net)
+                                      : name == "czf"  ? coordinated_zf(net)
+                                                       : coordinated_zf_select(net);
+    NetworkWmmseTrace t = network_wmmse_run(net, W0, opt_);
+    if (!best || t.sum_rate > best->sum_rate) best = std::move(t);
   }
-  return best.W;
+  return best->W;
 }
 
 std::vector<MatrixXcd> coordinated_rzf(const Network& net) {
@@ -154,6 +197,78 @@ std::vector<MatrixXcd> coordinated_zf(const Network& net) {
     out.push_back(std::move(W));
   }
   return out;
+}
+
+std::vector<MatrixXcd> coordinated_zf_select(const Network& net) {
+  const std::size_t nc = net.clusters.size();
+  std::vector<MatrixXcd> out;
+  if (!net.interferes()) {
+    for (const Cluster& c : net.clusters) out.push_back(zf_select(c));
+    return out;
+  }
+  // The ZF design on an active set S of (cluster, user) pairs, and its network sum rate: every
+  // active beam nulls every other active user (V = pinv of the UAV's channels to S, so
+  // h_s^H v_t = [s == t]), so user s's SINR is p_s / (sigma^2 ||v_s||^2) and an inactive user's
+  // rate is 0. Returns -1 when a UAV with an active user cannot null every other one (its
+  // channels to S rank-deficient). W is written when given.
+  using Active = std::vector<std::pair<std::size_t, Eigen::Index>>;
+  auto design = [&](const Active& S, std::vector<MatrixXcd>* W) {
+    if (W) {
+      W->clear();
+      for (std::size_t i = 0; i < nc; ++i) W->push_back(MatrixXcd::Zero(net.clusters[i].G.cols(), net.clusters[i].size()));
+    }
+    const auto n = static_cast<Eigen::Index>(S.size());
+    double rate = 0.0;
+    for (std::size_t i = 0; i < nc; ++i) {
+      std::vector<Eigen::Index> own;  // positions in S of cluster i's active users
+      for (Eigen::Index s = 0; s < n; ++s)
+        if (S[static_cast<std::size_t>(s)].first == i) own.push_back(s);
+      if (own.empty()) continue;  // a UAV with no active user is silent: nothing to null
+      const Cluster& c = net.clusters[i];
+      if (n > c.G.cols()) return -1.0;
+      MatrixXcd H(n, c.G.cols());
+      for (Eigen::Index s = 0; s < n; ++s) {
+        const auto& [cl, u] = S[static_cast<std::size_t>(s)];
+        H.row(s) = net.cross[i].row(net.offset[cl] + u);
+      }
+      Eigen::CompleteOrthogonalDecomposition<MatrixXcd> cod(H);
+      cod.setThreshold(1e-10);
+      if (cod.rank() < n) return -1.0;
+      const MatrixXcd V = cod.pseudoInverse();  // [L x n]
+      VectorXd norms2(static_cast<Eigen::Index>(own.size()));
+      for (std::size_t k = 0; k < own.size(); ++k) norms2[static_cast<Eigen::Index>(k)] = V.col(own[k]).squaredNorm();
+      const VectorXd floor = c.noise * norms2;
+      const VectorXd p = waterfill(floor, c.p_max);
+      for (std::size_t k = 0; k < own.size(); ++k) {
+        const auto kk = static_cast<Eigen::Index>(k);
+        rate += c.bandwidth * std::log2(1.0 + p[kk] / floor[kk]);
+        if (W) (*W)[i].col(S[static_cast<std::size_t>(own[k])].second) = V.col(own[k]) * std::sqrt(p[kk] / norms2[kk]);
+      }
+    }
+    return rate;
+  };
+  // Greedy, as ZF-SEL: the user raising the network sum rate most joins, while one does (ties:
+  // the first in network order).
+  Active S;
+  double best = 0.0;
+  while (true) {
+    Active pick;
+    double pick_rate = best;
+    for (std::size_t i = 0; i < nc; ++i)
+      for (Eigen::Index j = 0; j < net.clusters[i].size(); ++j) {
+        if (std::find(S.begin(), S.end(), std::make_pair(i, j)) != S.end()) continue;
+        Active T = S;
+        T.emplace_back(i, j);
+        const double r = design(T, nullptr);
+        if (r > pick_rate) pick_rate = r, pick = std::move(T);
+      }
+    if (pick.empty()) break;
+    S = std::move(pick);
+    best = pick_rate;
+  }
+  std::vector<MatrixXcd> W;
+  design(S, &W);
+  return W;
 }
 
 }  // namespace skyloop

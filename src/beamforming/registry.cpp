@@ -67,13 +67,17 @@ void register_classical_beamformers(BeamformerRegistry& reg) {
                                              cfg.beamforming.power_scaling);
   });
   // Coordinated (network-level) beamformers: see beamforming/coordinated.hpp.
-  reg.add("nwmmse", "network WMMSE over all UAVs (interfering broadcast channel), per-UAV budgets; from per-cluster WMMSE",
-          [no_arg](const Config& cfg, const std::string& arg) {
-            no_arg("nwmmse", arg);
+  std::string starts;
+  for (const auto& n : network_wmmse_starts()) starts += (starts.empty() ? "" : ", ") + n;
+  reg.add("nwmmse",
+          "network WMMSE over all UAVs (interfering broadcast channel), per-UAV budgets, the best of its runs from "
+          "every start (" + starts + "); 'nwmmse=czfsel' or 'nwmmse=crzf+czfsel' runs from those alone",
+          [](const Config& cfg, const std::string& arg) {
+            auto chosen = parse_network_wmmse_starts(arg);
             WmmseOptions opt{cfg.wmmse.tolerance, cfg.wmmse.max_iterations, cfg.wmmse.bisection_tolerance};
             auto start = std::make_shared<WmmseBeamformer>(opt, cfg.wmmse.init, cfg.wmmse.restarts, cfg.run.seed,
                                                            PowerScaling::Full);
-            return std::make_unique<NetworkWmmseBeamformer>(opt, std::move(start));
+            return std::make_unique<NetworkWmmseBeamformer>(opt, std::move(start), std::move(chosen));
           });
   reg.add("crzf", "coordinated RZF, regularised toward every served user of the network", [no_arg](const Config&, const std::string& arg) {
     no_arg("crzf", arg);
@@ -83,6 +87,11 @@ void register_classical_beamformers(BeamformerRegistry& reg) {
     no_arg("czf", arg);
     return std::make_unique<CoordinatedZfBeamformer>();
   });
+  reg.add("czfsel", "network ZF with greedy user selection: every active beam nulls every other active user, water-filled per UAV",
+          [no_arg](const Config&, const std::string& arg) {
+            no_arg("czfsel", arg);
+            return std::make_unique<CoordinatedZfSelectBeamformer>();
+          });
 }
 
 std::vector<std::string> split_methods(const std::string& list, const std::string& flag) {

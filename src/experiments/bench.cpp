@@ -118,6 +118,18 @@ bool task_field(const std::string& key) {
 
 }  // namespace
 
+std::optional<std::string> withdrawn_task(const std::string& id) {
+  const fs::path path = fs::path(bench_tasks_dir()) / "withdrawn.toml";
+  if (!fs::exists(path)) return std::nullopt;
+  const toml::table doc = parse_toml_document(read_file(path.string(), "withdrawn tasks"), path.string());
+  const auto* entry = doc[id].as_table();
+  if (!entry) return std::nullopt;
+  const auto reason = (*entry)["reason"].value<std::string>(), successor = (*entry)["successor"].value<std::string>();
+  if (!reason || !successor)
+    throw InputError(path.string() + ": [" + id + "] needs reason and successor: allowed two strings");
+  return *reason + " (its successor: " + *successor + ")";
+}
+
 std::string bench_tasks_dir() { return (fs::path(data_dir()) / "tasks").string(); }
 
 std::vector<std::string> bench_task_ids() {
@@ -181,7 +193,11 @@ BenchTask load_bench_task(const std::string& id_or_dir, bool fresh) {
         const int v = std::atoi(id.c_str() + dash + 2);
         if (v > best) best = v, dir = fs::path(bench_tasks_dir()) / id;
       }
-      if (best == 0) throw InputError("task '" + id_or_dir + "' is unknown: allowed " + join(ids) + " (or a task's folder)");
+      if (best == 0) {
+        if (const auto why = withdrawn_task(id_or_dir))
+          throw InputError("task '" + id_or_dir + "' was withdrawn: " + *why + ": allowed " + join(ids) + " (or a task's folder)");
+        throw InputError("task '" + id_or_dir + "' is unknown: allowed " + join(ids) + " (or a task's folder)");
+      }
     }
   }
   const std::string source = (dir / "task.toml").string();

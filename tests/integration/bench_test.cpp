@@ -52,14 +52,22 @@ TEST(BenchStats, TheStratifiedBootstrapResamplesRunsWithinEachLayout) {
 
 TEST(BenchTasks, TheShippedTasksCoverTheStudiedSettings) {
   const auto ids = bench_task_ids();
-  for (const char* id : {"paper-v1", "uma-rician-v1", "shared-wmmse-v1", "energy-headings-v1", "continuous-v1", "fleet16-v1"})
+  for (const char* id : {"paper-v1", "uma-rician-v1", "shared-wmmse-v2", "energy-headings-v1", "continuous-v1", "fleet16-v1"})
     EXPECT_NE(std::find(ids.begin(), ids.end(), id), ids.end()) << id;
   const auto uma = load_bench_task("uma-rician-v1");
   EXPECT_EQ(uma.config.channel.pathloss, "3gpp-uma-av");
   EXPECT_EQ(uma.config.channel.fading, "rician");
-  const auto shared = load_bench_task("shared-wmmse-v1");
+  const auto shared = load_bench_task("shared-wmmse-v2");
   EXPECT_EQ(shared.config.channel.spectrum, Spectrum::Shared);
-  EXPECT_EQ(shared.config.env.oracle, "nwmmse");
+  EXPECT_EQ(shared.config.env.oracle, "nwmmse=czfsel");
+  // A withdrawn version is refused with its reason and successor, not as unknown.
+  try {
+    load_bench_task("shared-wmmse-v1");
+    FAIL();
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("was withdrawn"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("successor: shared-wmmse-v2"), std::string::npos) << e.what();
+  }
   const auto energy = load_bench_task("energy-headings-v1");
   EXPECT_EQ(energy.config.trajectory.mobility, "headings");
   EXPECT_EQ(energy.config.env.objective, Objective::EnergyEfficiency);
@@ -123,7 +131,7 @@ void expect_references_reproduce(const std::string& id) {
 
 TEST(BenchReference, PaperV1) { expect_references_reproduce("paper-v1"); }
 TEST(BenchReference, UmaRicianV1) { expect_references_reproduce("uma-rician-v1"); }
-TEST(BenchReference, SharedWmmseV1) { expect_references_reproduce("shared-wmmse-v1"); }
+TEST(BenchReference, SharedWmmseV2) { expect_references_reproduce("shared-wmmse-v2"); }
 TEST(BenchReference, EnergyHeadingsV1) { expect_references_reproduce("energy-headings-v1"); }
 TEST(BenchReference, ContinuousV1) { expect_references_reproduce("continuous-v1"); }
 TEST(BenchReference, Fleet16V1) { expect_references_reproduce("fleet16-v1"); }

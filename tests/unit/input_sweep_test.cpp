@@ -53,7 +53,7 @@ void exercise(const std::string& assignment) {
   SystemModel model(cfg);
   const Snapshot s = model.random_snapshot(cfg.scenario.uavs, cfg.scenario.users, 5);
   const Network net = model.network(s);
-  for (const char* name : {"mrt", "zf", "zfsel", "zfgain", "rzf", "wmmse", "nwmmse", "czf", "crzf"}) {
+  for (const char* name : {"mrt", "zf", "zfsel", "zfgain", "rzf", "wmmse", "nwmmse", "nwmmse=czfsel", "czf", "crzf", "czfsel"}) {
     const auto bf = reg.create(name, cfg);
     const auto W = bf->design_network(net, 1);
     (void)network_sum_rate(net, W);

@@ -81,6 +81,7 @@ int run_process(const std::vector<std::string>& argv, const std::string& log_pat
   std::vector<char*> args;
   for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
   args.push_back(nullptr);
+  const std::string exec_failed = "skyloop: cannot start " + argv[0] + " (exec failed, ";
   const pid_t parent = ::getpid();
   const pid_t pid = ::fork();
   if (pid < 0) throw std::runtime_error("cannot start " + argv[0] + ": " + std::strerror(errno));
@@ -98,6 +99,19 @@ int run_process(const std::vector<std::string>& argv, const std::string& log_pat
       ::dup2(fd, STDERR_FILENO);
     }
     ::execvp(args[0], args.data());
+    // Said in the log (or on stderr), so a child that never started is not an empty log: only
+    // write() from here, the message composed before the fork.
+    const int err = errno;
+    char digits[16];
+    int n = 0;
+    for (int e = err > 0 ? err : 0; n == 0 || e > 0; e /= 10) digits[n++] = static_cast<char>('0' + e % 10);
+    char line[24] = "errno ";
+    int at = 6;
+    while (n > 0) line[at++] = digits[--n];
+    line[at++] = ')';
+    line[at++] = '\n';
+    (void)!::write(STDERR_FILENO, exec_failed.data(), exec_failed.size());
+    (void)!::write(STDERR_FILENO, line, static_cast<std::size_t>(at));
     ::_exit(127);
   }
   track(pid);
@@ -113,6 +127,14 @@ int run_process(const std::vector<std::string>& argv, const std::string& log_pat
   return 1;
 }
 
-std::string self_path() { return std::filesystem::read_symlink("/proc/self/exe").string(); }
+std::string self_path() {
+  // Linux marks a running program whose file was since replaced (a rebuild) or removed with
+  // " (deleted)"; /proc/self/exe still execs it, so a child runs the very program its parent is,
+  // not whatever build now lies at that path (or nothing).
+  const std::string path = std::filesystem::read_symlink("/proc/self/exe").string();
+  const std::string mark = " (deleted)";
+  if (path.size() > mark.size() && path.compare(path.size() - mark.size(), mark.size(), mark) == 0) return "/proc/self/exe";
+  return path;
+}
 
 }  // namespace skyloop

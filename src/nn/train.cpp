@@ -78,7 +78,7 @@ nlohmann::json reference_rates(const Config& cfg, const std::vector<Network>& ne
   BeamformerRegistry classical;
   register_classical_beamformers(classical);
   std::vector<const char*> names{"mrt", "zf", "zfsel", "wmmse"};
-  if (cfg.channel.spectrum == Spectrum::Shared) names.insert(names.end(), {"crzf", "nwmmse"});
+  if (cfg.channel.spectrum == Spectrum::Shared) names.insert(names.end(), {"crzf", "czfsel", "nwmmse"});
   for (const char* name : names) out[name] = mean_network_rate(*classical.create(name, cfg), nets, cfg.run.threads);
   return out;
 }

@@ -324,10 +324,9 @@ TEST(Learned, SameSeedSameModel) {
 }
 
 namespace {
-/// A short, seeded GNN training run (6 epochs over 800 snapshots, d = 64, 2 layers); returns its
-/// test sum rate and a reference from its test report ("mrt", "zf", ...).
-std::pair<double, double> short_run(const std::string& readout, const std::string& reference,
-                                    const std::string& model = "gnn") {
+/// The short run's configuration: 6 epochs over 800 snapshots, d = 64, 2 layers (ignn: under the
+/// shared spectrum).
+Config short_config(const std::string& readout, const std::string& model) {
   Config cfg;
   cfg.nn.model = model;
   if (model == "ignn") cfg.channel.spectrum = Spectrum::Shared;
@@ -339,6 +338,14 @@ std::pair<double, double> short_run(const std::string& readout, const std::strin
   cfg.nn.val_samples = 200;
   cfg.nn.test_samples = 200;
   cfg.nn.batch_samples = 16;
+  return cfg;
+}
+
+/// A short, seeded GNN training run (short_config); returns its test sum rate and a reference from
+/// its test report ("mrt", "zf", ...).
+std::pair<double, double> short_run(const std::string& readout, const std::string& reference,
+                                    const std::string& model = "gnn") {
+  const Config cfg = short_config(readout, model);
   TrainOptions opt;
   opt.out_dir = fresh_dir("learn_" + model + "_" + readout);
   const TrainResult r = train_beamformer(cfg, opt);
@@ -347,6 +354,18 @@ std::pair<double, double> short_run(const std::string& readout, const std::strin
   const auto at = report.find(key);
   EXPECT_NE(at, std::string::npos) << key;
   return {r.test_sum_rate, at == std::string::npos ? 0.0 : std::stod(report.substr(at + key.size()))};
+}
+
+/// Mean network sum rate of beamformer `spec` on `count` seeded snapshots of cfg's scenario.
+double mean_rate_on(const Config& cfg, const std::string& spec, std::uint64_t seed, std::size_t count) {
+  const SystemModel model(cfg);
+  const auto bf = builtin_beamformers().create(spec, cfg);
+  double total = 0;
+  for (const auto& s : random_snapshots(model, cfg.scenario.uavs, cfg.scenario.users, seed, count)) {
+    const Network net = model.network(s);
+    total += network_sum_rate(net, bf->design_network(net));
+  }
+  return total / static_cast<double>(count);
 }
 }  // namespace
 
@@ -430,14 +449,30 @@ TEST(Ignn, BatchedNetworksEqualOneByOne) {
 }
 
 // A short, seeded training run of the interference-aware GNN on the network sum rate (shared
-// spectrum) learns to manage interference: its held-out test sum rate ends above coordinated RZF's
-// and within 90% of coordinated WMMSE's on the same snapshots.
+// spectrum) learns to manage interference: its held-out test sum rate ends above coordinated RZF's,
+// and within 90% of coordinated WMMSE from the three starts it had before network ZF-SEL joined
+// (`nwmmse=wmmse+crzf+czf`, number for number the former `nwmmse`; measured 109%) on the run's own
+// test snapshots (the test split of nn.data_seed). Every start is the full-training bar, below.
 TEST(Ignn, ShortTrainingBeatsCoordinatedRzf) {
   const auto [rate, crzf] = short_run("structured", "crzf", "ignn");
-  const auto [again, nwmmse] = short_run("structured", "nwmmse", "ignn");
+  const auto [again, czfsel] = short_run("structured", "czfsel", "ignn");
   EXPECT_EQ(rate, again) << "same seed, same model";
   EXPECT_GT(rate, crzf) << "test " << rate << " vs coordinated RZF " << crzf;
-  // The target at full training is 90% of coordinated WMMSE; 300 steps already reach it
-  // (measured 109%), so this holds with margin on any kernel's training path.
-  EXPECT_GT(rate, 0.9 * nwmmse) << "test " << rate << " vs coordinated WMMSE " << nwmmse;
+  EXPECT_GT(czfsel, rate) << "network ZF-SEL " << czfsel << " is in the report, and above a short run";
+  const Config cfg = short_config("structured", "ignn");
+  const double three = mean_rate_on(cfg, "nwmmse=wmmse+crzf+czf", derive_seed(cfg.nn.data_seed, 3), 200);  // 3: nn::Split::Test (src/nn/data.hpp)
+  EXPECT_GT(rate, 0.9 * three) << "test " << rate << " vs coordinated WMMSE from three starts " << three;
+}
+
+// The shipped interference-aware GNN (models/ignn_structured: structured readout, trained at
+// 30 dBm, N = 3, K = 12) reaches 90% of coordinated WMMSE from every start on 100 snapshots it
+// never trained on (measured 90.2%: 47.43 against 52.58 bit/s/Hz; float32 inference moves either
+// by about 1e-6).
+TEST(Ignn, ShippedModelReachesNinetyPercentOfCoordinatedWmmse) {
+  Config cfg;
+  cfg.channel.spectrum = Spectrum::Shared;
+  const std::uint64_t seed = 987654321;  // far from the training seeds
+  const double gnn = mean_rate_on(cfg, "ignn=" + std::string(SKYLOOP_SOURCE_DIR) + "/models/ignn_structured", seed, 100);
+  const double wmmse = mean_rate_on(cfg, "nwmmse", seed, 100);
+  EXPECT_GT(gnn, 0.9 * wmmse) << "shipped structured IGNN " << gnn << " vs coordinated WMMSE " << wmmse;
 }

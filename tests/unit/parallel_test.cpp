@@ -1,16 +1,24 @@
 // parallel_for: every index once on any thread count, exceptions, nesting, concurrent callers,
-// and a child process after fork (the persistent worker pool, src/core/parallel.cpp).
+// and a child process after fork (the persistent worker pool, src/core/parallel.cpp); run_process
+// and self_path (src/core/process.cpp).
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <atomic>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <stdexcept>
+#include <string>
 #include <thread>
 #include <vector>
 
 #include "skyloop/core/parallel.hpp"
+#include "skyloop/core/process.hpp"
+#include "../scratch.hpp"
 
 using namespace skyloop;
 
@@ -73,4 +81,40 @@ TEST(ParallelFor, AChildProcessAfterForkRunsItsOwnWorkers) {
   int status = 0;
   ASSERT_EQ(waitpid(child, &status, 0), child);
   EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+}
+
+// run_process: a program that cannot start says so in its log (exit status 127), and a child of
+// a program whose file was replaced while it ran (a rebuild under a long `bench baselines`) runs
+// the very program its parent is (self_path()), not an empty log from an exec that failed.
+namespace {
+std::string read_all(const std::filesystem::path& p) {
+  std::ifstream in(p);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+}  // namespace
+
+TEST(Process, AProgramThatCannotStartSaysSoInItsLog) {
+  const auto log = test::scratch_path("no_such_program.log");
+  EXPECT_EQ(run_process({"/nonexistent/skyloop-no-such-program", "x"}, log.string()), 127);
+  EXPECT_EQ(read_all(log), "skyloop: cannot start /nonexistent/skyloop-no-such-program (exec failed, errno 2)\n");
+}
+
+TEST(Process, ChildrenRunTheParentsProgramAfterItsFileIsReplaced) {
+  if (std::getenv("SKYLOOP_TEST_SELF_PATH_COPY")) {  // in the copy: delete it, then start a child of itself
+    std::filesystem::remove(std::filesystem::read_symlink("/proc/self/exe").string());
+    EXPECT_EQ(self_path(), "/proc/self/exe");
+    const int rc = run_process({self_path(), "--gtest_list_tests", "--gtest_filter=Process.*"}, std::getenv("SKYLOOP_TEST_SELF_PATH_COPY"));
+    EXPECT_EQ(rc, 0);
+    return;
+  }
+  EXPECT_EQ(self_path(), std::filesystem::canonical("/proc/self/exe").string());
+  const auto dir = test::scratch_dir("self_path");
+  const auto copy = dir / "copy", grandchild = dir / "grandchild.log", child = dir / "child.log";
+  std::filesystem::copy_file("/proc/self/exe", copy);
+  ::setenv("SKYLOOP_TEST_SELF_PATH_COPY", grandchild.c_str(), 1);
+  const int rc = run_process({copy.string(), "--gtest_filter=Process.ChildrenRunTheParentsProgramAfterItsFileIsReplaced"}, child.string());
+  ::unsetenv("SKYLOOP_TEST_SELF_PATH_COPY");
+  EXPECT_EQ(rc, 0) << read_all(child);
+  EXPECT_FALSE(std::filesystem::exists(copy));
+  EXPECT_NE(read_all(grandchild).find("ChildrenRunTheParentsProgramAfterItsFileIsReplaced"), std::string::npos) << read_all(grandchild);
 }

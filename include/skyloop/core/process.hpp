@@ -23,11 +23,14 @@ void set_interrupt_hint(const char* hint);
 
 /// Runs argv[0] (a path, or a name looked up in PATH) with `argv`; stdout and stderr go to `log_path` (truncated), or are
 /// inherited when it is empty. Blocks until the child ends and returns its exit status, or 128 +
-/// the signal that ended it. Throws std::runtime_error if the process cannot be started. Safe to
+/// the signal that ended it; 127 when the program could not be started, said in one line of the
+/// log ("skyloop: cannot start PROGRAM (exec failed, errno N)"). Throws std::runtime_error if the process cannot be started. Safe to
 /// call from several threads at once.
 int run_process(const std::vector<std::string>& argv, const std::string& log_path = "");
 
 /// The running program's own path (/proc/self/exe): what a command runs to start a child of itself.
+/// When the file was replaced (a rebuild) or removed since the program started, "/proc/self/exe"
+/// itself, which still execs the running program: a child never runs another build.
 std::string self_path();
 
 }  // namespace skyloop

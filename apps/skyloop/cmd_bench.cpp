@@ -97,6 +97,8 @@ int bench_list() {
     std::cout << fmt::format("{:<22} {:>7} {:>16} {:>10.0e}  {}\n", t.id, t.references.size(), ref.empty() ? "(none yet)" : ref,
                              static_cast<double>(t.protocol.budget_steps), t.title);
   }
+  for (const auto& w : withdrawn_tasks())
+    std::cout << fmt::format("{:<22} withdrawn, successor {} (`skyloop bench reference {}` says why)\n", w.id, w.successor, w.id);
   return 0;
 }
 

@@ -3,6 +3,7 @@ import csv
 import io
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -102,6 +103,9 @@ def test_the_command_line_lists_runs_and_checks(tmp_path):
     assert r.returncode == 0, r.stderr
     for t in ("paper-v1", "uma-rician-v1", "shared-wmmse-v2", "energy-headings-v1", "continuous-v1", "fleet16-v1"):
         assert t in r.stdout
+    assert re.search(r"^shared-wmmse-v1 +withdrawn, successor shared-wmmse-v2", r.stdout, re.M), r.stdout
+    r = run_cli("bench", "reference", "shared-wmmse-v1")
+    assert r.returncode == 2 and "was withdrawn" in r.stderr and "successor: shared-wmmse-v2" in r.stderr
     out = tmp_path / "b"
     r = run_cli("bench", "run", "paper-v1", "--planner", "greedy", "--seeds", "1", "--out", str(out))
     assert r.returncode == 0, r.stderr

@@ -118,16 +118,21 @@ bool task_field(const std::string& key) {
 
 }  // namespace
 
-std::optional<std::string> withdrawn_task(const std::string& id) {
+std::vector<WithdrawnTask> withdrawn_tasks() {
   const fs::path path = fs::path(bench_tasks_dir()) / "withdrawn.toml";
-  if (!fs::exists(path)) return std::nullopt;
+  std::vector<WithdrawnTask> out;
+  if (!fs::exists(path)) return out;
   const toml::table doc = parse_toml_document(read_file(path.string(), "withdrawn tasks"), path.string());
-  const auto* entry = doc[id].as_table();
-  if (!entry) return std::nullopt;
-  const auto reason = (*entry)["reason"].value<std::string>(), successor = (*entry)["successor"].value<std::string>();
-  if (!reason || !successor)
-    throw InputError(path.string() + ": [" + id + "] needs reason and successor: allowed two strings");
-  return *reason + " (its successor: " + *successor + ")";
+  for (const auto& [key, node] : doc) {
+    const std::string id(key.str());
+    const auto* entry = node.as_table();
+    const auto reason = entry ? (*entry)["reason"].value<std::string>() : std::nullopt;
+    const auto successor = entry ? (*entry)["successor"].value<std::string>() : std::nullopt;
+    if (!reason || !successor) throw InputError(path.string() + ": [" + id + "] needs reason and successor: allowed two strings");
+    out.push_back({id, *reason, *successor});
+  }
+  std::sort(out.begin(), out.end(), [](const WithdrawnTask& a, const WithdrawnTask& b) { return a.id < b.id; });
+  return out;
 }
 
 std::string bench_tasks_dir() { return (fs::path(data_dir()) / "tasks").string(); }
@@ -194,8 +199,10 @@ BenchTask load_bench_task(const std::string& id_or_dir, bool fresh) {
         if (v > best) best = v, dir = fs::path(bench_tasks_dir()) / id;
       }
       if (best == 0) {
-        if (const auto why = withdrawn_task(id_or_dir))
-          throw InputError("task '" + id_or_dir + "' was withdrawn: " + *why + ": allowed " + join(ids) + " (or a task's folder)");
+        for (const auto& w : withdrawn_tasks())
+          if (w.id == id_or_dir)
+            throw InputError("task '" + id_or_dir + "' was withdrawn: " + w.reason + " (its successor: " + w.successor +
+                             "): allowed " + join(ids) + " (or a task's folder)");
         throw InputError("task '" + id_or_dir + "' is unknown: allowed " + join(ids) + " (or a task's folder)");
       }
     }

@@ -16,7 +16,6 @@
 // fingerprint, and one that moves its numbers changes its references: `skyloop bench reference
 // --check` and the test suite fail on either, and the task is given a new version.
 #include <cstdint>
-#include <optional>
 #include <string>
 #include <vector>
 
@@ -59,8 +58,12 @@ struct BenchTask {
 
 /// The folder the tasks live in: <data dir>/tasks.
 std::string bench_tasks_dir();
-/// Why task `id` was withdrawn, with its successor (tasks/withdrawn.toml), or nothing.
-std::optional<std::string> withdrawn_task(const std::string& id);
+/// A task version withdrawn from skyloop (tasks/withdrawn.toml): naming it is refused with both.
+struct WithdrawnTask {
+  std::string id, reason, successor;
+};
+/// Every withdrawn version, sorted by id.
+std::vector<WithdrawnTask> withdrawn_tasks();
 /// Every task id under bench_tasks_dir(), sorted.
 std::vector<std::string> bench_task_ids();
 /// A task by id ("paper-v1"), by name (its highest version) or by folder. InputError naming the

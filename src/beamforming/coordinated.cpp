@@ -9,6 +9,7 @@
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/text.hpp"
 
 namespace skyloop {
 
@@ -91,8 +92,7 @@ const std::vector<std::string>& network_wmmse_starts() {
 std::vector<std::string> parse_network_wmmse_starts(const std::string& spec) {
   const auto& names = network_wmmse_starts();
   if (spec.empty()) return names;
-  std::string allowed;
-  for (const auto& n : names) allowed += (allowed.empty() ? "" : ", ") + n;
+  const std::string allowed = join(names);
   const std::string what = "method 'nwmmse=" + spec + "' ";
   const std::string rule = ": allowed 'nwmmse' (every start) or 'nwmmse=' and starts joined by '+', each once, of " + allowed;
   std::vector<std::string> out;

@@ -6,6 +6,7 @@
 #include "skyloop/beamforming/linear.hpp"
 #include "skyloop/beamforming/wmmse.hpp"
 #include "skyloop/core/error.hpp"
+#include "skyloop/core/text.hpp"
 
 namespace skyloop {
 
@@ -67,8 +68,7 @@ void register_classical_beamformers(BeamformerRegistry& reg) {
                                              cfg.beamforming.power_scaling);
   });
   // Coordinated (network-level) beamformers: see beamforming/coordinated.hpp.
-  std::string starts;
-  for (const auto& n : network_wmmse_starts()) starts += (starts.empty() ? "" : ", ") + n;
+  const std::string starts = join(network_wmmse_starts());
   reg.add("nwmmse",
           "network WMMSE over all UAVs (interfering broadcast channel), per-UAV budgets, the best of its runs from "
           "every start (" + starts + "); 'nwmmse=czfsel' or 'nwmmse=crzf+czfsel' runs from those alone",

@@ -23,6 +23,7 @@
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/nn/learned.hpp"
 #include "skyloop/planning/registry.hpp"
+#include "skyloop/core/text.hpp"
 
 namespace skyloop {
 
@@ -31,12 +32,6 @@ namespace fs = std::filesystem;
 namespace {
 
 std::string fnv_text(const std::string& s) { return fmt::format("fnv1a64:{:016x}", hash_bytes(s.data(), s.size())); }
-
-std::string join(const std::vector<std::string>& v) {
-  std::string s;
-  for (const auto& x : v) s += (s.empty() ? "" : ", ") + x;
-  return s;
-}
 
 /// task.toml's keys, read with one-line errors naming the file and the key.
 struct TaskReader {

@@ -15,6 +15,7 @@
 #include "skyloop/core/io.hpp"
 #include "skyloop/core/paths.hpp"
 #include "skyloop/experiments/reproduce.hpp"
+#include "skyloop/core/text.hpp"
 
 namespace skyloop {
 
@@ -25,12 +26,6 @@ namespace {
 const std::vector<std::string> kKeys = {"name",  "kind",   "figure", "title", "config", "set",   "models", "reuse_shipped",
                                         "sweep", "values", "methods", "samples", "train_layouts", "seed", "algos", "seeds",
                                         "steps", "users",  "planners", "one_policy", "rollout", "series", "series_values"};
-
-std::string join(const std::vector<std::string>& v) {
-  std::string s;
-  for (const auto& x : v) s += (s.empty() ? "" : ", ") + x;
-  return s;
-}
 
 std::string describe(const toml::node& node) {
   std::ostringstream ss;

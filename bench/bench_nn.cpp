@@ -63,11 +63,13 @@ void per_cluster(benchmark::State& state, const std::string& name) {
 }
 
 /// Interference-aware GNN under the shared spectrum: one decision = one network (N = 3, K = 12),
-/// or `batch` networks in one design_networks call (the rate oracle's and the DP's batched path).
+/// or `batch` networks in one design_networks call (the rate oracle's and the DP's batched path);
+/// torch = 1 serves it with LibTorch (the reference), 0 with the fused float32 path.
 void per_network(benchmark::State& state, const std::string& name) {
   set_torch_threads(bench_threads());
   Config cfg;
   cfg.channel.spectrum = Spectrum::Shared;
+  cfg.nn.inference = state.range(1) != 0 ? Inference::Torch : Inference::Fast;
   const std::string path = kModels + "/" + name + "/model.pt";
   if (!std::filesystem::exists(path)) return state.SkipWithError("no shipped model");
   const auto bf = LearnedBeamformer::load(path, cfg);
@@ -91,7 +93,7 @@ void per_network(benchmark::State& state, const std::string& name) {
 }  // namespace
 
 static void BM_IgnnNetwork(benchmark::State& s) { per_network(s, "ignn_structured"); }
-BENCHMARK(BM_IgnnNetwork)->Arg(1)->Arg(64)->Arg(1024)->ArgName("batch")->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_IgnnNetwork)->ArgsProduct({{1, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
 
 static void BM_GnnDecision(benchmark::State& s) { per_decision(s, "gnn"); }
 static void BM_DeepSetsDecision(benchmark::State& s) { per_decision(s, "deepsets"); }

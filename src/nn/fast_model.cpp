@@ -233,11 +233,12 @@ struct Block {
   }
 };
 
-/// One input part of a block: a matrix with a row per output row, or (broadcast) a row per
-/// cluster, added to every user row of that cluster.
+/// One input part of a block: a matrix with a row per output row (gather = nullptr), or one whose
+/// row gather[r] is output row r's (a cluster's row added to each of its users, a UAV's or a
+/// user's row to each of its edges): the part's product is computed once per row of the matrix.
 struct Part {
   const Mat* m;
-  bool broadcast;
+  const std::vector<int>* gather;
 };
 
 struct Work {
@@ -252,25 +253,29 @@ void norm_relu(Mat& m, const Norm& n, const Segments& s, Work& w) {
   else relu(m);
 }
 
-/// out = block(parts) over `rows` rows (users, or clusters for a UAV block).
+/// out = block(parts) over `rows` rows (users, clusters or edges).
 /// The parts come as an initializer list (on the stack: a forward allocates nothing per block).
 void run(const Block& b, std::initializer_list<Part> parts, int rows, const Segments& s, Mat& out, Work& w) {
   const int hidden = b.l1.front().out;
-  const Part* part = parts.begin();
   w.h.resize(rows, hidden);
-  gemm(part[0].m->v.data(), part[0].m->ld, rows, b.l1[0], w.h.v.data(), w.h.ld, false);
-  for (std::size_t i = 1; i < parts.size(); ++i) {
-    const Mat& in = *part[i].m;
-    if (!part[i].broadcast) {
-      gemm(in.v.data(), in.ld, rows, b.l1[i], w.h.v.data(), w.h.ld, true);
+  std::size_t i = 0;
+  for (const Part& part : parts) {
+    const Mat& in = *part.m;
+    const bool accumulate = i > 0;  // the first part writes (with the bias), the others add
+    if (!part.gather) {
+      gemm(in.v.data(), in.ld, rows, b.l1[i++], w.h.v.data(), w.h.ld, accumulate);
       continue;
     }
     w.tmp.resize(in.rows, hidden);
-    gemm(in.v.data(), in.ld, in.rows, b.l1[i], w.tmp.v.data(), w.tmp.ld, false);
+    gemm(in.v.data(), in.ld, in.rows, b.l1[i++], w.tmp.v.data(), w.tmp.ld, false);
+    const std::vector<int>& from = *part.gather;
     for (int r = 0; r < rows; ++r) {
       float* __restrict o = w.h.row(r);
-      const float* __restrict t = w.tmp.row(s.seg[static_cast<std::size_t>(r)]);
-      for (int j = 0; j < hidden; ++j) o[j] += t[j];
+      const float* __restrict t = w.tmp.row(from[static_cast<std::size_t>(r)]);
+      if (accumulate)
+        for (int j = 0; j < hidden; ++j) o[j] += t[j];
+      else
+        std::copy(t, t + hidden, o);
     }
   }
   norm_relu(w.h, b.n1, s, w);
@@ -281,9 +286,77 @@ void run(const Block& b, std::initializer_list<Part> parts, int rows, const Segm
   }
 }
 
+/// out[to[e]] += x[e] over the rows e in order (zeroed first, `rows` rows), then each row divided
+/// by its count of terms (at least 1): index_add, then the division, as the LibTorch model does.
+SKYLOOP_CLONES void scatter_mean(const Mat& x, const std::vector<int>& to, const std::vector<float>& count, int rows, Mat& out) {
+  const int d = x.cols;
+  out.resize(rows, d);
+  for (int r = 0; r < rows; ++r) std::fill(out.row(r), out.row(r) + d, 0.0f);
+  for (int e = 0; e < x.rows; ++e) {
+    float* __restrict o = out.row(to[static_cast<std::size_t>(e)]);
+    const float* __restrict v = x.row(e);
+    for (int j = 0; j < d; ++j) o[j] += v[j];
+  }
+  for (int r = 0; r < rows; ++r) {
+    float* __restrict o = out.row(r);
+    const float c = count[static_cast<std::size_t>(r)];
+    for (int j = 0; j < d; ++j) o[j] /= c;
+  }
+}
+
+/// The encoders' input under nn.features = "log" (models.hpp, encode_features), in float as
+/// LibTorch computes it on the float batch: each row's direction kept, its norm r mapped to
+/// log1p(r / floor) / log1p(1 / floor).
+void log_features(const Mat& x, Mat& out) {
+  out.resize(x.rows, x.cols);
+  const float unit = static_cast<float>(std::log1p(1.0 / kLogFeatureFloor)), floor = static_cast<float>(kLogFeatureFloor);
+  for (int u = 0; u < x.rows; ++u) {
+    const float* in = x.row(u);
+    float* o = out.row(u);
+    float r2 = 0.0f;
+    for (int i = 0; i < x.cols; ++i) r2 += in[i] * in[i];
+    const float norm = std::sqrt(r2);
+    const float scale = std::log1p(norm / floor) / (unit * std::max(norm, 1e-30f));
+    for (int i = 0; i < x.cols; ++i) o[i] = in[i] * scale;
+  }
+}
+
+/// Row r of x = [Re h, Im h] * scale, h = conj(g) for the channel row g (h^H): the features of
+/// eq:node_feature, cast to float after the scaling in double (as the LibTorch batch).
+template <typename Row>
+void write_features(const Row& g, double scale, float* x) {
+  const auto L = g.size();
+  for (Eigen::Index l = 0; l < L; ++l) {
+    x[l] = static_cast<float>(g(l).real() * scale);
+    x[L + l] = static_cast<float>(-g(l).imag() * scale);
+  }
+}
+
+/// Structured readout (models.hpp, structured_beams), in double: v_k = (I + sum_j lambda_j h_j
+/// h_j^H)^{-1} h_k over the columns j of H (every user the transmitter's beams reach in its
+/// model), w_k = sqrt(share_k) v_k / ||v_k|| for its own users (columns own, own + K), share a
+/// softmax over them; y row j = [log lambda_j, logit_j].
+MatrixXcd structured_beams(const MatrixXcd& H, int own, int K, const Mat& y, int first_row) {
+  const Eigen::Index L = H.rows();
+  VectorXd lambda(H.cols());
+  for (Eigen::Index j = 0; j < H.cols(); ++j)
+    lambda(j) = std::exp(std::clamp(static_cast<double>(y.row(first_row + static_cast<int>(j))[0]), -30.0, 30.0));
+  MatrixXcd A = MatrixXcd::Identity(L, L);
+  for (Eigen::Index j = 0; j < H.cols(); ++j) A.noalias() += lambda(j) * H.col(j) * H.col(j).adjoint();
+  const MatrixXcd V = A.llt().solve(H.middleCols(own, K));
+  double top = -std::numeric_limits<double>::infinity();
+  for (int k = 0; k < K; ++k) top = std::max(top, static_cast<double>(y.row(first_row + own + k)[1]));
+  double total = 0.0;
+  VectorXd e(K);
+  for (int k = 0; k < K; ++k) total += (e(k) = std::exp(static_cast<double>(y.row(first_row + own + k)[1]) - top));
+  MatrixXcd W(L, K);
+  for (int k = 0; k < K; ++k) W.col(k) = V.col(k) / (V.col(k).norm() + 1e-30) * std::sqrt(e(k) / total);
+  return W;
+}
+
 }  // namespace
 
-enum class Arch { Gnn, DeepSets, MsPointNet };  // nn.model, resolved once when the model is built
+enum class Arch { Gnn, DeepSets, MsPointNet, Ignn };  // nn.model, resolved once when the model is built
 
 struct Model::Impl {
   Arch arch = Arch::Gnn;
@@ -291,9 +364,12 @@ struct Model::Impl {
   bool log_features = false;  // nn.features = "log" (models.hpp, encode_features)
   int antennas = 0;
   float feature_scale = 1.0f;
-  // gnn
+  // gnn, ignn
   Block user_enc, uav_enc, out;
   std::vector<Block> user_msg, uav_msg, user_upd, uav_upd;
+  // ignn: the interference edges' encoder and messages
+  Block edge_enc;
+  std::vector<Block> int_msg, leak_msg;
   // deepsets / mspointnet
   Block phi1, phi2, head1, head2;
   Dense conv, mix, proj;  // mspointnet: the three convolutions as one map, 1x1 mix, projection
@@ -301,6 +377,10 @@ struct Model::Impl {
 
   /// Per-user head outputs for the batch described by x (features) and s.
   void head(const Mat& x, const Segments& s, Mat& y, Work& w) const;
+  /// ignn: per-user head outputs of the networks whose users (x, by cluster in s) and
+  /// interference edges (xe; e's transmitter cluster row tx[e], its user row rx[e]) are given.
+  void network_head(const Mat& x, const Mat& xe, const Segments& s, const std::vector<int>& tx, const std::vector<int>& rx,
+                    Mat& y, Work& w) const;
 };
 
 namespace {
@@ -308,6 +388,10 @@ namespace {
 struct Buffers {
   Work w;
   Mat x, xin, u, a, mu, ma, mo, mean, u2, a2, y, pooled, per_antenna;
+  // ignn
+  Mat xe, xein, e, he, heard, le, leaked;
+  std::vector<int> tx, rx;
+  std::vector<float> to_user, to_uav;
 };
 
 Buffers& buffers() {
@@ -321,29 +405,29 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
   Buffers& B = buffers();
   const int U = s.users(), C = s.clusters();
   if (arch == Arch::Gnn) {
-    run(user_enc, {{&x, false}}, U, s, B.u, w);
+    run(user_enc, {{&x, nullptr}}, U, s, B.u, w);
     segment_mean(B.u, s, B.mean);
-    run(uav_enc, {{&B.mean, false}}, C, s, B.a, w);
+    run(uav_enc, {{&B.mean, nullptr}}, C, s, B.a, w);
     for (std::size_t l = 0; l < user_msg.size(); ++l) {
-      run(user_msg[l], {{&B.u, false}}, U, s, B.mu, w);
-      run(uav_msg[l], {{&B.a, false}}, C, s, B.ma, w);
+      run(user_msg[l], {{&B.u, nullptr}}, U, s, B.mu, w);
+      run(uav_msg[l], {{&B.a, nullptr}}, C, s, B.ma, w);
       max_over_others(B.mu, s, B.mo, w.scratch);
-      run(user_upd[l], {{&B.u, false}, {&B.ma, true}, {&B.mo, false}}, U, s, B.u2, w);
+      run(user_upd[l], {{&B.u, nullptr}, {&B.ma, &s.seg}, {&B.mo, nullptr}}, U, s, B.u2, w);
       std::swap(B.u, B.u2);
       // The readout reads the users' embeddings alone: the last layer's UAV update (and the mean
       // of messages it reads) would feed nothing.
       if (l + 1 == user_msg.size()) break;
       segment_mean(B.mu, s, B.mean);
-      run(uav_upd[l], {{&B.a, false}, {&B.mean, false}}, C, s, B.a2, w);
+      run(uav_upd[l], {{&B.a, nullptr}, {&B.mean, nullptr}}, C, s, B.a2, w);
       std::swap(B.a, B.a2);
     }
-    run(out, {{&B.u, false}}, U, s, y, w);
+    run(out, {{&B.u, nullptr}}, U, s, y, w);
     return;
   }
   const Mat* feature = &B.u;
   if (arch == Arch::DeepSets) {
-    run(phi1, {{&x, false}}, U, s, B.u2, w);
-    run(phi2, {{&B.u2, false}}, U, s, B.u, w);
+    run(phi1, {{&x, nullptr}}, U, s, B.u2, w);
+    run(phi2, {{&B.u2, nullptr}}, U, s, B.u, w);
   } else {  // mspointnet: x -> [U, L * 3c] (antenna-major) -> mix per antenna -> projection
     B.u2.resize(U, antennas * channels);
     gemm(x.v.data(), x.ld, U, conv, B.u2.v.data(), B.u2.ld, false);
@@ -367,8 +451,47 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
     relu(B.u);
   }
   segment_max(*feature, s, B.pooled);
-  run(head1, {{feature, false}, {&B.pooled, true}}, U, s, B.a, w);
-  run(head2, {{&B.a, false}}, U, s, y, w);
+  run(head1, {{feature, nullptr}, {&B.pooled, &s.seg}}, U, s, B.a, w);
+  run(head2, {{&B.a, nullptr}}, U, s, y, w);
+}
+
+void Model::Impl::network_head(const Mat& x, const Mat& xe, const Segments& s, const std::vector<int>& tx,
+                               const std::vector<int>& rx, Mat& y, Work& w) const {
+  // IgnnImpl::forward_network (models.cpp) on lists of the real users, clusters and edges: per
+  // layer, m_u and m_a; an edge's message to its user phi([m_a of its UAV, e]) and to its UAV
+  // psi([m_u of its user, e]); the user's mean of what it hears, the UAV's of what it leaks.
+  Buffers& B = buffers();
+  const int U = s.users(), C = s.clusters(), E = xe.rows;
+  B.to_user.assign(static_cast<std::size_t>(U), 0.0f);
+  B.to_uav.assign(static_cast<std::size_t>(C), 0.0f);
+  for (int e = 0; e < E; ++e) {
+    B.to_user[static_cast<std::size_t>(rx[static_cast<std::size_t>(e)])] += 1.0f;
+    B.to_uav[static_cast<std::size_t>(tx[static_cast<std::size_t>(e)])] += 1.0f;
+  }
+  for (float& c : B.to_user) c = std::max(c, 1.0f);
+  for (float& c : B.to_uav) c = std::max(c, 1.0f);
+  run(edge_enc, {{&xe, nullptr}}, E, s, B.e, w);
+  run(user_enc, {{&x, nullptr}}, U, s, B.u, w);
+  segment_mean(B.u, s, B.mean);
+  run(uav_enc, {{&B.mean, nullptr}}, C, s, B.a, w);
+  for (std::size_t l = 0; l < user_msg.size(); ++l) {
+    run(user_msg[l], {{&B.u, nullptr}}, U, s, B.mu, w);
+    run(uav_msg[l], {{&B.a, nullptr}}, C, s, B.ma, w);
+    run(int_msg[l], {{&B.ma, &tx}, {&B.e, nullptr}}, E, s, B.he, w);
+    scatter_mean(B.he, rx, B.to_user, U, B.heard);
+    max_over_others(B.mu, s, B.mo, w.scratch);
+    run(user_upd[l], {{&B.u, nullptr}, {&B.ma, &s.seg}, {&B.mo, nullptr}, {&B.heard, nullptr}}, U, s, B.u2, w);
+    std::swap(B.u, B.u2);
+    // The readout reads the users' embeddings alone: the last layer's UAV update (and the
+    // leaked messages and the mean it reads) would feed nothing.
+    if (l + 1 == user_msg.size()) break;
+    run(leak_msg[l], {{&B.mu, &rx}, {&B.e, nullptr}}, E, s, B.le, w);
+    scatter_mean(B.le, tx, B.to_uav, C, B.leaked);
+    segment_mean(B.mu, s, B.mean);
+    run(uav_upd[l], {{&B.a, nullptr}, {&B.mean, nullptr}, {&B.leaked, nullptr}}, C, s, B.a2, w);
+    std::swap(B.a, B.a2);
+  }
+  run(out, {{&B.u, nullptr}}, U, s, y, w);
 }
 
 Model::Model(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -393,6 +516,21 @@ std::unique_ptr<Model> Model::build(const ModelInfo& info, const Params& p) {
       m->uav_upd.push_back(Block::load(p, "uav_upd" + i, {d, d}, d, d, NormKind::Layer, false));
     }
     m->out = Block::load(p, "out", {d}, d, out, NormKind::Graph, true);
+  } else if (info.model == "ignn") {
+    m->arch = Arch::Ignn;
+    m->user_enc = Block::load(p, "user_enc", {2 * L}, d, d, NormKind::Layer, false);
+    m->edge_enc = Block::load(p, "edge_enc", {2 * L}, d, d, NormKind::Layer, false);
+    m->uav_enc = Block::load(p, "uav_enc", {d}, d, d, NormKind::Layer, false);
+    for (int l = 0; l < info.layers; ++l) {
+      const std::string i = "." + std::to_string(l);
+      m->user_msg.push_back(Block::load(p, "user_msg" + i, {d}, d, d, NormKind::Layer, false));
+      m->uav_msg.push_back(Block::load(p, "uav_msg" + i, {d}, d, d, NormKind::Layer, false));
+      m->int_msg.push_back(Block::load(p, "int_msg" + i, {d, d}, d, d, NormKind::Layer, false));
+      m->leak_msg.push_back(Block::load(p, "leak_msg" + i, {d, d}, d, d, NormKind::Layer, false));
+      m->user_upd.push_back(Block::load(p, "user_upd" + i, {d, d, d, d}, d, d, NormKind::Layer, false));
+      m->uav_upd.push_back(Block::load(p, "uav_upd" + i, {d, d, d}, d, d, NormKind::Layer, false));
+    }
+    m->out = Block::load(p, "out", {d}, d, out, NormKind::Layer, true);
   } else if (info.model == "deepsets") {
     m->arch = Arch::DeepSets;
     const int w = 2 * d;
@@ -448,8 +586,11 @@ std::unique_ptr<Model> Model::build(const ModelInfo& info, const Params& p) {
   return std::unique_ptr<Model>(new Model(std::move(m)));
 }
 
+bool Model::network() const { return impl_->arch == Arch::Ignn; }
+
 std::vector<MatrixXcd> Model::forward(const std::vector<const Cluster*>& clusters) const {
   const Impl& m = *impl_;
+  if (m.arch == Arch::Ignn) throw std::logic_error("fast::Model::forward: a network-level model takes networks");
   const int L = m.antennas;
   Segments s;
   s.start.assign(1, 0);
@@ -460,33 +601,13 @@ std::vector<MatrixXcd> Model::forward(const std::vector<const Cluster*>& cluster
   }
   const int U = s.users();
   Buffers& B = buffers();
-  // Features x = [Re h, Im h] * feature_scale with h = conj(row of G) (eq:node_feature), in
-  // float as the LibTorch batch (its cast happens after the scaling, in double).
+  // Features x = [Re h, Im h] * feature_scale with h = conj(row of G) (eq:node_feature); under
+  // nn.features = "log" the encoders read B.xin, the structured readout the linear B.x.
   B.x.resize(U, 2 * L);
   int r = 0;
   for (const Cluster* c : clusters)
-    for (int k = 0; k < c->size(); ++k, ++r) {
-      float* x = B.x.row(r);
-      for (int l = 0; l < L; ++l) {
-        x[l] = static_cast<float>(c->G(k, l).real() * static_cast<double>(m.feature_scale));
-        x[L + l] = static_cast<float>(-c->G(k, l).imag() * static_cast<double>(m.feature_scale));
-      }
-    }
-  if (m.log_features) {
-    // The encoders' input (models.hpp, encode_features), in float as LibTorch computes it on the
-    // float batch; the structured readout below reads the linear B.x.
-    B.xin.resize(U, 2 * L);
-    const float unit = static_cast<float>(std::log1p(1.0 / kLogFeatureFloor)), floor = static_cast<float>(kLogFeatureFloor);
-    for (int u = 0; u < U; ++u) {
-      const float* x = B.x.row(u);
-      float* o = B.xin.row(u);
-      float r2 = 0.0f;
-      for (int i = 0; i < 2 * L; ++i) r2 += x[i] * x[i];
-      const float norm = std::sqrt(r2);
-      const float scale = std::log1p(norm / floor) / (unit * std::max(norm, 1e-30f));
-      for (int i = 0; i < 2 * L; ++i) o[i] = x[i] * scale;
-    }
-  }
+    for (int k = 0; k < c->size(); ++k, ++r) write_features(c->G.row(k), static_cast<double>(m.feature_scale), B.x.row(r));
+  if (m.log_features) log_features(B.x, B.xin);
   m.head(m.log_features ? B.xin : B.x, s, B.y, B.w);
 
   std::vector<MatrixXcd> out;
@@ -500,24 +621,87 @@ std::vector<MatrixXcd> Model::forward(const std::vector<const Cluster*>& cluster
       out.push_back(std::move(W));
       continue;
     }
-    // Structured readout (models.hpp, structured_beams), in double: v_k = (I + sum_j lambda_j
-    // h_j h_j^H)^{-1} h_k, w_k = sqrt(share_k) v_k / ||v_k||, share = softmax over the cluster.
     MatrixXcd H(L, K);
     for (int k = 0; k < K; ++k)
       for (int l = 0; l < L; ++l) H(l, k) = cdouble(B.x.row(a + k)[l], B.x.row(a + k)[L + l]);
-    MatrixXcd A = MatrixXcd::Identity(L, L);
-    double top = -std::numeric_limits<double>::infinity();
-    for (int k = 0; k < K; ++k) {
-      const double lambda = std::exp(std::clamp(static_cast<double>(B.y.row(a + k)[0]), -30.0, 30.0));
-      A.noalias() += lambda * H.col(k) * H.col(k).adjoint();
-      top = std::max(top, static_cast<double>(B.y.row(a + k)[1]));
+    out.push_back(structured_beams(H, 0, K, B.y, a));
+  }
+  return out;
+}
+
+std::vector<std::vector<MatrixXcd>> Model::forward_networks(const std::vector<const Network*>& nets) const {
+  const Impl& m = *impl_;
+  if (m.arch != Arch::Ignn) throw std::logic_error("fast::Model::forward_networks: a per-cluster model takes clusters");
+  const int L = m.antennas;
+  const double scale = static_cast<double>(m.feature_scale);
+  Buffers& B = buffers();
+  // Rows: users network by network, cluster by cluster (the served order); clusters likewise;
+  // edges (tx, rx != tx, k) ascending within a network, as the LibTorch model lists them.
+  Segments s;
+  s.start.assign(1, 0);
+  int edges = 0;
+  for (const Network* n : nets) {
+    for (const Cluster& c : n->clusters) {
+      if (c.size() == 0 || c.antennas() != L) throw std::logic_error("fast::Model::forward_networks: empty cluster or antenna mismatch");
+      for (int k = 0; k < c.size(); ++k) s.seg.push_back(static_cast<int>(s.start.size()) - 1);
+      s.start.push_back(s.start.back() + c.size());
     }
-    const MatrixXcd V = A.llt().solve(H);
-    double total = 0.0;
-    VectorXd e(K);
-    for (int k = 0; k < K; ++k) total += (e(k) = std::exp(static_cast<double>(B.y.row(a + k)[1]) - top));
-    for (int k = 0; k < K; ++k) W.col(k) = V.col(k) / (V.col(k).norm() + 1e-30) * std::sqrt(e(k) / total);
-    out.push_back(std::move(W));
+    const int C = static_cast<int>(n->clusters.size());
+    edges += n->served_count() * (C - 1);
+  }
+  B.x.resize(s.users(), 2 * L);
+  B.xe.resize(edges, 2 * L);
+  B.tx.resize(static_cast<std::size_t>(edges));
+  B.rx.resize(static_cast<std::size_t>(edges));
+  int user0 = 0, cluster0 = 0, e = 0;
+  for (const Network* n : nets) {
+    const int C = static_cast<int>(n->clusters.size());
+    for (int c = 0; c < C; ++c) {
+      const MatrixXcd& g = n->cross[static_cast<std::size_t>(c)];
+      for (int r = n->offset[static_cast<std::size_t>(c)]; r < n->offset[static_cast<std::size_t>(c) + 1]; ++r)
+        write_features(g.row(r), scale, B.x.row(user0 + r));
+      for (int rx = 0; rx < C; ++rx) {
+        if (rx == c) continue;
+        for (int r = n->offset[static_cast<std::size_t>(rx)]; r < n->offset[static_cast<std::size_t>(rx) + 1]; ++r, ++e) {
+          write_features(g.row(r), scale, B.xe.row(e));
+          B.tx[static_cast<std::size_t>(e)] = cluster0 + c;
+          B.rx[static_cast<std::size_t>(e)] = user0 + r;
+        }
+      }
+    }
+    user0 += n->served_count();
+    cluster0 += C;
+  }
+  if (m.log_features) {
+    log_features(B.x, B.xin);
+    log_features(B.xe, B.xein);
+  }
+  m.network_head(m.log_features ? B.xin : B.x, m.log_features ? B.xein : B.xe, s, B.tx, B.rx, B.y, B.w);
+
+  std::vector<std::vector<MatrixXcd>> out(nets.size());
+  user0 = 0;
+  for (std::size_t i = 0; i < nets.size(); ++i) {
+    const Network& n = *nets[i];
+    const int C = static_cast<int>(n.clusters.size()), Un = n.served_count();
+    for (int c = 0; c < C; ++c) {
+      const int own = n.offset[static_cast<std::size_t>(c)], K = n.clusters[static_cast<std::size_t>(c)].size();
+      if (!m.structured) {
+        MatrixXcd W(L, K);
+        for (int k = 0; k < K; ++k)
+          for (int l = 0; l < L; ++l) W(l, k) = cdouble(B.y.row(user0 + own + k)[l], B.y.row(user0 + own + k)[L + l]);
+        out[i].push_back(std::move(W));
+        continue;
+      }
+      // The transmitter's channels to every served user of the network (its model's features):
+      // its own users' rows of B.x, the others' edge rows, as [L x U_n] in the served order.
+      MatrixXcd H(L, Un);
+      const MatrixXcd& g = n.cross[static_cast<std::size_t>(c)];
+      for (int j = 0; j < Un; ++j)
+        for (int l = 0; l < L; ++l)
+          H(l, j) = cdouble(static_cast<float>(g(j, l).real() * scale), static_cast<float>(-g(j, l).imag() * scale));
+      out[i].push_back(structured_beams(H, own, K, B.y, user0));
+    }
+    user0 += Un;
   }
   return out;
 }

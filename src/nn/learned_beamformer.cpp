@@ -136,6 +136,7 @@ std::vector<std::vector<MatrixXcd>> LearnedBeamformer::design_networks(const std
       if (c.antennas() != L)
         throw std::invalid_argument("cluster has " + std::to_string(c.antennas()) + " antennas; the " + impl_->info.model +
                                     " model was trained for " + std::to_string(L));
+  if (impl_->fast) return design_networks_fast(nets, threads);
   c10::InferenceMode inference;
   // Padding costs: a batch is padded to its most clusters and its largest cluster, and big padded
   // tensors leave the cache. Networks are therefore served in chunks of similar shape (sorted by
@@ -170,6 +171,41 @@ std::vector<std::vector<MatrixXcd>> LearnedBeamformer::design_networks(const std
       }
     }
   }
+  return out;
+}
+
+std::vector<std::vector<MatrixXcd>> LearnedBeamformer::design_networks_fast(const std::vector<Network>& nets, int threads) const {
+  // Slices of at least kSlice networks go to the threads; a slice is passed in pieces of at most
+  // 2,048 rows (users and interference edges; a larger network alone), so that what a pass holds
+  // stays bounded. A network's beams do not depend on the others in its pass: the same floats
+  // whatever the slicing.
+  constexpr std::size_t kSlice = 4;
+  constexpr long kMaxRows = 2048;
+  std::vector<std::vector<MatrixXcd>> out(nets.size());
+  const std::size_t slices =
+      std::max<std::size_t>(1, std::min<std::size_t>(static_cast<std::size_t>(resolve_threads(threads)), nets.size() / kSlice));
+  auto rows = [&](std::size_t i) {
+    return static_cast<long>(nets[i].served_count()) * static_cast<long>(std::max<std::size_t>(nets[i].clusters.size(), 1));
+  };
+  parallel_for(slices, static_cast<int>(slices), [&](std::size_t slice) {
+    const std::size_t first = nets.size() * slice / slices, last = nets.size() * (slice + 1) / slices;
+    std::vector<const Network*> part;
+    for (std::size_t begin = first; begin < last;) {
+      part.clear();
+      std::size_t end = begin;
+      for (long held = 0; end < last && (end == begin || held + rows(end) <= kMaxRows); ++end) {
+        held += rows(end);
+        part.push_back(&nets[end]);
+      }
+      auto raw = impl_->fast->forward_networks(part);
+      for (std::size_t j = begin; j < end; ++j) {
+        auto& W = raw[j - begin];
+        for (std::size_t c = 0; c < W.size(); ++c)
+          out[j].push_back(skyloop::scale_to_budget(std::move(W[c]), nets[j].clusters[c].p_max, impl_->scaling));
+      }
+      begin = end;
+    }
+  });
   return out;
 }
 

@@ -180,29 +180,12 @@ TEST(NnInternal, StructuredReadoutLimitsAreMrtAndZf) {
 // (the model's widest) rounding up to sqrt(w) times u32 (random-walk growth) instead of once, and
 // the second-order remainder. A wrong weight, a layer skipped or a batch layout mixing clusters gives O(1) errors.
 namespace {
-/// Holds both float32 serving paths (the fused kernels, nn.inference = "fast", and LibTorch) of
-/// the checkpoint at `path` to its float64 evaluation on clusters of sizes `sizes`.
-void expect_float32_paths_within_rounding(const std::string& label, const Config& cfg, const std::string& path,
-                                          const std::string& scratch, const std::vector<int>& sizes) {
-  constexpr double u32 = 5.960464477539063e-8, delta = 1e-6;
-  Config cfg64 = cfg, cfg_torch = cfg;
-  cfg64.nn.precision = Precision::Float64;
-  cfg_torch.nn.inference = Inference::Torch;
-  const auto fast32 = LearnedBeamformer::load(path, cfg);
-  const auto torch32 = LearnedBeamformer::load(path, cfg_torch);
-  const auto bf64 = LearnedBeamformer::load(path, cfg64);
-  ASSERT_TRUE(fast32->fast()) << label;
-  ASSERT_FALSE(torch32->fast()) << label;
-  ASSERT_FALSE(bf64->fast()) << label;
-  // The widest dot product: GNN 3d (user update), DeepSets 4d (head on [phi, pooled], width 2d
-  // each), MS-PointNet also 1.5 d L (the projection of L antennas x 3c channels).
-  const ModelInfo& info = fast32->info();
-  const double d = info.hidden;
-  const double width = info.model == "gnn" ? 3 * d : info.model == "deepsets" ? 4 * d : std::max(4 * d, 1.5 * d * info.antennas);
-  const double C = 2.5 * std::sqrt(width);
+constexpr double kU32 = 5.960464477539063e-8, kDelta = 1e-6;
 
-  // Four copies of the checkpoint with every weight perturbed by a relative U(-delta, delta).
-  Rng rng(11);
+/// Four float64 copies of the checkpoint at `path` with every weight perturbed by a relative
+/// U(-kDelta, kDelta), written under `scratch`.
+std::vector<std::unique_ptr<LearnedBeamformer>> perturbed_copies(const std::string& path, const Config& cfg64,
+                                                                 const std::string& scratch, Rng& rng) {
   std::vector<std::unique_ptr<LearnedBeamformer>> perturbed;
   for (int r = 0; r < 4; ++r) {
     auto ck = load_checkpoint(path, torch::kCPU);
@@ -212,7 +195,7 @@ void expect_float32_paths_within_rounding(const std::string& label, const Config
         auto flat = p.view({-1});
         auto noise = torch::empty_like(flat);
         auto acc = noise.accessor<float, 1>();
-        for (int64_t i = 0; i < flat.size(0); ++i) acc[i] = static_cast<float>(1 + delta * (2 * rng.uniform() - 1));
+        for (int64_t i = 0; i < flat.size(0); ++i) acc[i] = static_cast<float>(1 + kDelta * (2 * rng.uniform() - 1));
         flat.mul_(noise);
       }
     }
@@ -220,27 +203,116 @@ void expect_float32_paths_within_rounding(const std::string& label, const Config
     save_checkpoint(p, ck.info, ck.state, *ck.model, nullptr);
     perturbed.push_back(LearnedBeamformer::load(p, cfg64));
   }
+  return perturbed;
+}
+
+/// The three serving paths of the checkpoint at `path`: fused float32, LibTorch float32, float64.
+struct Paths {
+  std::unique_ptr<LearnedBeamformer> fast32, torch32, bf64;
+  Paths(const std::string& path, const Config& cfg) {
+    Config cfg64 = cfg, cfg_torch = cfg;
+    cfg64.nn.precision = Precision::Float64;
+    cfg_torch.nn.inference = Inference::Torch;
+    fast32 = LearnedBeamformer::load(path, cfg);
+    torch32 = LearnedBeamformer::load(path, cfg_torch);
+    bf64 = LearnedBeamformer::load(path, cfg64);
+  }
+};
+
+/// Holds both float32 serving paths (the fused kernels, nn.inference = "fast", and LibTorch) of
+/// the checkpoint at `path` to its float64 evaluation on clusters of sizes `sizes`.
+void expect_float32_paths_within_rounding(const std::string& label, const Config& cfg, const std::string& path,
+                                          const std::string& scratch, const std::vector<int>& sizes) {
+  const Paths m(path, cfg);
+  ASSERT_TRUE(m.fast32->fast()) << label;
+  ASSERT_FALSE(m.torch32->fast()) << label;
+  ASSERT_FALSE(m.bf64->fast()) << label;
+  // The widest dot product: GNN 3d (user update), DeepSets 4d (head on [phi, pooled], width 2d
+  // each), MS-PointNet also 1.5 d L (the projection of L antennas x 3c channels).
+  const ModelInfo& info = m.fast32->info();
+  const double d = info.hidden;
+  const double width = info.model == "gnn" ? 3 * d : info.model == "deepsets" ? 4 * d : std::max(4 * d, 1.5 * d * info.antennas);
+  const double C = 2.5 * std::sqrt(width);
+  Rng rng(11);
+  Config cfg64 = cfg;
+  cfg64.nn.precision = Precision::Float64;
+  const auto perturbed = perturbed_copies(path, cfg64, scratch, rng);
 
   std::vector<Cluster> mixed;
   for (int k : sizes)
     for (const auto& c : test::clusters_of_size(cfg, k, 3, 90 + static_cast<std::uint64_t>(k))) mixed.push_back(c);
-  const auto fast_batched = fast32->design_batch(mixed), torch_batched = torch32->design_batch(mixed);
+  const auto fast_batched = m.fast32->design_batch(mixed), torch_batched = m.torch32->design_batch(mixed);
   for (std::size_t i = 0; i < mixed.size(); ++i) {
     const Cluster& c = mixed[i];
-    const MatrixXcd W64 = bf64->design(c);
+    const MatrixXcd W64 = m.bf64->design(c);
     double kappa = 0;
     for (const auto& bp : perturbed) {
       Cluster p = c;
       for (Eigen::Index a = 0; a < p.G.rows(); ++a)
-        for (Eigen::Index b = 0; b < p.G.cols(); ++b) p.G(a, b) *= 1 + delta * (2 * rng.uniform() - 1);
-      kappa = std::max(kappa, (bp->design(p) - W64).norm() / W64.norm() / delta);
+        for (Eigen::Index b = 0; b < p.G.cols(); ++b) p.G(a, b) *= 1 + kDelta * (2 * rng.uniform() - 1);
+      kappa = std::max(kappa, (bp->design(p) - W64).norm() / W64.norm() / kDelta);
     }
-    const double tol = C * u32 * std::max(kappa, 1.0) * W64.norm();
+    const double tol = C * kU32 * std::max(kappa, 1.0) * W64.norm();
     const std::string where = label + " K_n=" + std::to_string(c.size()) + " kappa " + std::to_string(kappa);
-    EXPECT_LT((fast32->design(c) - W64).norm(), tol) << "fast " << where;
+    EXPECT_LT((m.fast32->design(c) - W64).norm(), tol) << "fast " << where;
     EXPECT_LT((fast_batched[i] - W64).norm(), tol) << "fast batched " << where;
-    EXPECT_LT((torch32->design(c) - W64).norm(), tol) << "torch " << where;
+    EXPECT_LT((m.torch32->design(c) - W64).norm(), tol) << "torch " << where;
     EXPECT_LT((torch_batched[i] - W64).norm(), tol) << "torch batched " << where;
+  }
+}
+
+/// A copy of `net` with every channel entry perturbed by a relative U(-kDelta, kDelta) (the cross
+/// channels, and each cluster's G, its own rows of them, kept equal).
+Network perturbed_network(const Network& net, Rng& rng) {
+  Network p = net;
+  for (auto& X : p.cross)
+    for (Eigen::Index a = 0; a < X.rows(); ++a)
+      for (Eigen::Index b = 0; b < X.cols(); ++b) X(a, b) *= 1 + kDelta * (2 * rng.uniform() - 1);
+  for (std::size_t c = 0; c < p.clusters.size(); ++c)
+    p.clusters[c].G = p.cross[c].middleRows(p.offset[c], p.clusters[c].size());
+  return p;
+}
+
+/// The same for a network-level model (ignn) on whole shared-spectrum networks of 1-4 UAVs over
+/// `users` users (clusters of one user to all of them, one cluster alone): per network, per
+/// cluster. Its widest dot product is the user update's 4d.
+void expect_network_paths_within_rounding(const std::string& label, const Config& cfg, const std::string& path,
+                                          const std::string& scratch, const std::vector<int>& users) {
+  const Paths m(path, cfg);
+  ASSERT_TRUE(m.fast32->fast()) << label;
+  ASSERT_FALSE(m.torch32->fast()) << label;
+  ASSERT_FALSE(m.bf64->fast()) << label;
+  const double C = 2.5 * std::sqrt(4.0 * m.fast32->info().hidden);
+  Rng rng(12);
+  Config cfg64 = cfg;
+  cfg64.nn.precision = Precision::Float64;
+  const auto perturbed = perturbed_copies(path, cfg64, scratch, rng);
+
+  const SystemModel model(cfg);
+  std::vector<Network> nets;
+  for (int K : users)
+    for (int N = 1; N <= 4; ++N) nets.push_back(model.network(model.random_snapshot(N, K, 500 + static_cast<std::uint64_t>(10 * K + N))));
+  nets.push_back(Network::of(nets.back().clusters.front()));
+  const auto fast_batched = m.fast32->design_networks(nets), torch_batched = m.torch32->design_networks(nets);
+  for (std::size_t i = 0; i < nets.size(); ++i) {
+    const auto W64 = m.bf64->design_network(nets[i]);
+    std::vector<double> kappa(W64.size(), 0.0);
+    for (const auto& bp : perturbed) {
+      const auto Wp = bp->design_network(perturbed_network(nets[i], rng));
+      for (std::size_t c = 0; c < W64.size(); ++c) kappa[c] = std::max(kappa[c], (Wp[c] - W64[c]).norm() / W64[c].norm() / kDelta);
+    }
+    const auto fast_one = m.fast32->design_network(nets[i]), torch_one = m.torch32->design_network(nets[i]);
+    ASSERT_EQ(fast_one.size(), W64.size()) << label;
+    for (std::size_t c = 0; c < W64.size(); ++c) {
+      const double tol = C * kU32 * std::max(kappa[c], 1.0) * W64[c].norm();
+      const std::string where = label + " network " + std::to_string(i) + " (" + std::to_string(nets[i].clusters.size()) +
+                                " clusters) cluster " + std::to_string(c) + " K_n=" + std::to_string(nets[i].clusters[c].size()) +
+                                " kappa " + std::to_string(kappa[c]);
+      EXPECT_LT((fast_one[c] - W64[c]).norm(), tol) << "fast " << where;
+      EXPECT_LT((fast_batched[i][c] - W64[c]).norm(), tol) << "fast batched " << where;
+      EXPECT_LT((torch_one[c] - W64[c]).norm(), tol) << "torch " << where;
+      EXPECT_LT((torch_batched[i][c] - W64[c]).norm(), tol) << "torch batched " << where;
+    }
   }
 }
 }  // namespace
@@ -268,6 +340,48 @@ TEST(NnInternal, ShippedModelsFastPathIsWithinRoundingOfFloat64) {
     const std::string scratch = test::scratch_dir("shipped_" + m).string();
     expect_float32_paths_within_rounding(m, Config{}, path, scratch, {1, 3, 6, 12});
     std::filesystem::remove_all(scratch);
+  }
+}
+
+// The interference-aware GNN's fused path (whole networks: users, clusters and interference edges
+// as lists of rows) against its float64 evaluation, as above, for tiny trained models of every
+// readout and feature kind, then the shipped ones (d = 64) that the shared-spectrum oracle and the
+// DP's joint states are served by.
+TEST(NnInternal, NetworkModelFloat32ServingIsWithinRoundingOfFloat64) {
+  for (const std::string m : {"ignn", "ignn+structured", "ignn+structured+log"}) {
+    const Config cfg = test::tiny_nn_config(m);
+    TrainOptions opt;
+    opt.out_dir = test::scratch_path("f32_" + m).string();
+    train_beamformer(cfg, opt);
+    expect_network_paths_within_rounding(m, cfg, opt.out_dir + "/model.pt", opt.out_dir, {1, 2, 5, 12});
+  }
+  for (const std::string m : {"ignn", "ignn_structured"}) {
+    Config cfg;
+    cfg.channel.spectrum = Spectrum::Shared;
+    const std::string path = std::string(SKYLOOP_SOURCE_DIR) + "/models/" + m + "/model.pt";
+    const std::string scratch = test::scratch_dir("shipped_" + m).string();
+    expect_network_paths_within_rounding(m, cfg, path, scratch, {3, 12});
+    std::filesystem::remove_all(scratch);
+  }
+}
+
+// A batch of networks larger than one pass (2,048 rows of users and interference edges) is served
+// in pieces, on one thread or two: every network gets the same floats it gets alone.
+TEST(NnInternal, NetworkBatchesBeyondOnePassEqualOneByOne) {
+  const Config cfg = test::tiny_nn_config("ignn+structured");
+  TrainOptions opt;
+  opt.out_dir = test::scratch_path("pieces_ignn").string();
+  train_beamformer(cfg, opt);
+  const auto bf = LearnedBeamformer::load(opt.out_dir + "/model.pt", cfg);
+  ASSERT_TRUE(bf->fast());
+  const SystemModel model(cfg);
+  std::vector<Network> nets;
+  for (std::uint64_t seed = 0; seed < 600; ++seed) nets.push_back(model.network(model.random_snapshot(3, 12, 900 + seed)));  // ~21,600 rows, 11 passes
+  for (int threads : {1, 2}) {
+    const auto W = bf->design_networks(nets, threads);
+    ASSERT_EQ(W.size(), nets.size());
+    for (std::size_t i = 0; i < nets.size(); i += 37) ASSERT_EQ(W[i], bf->design_network(nets[i])) << "network " << i << ", threads " << threads;
+    ASSERT_EQ(W.back(), bf->design_network(nets.back()));
   }
 }
 

@@ -186,10 +186,10 @@ TEST(Learned, BatchesBeyondOnePassEqualOneByOne) {
 }
 
 // The rate oracle hands a batch's misses to the beamformer on run.threads threads (the fast path
-// in slices of clusters): every rate must be the same double on one thread, on two, and from
-// inside a parallel_for (where the oracle stays on its thread).
+// in slices of clusters, or of networks under the shared spectrum): every rate must be the same
+// double on one thread, on two, and from inside a parallel_for (where the oracle stays on its thread).
 TEST(Learned, OracleRatesDoNotDependOnTheThreadCount) {
-  for (const char* m : {"gnn", "deepsets"}) {
+  for (const char* m : {"gnn", "deepsets", "ignn+structured"}) {
     Config cfg = tiny_config(m);
     const std::shared_ptr<const LearnedBeamformer> bf = LearnedBeamformer::load(tiny_model(m), cfg);
     ASSERT_TRUE(bf->fast()) << m;

@@ -187,7 +187,7 @@ SKYLOOP_CHOICES(Precision,
                 {"float64", Precision::Float64, "same weights, a reference for numerical checks"})
 enum class Inference { Fast, Torch };                  // nn.inference
 SKYLOOP_CHOICES(Inference,
-                {"fast", Inference::Fast, "fused float32 kernels, same weights; the ignn and float64 are served by torch"},
+                {"fast", Inference::Fast, "fused float32 kernels, same weights; float64 is served by torch"},
                 {"torch", Inference::Torch, "LibTorch, the training path and the reference"})
 enum class Selection { Soft, Ranked };                 // nn.selection
 SKYLOOP_CHOICES(Selection,

@@ -52,8 +52,8 @@ class LearnedBeamformer final : public Beamformer {
   std::vector<std::vector<MatrixXcd>> design_networks(const std::vector<Network>& nets, int threads = 1) const override;
   bool coordinated() const override;
   const ModelInfo& info() const;
-  /// True when the fused float32 path serves this model (nn.inference = "fast", the default, for
-  /// the per-cluster models at float32 on the CPU); false when LibTorch does.
+  /// True when the fused float32 path serves this model (nn.inference = "fast", the default, at
+  /// float32 on the CPU); false when LibTorch does.
   bool fast() const;
 
   struct Impl;
@@ -62,6 +62,7 @@ class LearnedBeamformer final : public Beamformer {
   explicit LearnedBeamformer(std::unique_ptr<Impl> impl);
   std::vector<MatrixXcd> design_fast(const std::vector<const Cluster*>& nonempty, const std::vector<std::size_t>& where,
                                      std::vector<MatrixXcd> out, int threads) const;
+  std::vector<std::vector<MatrixXcd>> design_networks_fast(const std::vector<Network>& nets, int threads) const;
   std::unique_ptr<Impl> impl_;
 };
 

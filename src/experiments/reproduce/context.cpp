@@ -98,7 +98,9 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 // VM (x kMarlMachine = 2.4; 2026-11-26: 19 runs took 804 s against 306 s estimated): MAPPO / IPPO
 // 1.3e-5 s per environment step at N = 3 (the fast backend; 1.3e-4 on marl.backend = torch),
 // VDN / QMIX 1.2e-5 (the paper scenario's 2e6-step runs: 50-71 s each); the set encoder with its
-// validation layouts adds 5e-5 and the shared spectrum's interference-aware oracle 4e-5; the
+// validation layouts adds 5e-5 and the shared spectrum's interference-aware oracle 6e-6 (4e-5
+// when LibTorch served it; the fused pass is 6.4x faster on MAPPO with new users every episode,
+// whose 2^15 steps took 19.2 s under the shared spectrum and 21.6 s under orthogonal bands); the
 // per-step cost grows as N^1.3 (measured at N = 16); plus 3 s per run for the child process's
 // start, its models and the policy's last evaluation.
 constexpr double kMarlMachine = 2.4, kMarlRunSetup = 3.0;
@@ -107,7 +109,7 @@ double marl_cost(const Config& cfg) {
   const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? 1.2e-5
                       : cfg.marl.backend == PpoBackend::Torch                        ? 1.3e-4
                                                                              : 1.3e-5;
-  const double per_step = base + (cfg.marl.encoder == ObservationKind::Set ? 5e-5 : 0.0) + (cfg.channel.spectrum == Spectrum::Shared ? 4e-5 : 0.0);
+  const double per_step = base + (cfg.marl.encoder == ObservationKind::Set ? 5e-5 : 0.0) + (cfg.channel.spectrum == Spectrum::Shared ? 6e-6 : 0.0);
   return kMarlRunSetup +
          kMarlMachine * per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
 }

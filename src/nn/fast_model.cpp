@@ -377,6 +377,11 @@ struct Model::Impl {
 
   /// Per-user head outputs for the batch described by x (features) and s.
   void head(const Mat& x, const Segments& s, Mat& y, Work& w) const;
+  /// gnn, ignn: the users' embeddings u = user_enc(x) and the UAVs' a = uav_enc(mean of u over
+  /// each cluster), into the buffers' u and a.
+  void encode_nodes(const Mat& x, const Segments& s, Work& w) const;
+  /// gnn, ignn: layer l's messages m_u = user_msg(u) and m_a = uav_msg(a), into mu and ma.
+  void node_messages(std::size_t l, const Segments& s, Work& w) const;
   /// ignn: per-user head outputs of the networks whose users (x, by cluster in s) and
   /// interference edges (xe; e's transmitter cluster row tx[e], its user row rx[e]) are given.
   void network_head(const Mat& x, const Mat& xe, const Segments& s, const std::vector<int>& tx, const std::vector<int>& rx,
@@ -401,16 +406,26 @@ Buffers& buffers() {
 
 }  // namespace
 
+void Model::Impl::encode_nodes(const Mat& x, const Segments& s, Work& w) const {
+  Buffers& B = buffers();
+  run(user_enc, {{&x, nullptr}}, s.users(), s, B.u, w);
+  segment_mean(B.u, s, B.mean);
+  run(uav_enc, {{&B.mean, nullptr}}, s.clusters(), s, B.a, w);
+}
+
+void Model::Impl::node_messages(std::size_t l, const Segments& s, Work& w) const {
+  Buffers& B = buffers();
+  run(user_msg[l], {{&B.u, nullptr}}, s.users(), s, B.mu, w);
+  run(uav_msg[l], {{&B.a, nullptr}}, s.clusters(), s, B.ma, w);
+}
+
 void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
   Buffers& B = buffers();
   const int U = s.users(), C = s.clusters();
   if (arch == Arch::Gnn) {
-    run(user_enc, {{&x, nullptr}}, U, s, B.u, w);
-    segment_mean(B.u, s, B.mean);
-    run(uav_enc, {{&B.mean, nullptr}}, C, s, B.a, w);
+    encode_nodes(x, s, w);
     for (std::size_t l = 0; l < user_msg.size(); ++l) {
-      run(user_msg[l], {{&B.u, nullptr}}, U, s, B.mu, w);
-      run(uav_msg[l], {{&B.a, nullptr}}, C, s, B.ma, w);
+      node_messages(l, s, w);
       max_over_others(B.mu, s, B.mo, w.scratch);
       run(user_upd[l], {{&B.u, nullptr}, {&B.ma, &s.seg}, {&B.mo, nullptr}}, U, s, B.u2, w);
       std::swap(B.u, B.u2);
@@ -471,12 +486,9 @@ void Model::Impl::network_head(const Mat& x, const Mat& xe, const Segments& s, c
   for (float& c : B.to_user) c = std::max(c, 1.0f);
   for (float& c : B.to_uav) c = std::max(c, 1.0f);
   run(edge_enc, {{&xe, nullptr}}, E, s, B.e, w);
-  run(user_enc, {{&x, nullptr}}, U, s, B.u, w);
-  segment_mean(B.u, s, B.mean);
-  run(uav_enc, {{&B.mean, nullptr}}, C, s, B.a, w);
+  encode_nodes(x, s, w);
   for (std::size_t l = 0; l < user_msg.size(); ++l) {
-    run(user_msg[l], {{&B.u, nullptr}}, U, s, B.mu, w);
-    run(uav_msg[l], {{&B.a, nullptr}}, C, s, B.ma, w);
+    node_messages(l, s, w);
     run(int_msg[l], {{&B.ma, &tx}, {&B.e, nullptr}}, E, s, B.he, w);
     scatter_mean(B.he, rx, B.to_user, U, B.heard);
     max_over_others(B.mu, s, B.mo, w.scratch);

@@ -46,6 +46,10 @@ void add_reproduce_command(CLI::App& app, Action& action) {
                   "worker threads, 0 = the cores this process may use (under mpirun: shared by the ranks on a machine)")
       ->capture_default_str();
   cmd->add_option("--jobs", o->r.jobs, "MARL runs trained in parallel, one core each; 0 = --threads")->capture_default_str();
+  cmd->add_option("--piece-seconds", o->r.piece_seconds,
+                  "split an evaluation's exact optima into pieces of about this many estimated core-seconds (at least one "
+                  "layout each), so that many workers or Slurm tasks share them")
+      ->capture_default_str();
   cmd->add_option("--shard", o->shard,
                   "run only slice i of n of the pieces and assemble nothing (a Slurm array task: "
                   "--shard $((SLURM_ARRAY_TASK_ID+1))/$SLURM_ARRAY_TASK_COUNT); a later run without --shard assembles")

@@ -13,6 +13,7 @@
 #include "skyloop/experiments/reproduce.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <condition_variable>
 #include <exception>
 #include <ctime>
@@ -570,6 +571,8 @@ int reproduce(const ReproduceOptions& o) {
     throw InputError("--profile '" + opt.profile + "' is unknown: allowed quick, paper, tiny");
   if (opt.threads < 0 || opt.threads > 1024)
     throw InputError("--threads = " + std::to_string(opt.threads) + " is out of range: allowed an integer in [0, 1024] (0 = all cores)");
+  if (!std::isfinite(opt.piece_seconds) || opt.piece_seconds <= 0)
+    throw InputError(fmt::format("--piece-seconds = {} is out of range: allowed a finite number of seconds above 0", opt.piece_seconds));
   if (opt.jobs < 0 || opt.jobs > 1024)
     throw InputError("--jobs = " + std::to_string(opt.jobs) + " is out of range: allowed an integer in [0, 1024] (0 = --threads)");
   if (opt.shard_count > 0 && (opt.shard_index < 1 || opt.shard_index > opt.shard_count))

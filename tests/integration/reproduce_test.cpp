@@ -260,6 +260,74 @@ TEST(Reproduce, APieceChangedOnDiskIsComputedAgain) {
   EXPECT_EQ(third.err.find("changed on disk"), std::string::npos) << third.err;
 }
 
+TEST(Reproduce, AnEvaluationsOptimaSpreadOverPiecesWithTheSameResults) {
+  // --piece-seconds below one layout's estimate: every exact optimum of a layouts evaluation is a
+  // piece of its own (beside the evaluation's directory), the evaluation depends on each, and the
+  // results are those of the run that solves them inside the evaluation (the default at this size).
+  const fs::path whole = tmp("optima_whole"), split = tmp("optima_split");
+  const std::string args = "reproduce --profile tiny --only generalisation_shared --no-plots --threads 2";
+  const auto a = run(args + " --out " + whole.string(), whole / "logs");
+  ASSERT_EQ(a.code, 0) << a.err;
+  const auto b = run(args + " --piece-seconds 1e-9 --out " + split.string(), split / "logs");
+  ASSERT_EQ(b.code, 0) << b.err;
+  // The plan once the models exist (the pieces after them are keyed by their bytes).
+  const auto plan = run(args + " --piece-seconds 1e-9 --plan --out " + split.string(), split / "logs_plan");
+  ASSERT_EQ(plan.code, 0) << plan.err;
+  std::map<std::string, std::vector<std::string>> deps;  // piece -> its dependencies
+  for (const auto& row : csv_rows(plan.out)) {
+    ASSERT_GE(row.size(), 6u);
+    std::vector<std::string> d;
+    if (row.size() > 6) {
+      std::stringstream ds(row[6]);
+      for (std::string x; std::getline(ds, x, ';');) d.push_back(x);
+    }
+    deps[row[1]] = d;
+  }
+  int layouts_pieces = 0;
+  for (const auto& [id, d] : deps) {
+    if (id.find(".optima-") != std::string::npos || id.find("_n2_") == std::string::npos) continue;
+    std::vector<std::string> chunks;
+    for (const auto& [other, unused] : deps)
+      if (other.rfind(id + ".optima-", 0) == 0) chunks.push_back(other);
+    if (id.find("layouts_test") == std::string::npos && id.find("_train_") == std::string::npos) {
+      EXPECT_TRUE(chunks.empty()) << id << ": a policy's test layouts read the planners' optima";
+      continue;
+    }
+    ++layouts_pieces;
+    EXPECT_EQ(chunks.size(), 2u) << id << ": one piece per layout (the tiny profile's 2)";
+    for (const auto& c : chunks) EXPECT_NE(std::find(d.begin(), d.end(), c), d.end()) << id << " does not wait for " << c;
+  }
+  EXPECT_EQ(layouts_pieces, 2) << plan.out;  // the test layouts' planners and the run's training layouts
+  // The pieces solved exactly the evaluations' layouts: no optimum beside them.
+  auto files = [](const fs::path& d) {
+    std::size_t n = 0;
+    for (const auto& e : fs::directory_iterator(d)) n += e.is_regular_file();
+    return n;
+  };
+  ASSERT_TRUE(fs::exists(whole / "optima") && fs::exists(split / "optima"));
+  EXPECT_EQ(files(split / "optima"), files(whole / "optima"));
+  EXPECT_GE(files(whole / "optima"), 4u);  // 2 test and 2 training layouts
+  auto untimed = [](const std::string& csv) {  // every column but the timings
+    auto rows = csv_rows(csv, true);
+    std::vector<std::size_t> keep;
+    for (std::size_t i = 0; i < rows.front().size(); ++i)
+      if (rows.front()[i] != "seconds") keep.push_back(i);
+    std::string o;
+    for (const auto& r : rows) {
+      for (std::size_t i : keep) o += (i < r.size() ? r[i] : "") + ",";
+      o += "\n";
+    }
+    return o;
+  };
+  const std::string layouts = "generalisation_shared/layouts.csv";
+  ASSERT_TRUE(fs::exists(whole / layouts) && fs::exists(split / layouts));
+  EXPECT_EQ(untimed(slurp(split / layouts)), untimed(slurp(whole / layouts)));
+  EXPECT_NE(slurp(split / layouts).find("optimal"), std::string::npos) << "the optima are in the results";
+  const auto bad = run(args + " --piece-seconds 0 --out " + split.string(), split / "logs_bad");
+  EXPECT_EQ(bad.code, 2);
+  EXPECT_NE(bad.err.find("--piece-seconds = 0 is out of range"), std::string::npos) << bad.err;
+}
+
 TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   const fs::path out = tmp("tiny");
   const auto r = run("reproduce --profile tiny --threads 2 --out " + out.string(), out / "logs1");

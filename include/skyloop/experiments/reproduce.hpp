@@ -83,6 +83,8 @@ struct ReproduceOptions {
   bool force = false;                  // drop the cache of the selected experiments first
   int threads = 0;                     // run.threads for every stage (0 = all cores)
   int jobs = 0;                        // MARL runs trained in parallel (child processes); 0 = threads
+  double piece_seconds = 600;          // an evaluation's exact optima in pieces of about this many estimated
+                                       // core-seconds (at least one layout each), spread over the workers
   bool plots = true;                   // run scripts/plot_figures.py at the end
   // Scale-out (farm.hpp). Under an MPI transport of several ranks every rank calls reproduce()
   // with the same options: the pieces run on all of them and rank 0 assembles. With shard_count

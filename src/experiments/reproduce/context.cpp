@@ -221,6 +221,41 @@ Piece StageContext::layouts_piece(const Config& cfg, const fs::path& dir, const 
   return p;
 }
 
+std::vector<Piece> StageContext::optima_pieces(const Config& cfg, const fs::path& dir, const LayoutEvalOptions& o) const {
+  std::vector<Piece> out_pieces;
+  if (!o.solve_reference) return out_pieces;
+  const int k = cfg.env.users_min && cfg.env.users_max ? (cfg.env.users_min + cfg.env.users_max) / 2 : cfg.scenario.users;
+  const double each = dp_cost(cfg, k);
+  if (each * o.layouts <= opt.piece_seconds) return out_pieces;
+  const int per = std::max(1, static_cast<int>(std::floor(opt.piece_seconds / each)));
+  for (int a = 0; a < o.layouts; a += per) {
+    const int n = std::min(per, o.layouts - a);
+    LayoutEvalOptions e;
+    e.split = o.split;
+    e.layouts = n;
+    if (o.users_seeds.empty()) e.first = o.first + static_cast<std::uint64_t>(a);
+    else e.users_seeds.assign(o.users_seeds.begin() + a, o.users_seeds.begin() + a + n);
+    e.cache_dir = (out / "optima").string();
+    e.threads = 1;
+    const fs::path chunk = fs::path(dir.string() + fmt::format(".optima-{}-{}", a, a + n - 1));  // beside, not under, dir
+    Piece p;
+    p.id = id_of(chunk, out);
+    p.kind = "eval";
+    p.label = fmt::format("optima of layouts {}-{} of {}, K={}", a, a + n - 1, o.layouts,
+                          cfg.env.users_min && cfg.env.users_max ? fmt::format("{}-{}", cfg.env.users_min, cfg.env.users_max)
+                                                                 : std::to_string(k));
+    p.cost = each * n;
+    p.done = [this, chunk, id = p.id] { return fs::exists(chunk / "layouts.csv") && cache.sealed(id); };
+    p.run = [this, cfg, chunk, e] {
+      const auto rows = evaluate_layouts(cfg, e, builtin_beamformers(), nullptr);
+      fs::create_directories(chunk);
+      write_file_atomic((chunk / "layouts.csv").string(), layout_rows_csv(rows, cfg.run.seed, e.split));
+    };
+    out_pieces.push_back(std::move(p));
+  }
+  return out_pieces;
+}
+
 StageContext::RunInfo StageContext::run_info(const Config& cfg) const {
   RunInfo info;
   info.dir = run_dir(cfg);

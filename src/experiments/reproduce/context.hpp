@@ -96,6 +96,12 @@ class StageContext {
   /// `train` is the configuration of the policy's run (it is trained first if it is missing).
   Piece layouts_piece(const Config& cfg, const fs::path& dir, const LayoutEvalOptions& opt, const Config* train = nullptr,
                       std::vector<std::string> deps = {}) const;
+  /// The pieces that solve the exact optima of opt's layouts into optima/, in chunks of about
+  /// --piece-seconds each (at least one layout), for a layouts piece to depend on: one
+  /// evaluation's optima then spread over the workers (and resume chunk by chunk). Empty when the
+  /// whole set is estimated under one chunk (the layouts piece solves them itself) or opt solves
+  /// no reference. Their ids are `dir`'s with ".optima-<first>-<last>" appended.
+  std::vector<Piece> optima_pieces(const Config& cfg, const fs::path& dir, const LayoutEvalOptions& opt) const;
   std::string id(const fs::path& dir) const;
 
   struct RunInfo {

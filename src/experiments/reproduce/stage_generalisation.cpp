@@ -36,7 +36,21 @@ LayoutEvalOptions with_rollout(LayoutEvalOptions o, bool rollout) {
 struct Item {
   std::string algo, seed, eval, users;  // the CSV's key columns
   Piece piece;
+  bool optima = false;                  // a chunk of another item's optima: computed, not assembled
 };
+
+/// The layouts piece of `o`, after the chunks of its optima (StageContext::optima_pieces), on
+/// which it then depends.
+void add_layouts(std::vector<Item>& out, const StageContext& ctx, const Config& cfg, const fs::path& dir,
+                 const LayoutEvalOptions& o, const Config* train, Item item) {
+  std::vector<std::string> deps;
+  for (auto& p : ctx.optima_pieces(cfg, dir, o)) {
+    deps.push_back(p.id);
+    out.push_back({item.algo, item.seed, item.eval, item.users, std::move(p), true});
+  }
+  item.piece = ctx.layouts_piece(cfg, dir, o, train, std::move(deps));
+  out.push_back(std::move(item));
+}
 
 std::vector<Item> items(const StageContext& ctx, const ExperimentSpec& s) {
   std::vector<Item> out;
@@ -48,10 +62,9 @@ std::vector<Item> items(const StageContext& ctx, const ExperimentSpec& s) {
   std::map<int, std::string> refs;
   for (int k : s.users) {
     const Config c = at_users(base, k);
-    Piece p = ctx.layouts_piece(c, ctx.eval_dir(c, fmt::format("layouts_test_n{}", s.samples), s.planners),
-                                options(s, LayoutSplit::Test, s.planners));
-    refs[k] = p.id;
-    out.push_back({"", "", "test", std::to_string(k), std::move(p)});
+    add_layouts(out, ctx, c, ctx.eval_dir(c, fmt::format("layouts_test_n{}", s.samples), s.planners),
+                options(s, LayoutSplit::Test, s.planners), nullptr, {"", "", "test", std::to_string(k), {}});
+    refs[k] = out.back().piece.id;
   }
   for (const auto& algo : s.algos)
     for (auto seed : s.seeds) {
@@ -63,8 +76,8 @@ std::vector<Item> items(const StageContext& ctx, const ExperimentSpec& s) {
       LayoutEvalOptions tr = options(s, LayoutSplit::Train, s.planners);
       tr.layouts = n_train;
       tr.users_seeds = training_layouts_of(run, n_train);
-      out.push_back({algo, std::to_string(seed), "train", trained_k,
-                     ctx.layouts_piece(run, ctx.eval_dir(run, tag + fmt::format("_train_n{}", n_train), s.planners), tr, &run)});
+      add_layouts(out, ctx, run, ctx.eval_dir(run, tag + fmt::format("_train_n{}", n_train), s.planners), tr, &run,
+                  {algo, std::to_string(seed), "train", trained_k, {}});
       for (int k : s.users) {
         const Config c = at_users(run, k);
         out.push_back({algo, std::to_string(seed), "test", std::to_string(k),
@@ -88,6 +101,10 @@ nlohmann::json assemble(StageContext& ctx, const ExperimentSpec& s) {
   for (const auto& i : all) {
     progress.start();
     const bool fresh = ctx.ensure(i.piece);
+    if (i.optima) {  // read by the layouts piece after it
+      progress.done(fmt::format("{} {} {}", i.algo.empty() ? "planners" : i.algo + " seed " + i.seed, i.eval, i.piece.label), fresh);
+      continue;
+    }
     if (i.eval.empty()) {  // a training run
       progress.done(fmt::format("{} seed {} trained", i.algo, i.seed), fresh);
       continue;

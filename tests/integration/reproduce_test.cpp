@@ -323,6 +323,15 @@ TEST(Reproduce, AnEvaluationsOptimaSpreadOverPiecesWithTheSameResults) {
   ASSERT_TRUE(fs::exists(whole / layouts) && fs::exists(split / layouts));
   EXPECT_EQ(untimed(slurp(split / layouts)), untimed(slurp(whole / layouts)));
   EXPECT_NE(slurp(split / layouts).find("optimal"), std::string::npos) << "the optima are in the results";
+  // Shards, the second first: a layouts piece whose optima pieces fell to the other shard computes
+  // them (or waits for them) under their locks; the assembly then equals the one-process run.
+  const fs::path sharded = tmp("optima_shards");
+  for (const std::string shard : {"2/2", "1/2", ""}) {
+    const auto r = run(args + " --piece-seconds 1e-9" + (shard.empty() ? "" : " --shard " + shard) + " --out " + sharded.string(),
+                       sharded / ("logs" + std::to_string(shard.size())));
+    ASSERT_EQ(r.code, 0) << shard << ": " << r.err;
+  }
+  EXPECT_EQ(untimed(slurp(sharded / layouts)), untimed(slurp(whole / layouts)));
   const auto bad = run(args + " --piece-seconds 0 --out " + split.string(), split / "logs_bad");
   EXPECT_EQ(bad.code, 2);
   EXPECT_NE(bad.err.find("--piece-seconds = 0 is out of range"), std::string::npos) << bad.err;

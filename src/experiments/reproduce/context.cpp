@@ -192,7 +192,8 @@ Piece StageContext::eval_piece(const Config& cfg, const fs::path& dir, const std
 std::string StageContext::id(const fs::path& dir) const { return id_of(dir, out); }
 
 Piece StageContext::layouts_piece(const Config& cfg, const fs::path& dir, const LayoutEvalOptions& o, const Config* train,
-                                  std::vector<std::string> deps) const {
+                                  std::vector<std::string> deps, std::vector<Piece> optima) const {
+  for (const auto& q : optima) deps.push_back(q.id);
   const fs::path policy_run = train ? run_dir(*train) : fs::path();
   const Config train_cfg = train ? *train : cfg;
   Piece p;
@@ -207,7 +208,8 @@ Piece StageContext::layouts_piece(const Config& cfg, const fs::path& dir, const 
   if (!policy_run.empty()) deps.push_back(id_of(policy_run, out));
   p.deps = std::move(deps);
   p.done = [this, dir, id = p.id] { return fs::exists(dir / "summary.csv") && cache.sealed(id); };
-  p.run = [this, cfg, dir, o, policy_run, train_cfg] {
+  p.run = [this, cfg, dir, o, policy_run, train_cfg, optima = std::move(optima)] {
+    for (const auto& q : optima) ensure(q);
     if (!policy_run.empty()) ensure(marl_piece(train_cfg));
     LayoutEvalOptions e = o;
     if (!policy_run.empty()) e.policies = {(policy_run / "policy.pt").string()};

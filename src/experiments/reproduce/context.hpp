@@ -94,8 +94,11 @@ class StageContext {
   /// with the exact optima cached under optima/ for every experiment of the run. `deps`: pieces
   /// that must finish first (e.g. the one that solves the same layouts' optima).
   /// `train` is the configuration of the policy's run (it is trained first if it is missing).
+  /// `optima`: the pieces that solve its layouts' optima (optima_pieces), which it depends on and
+  /// ensures first (a shard that reaches it before another shard's chunk waits for that chunk or
+  /// computes it under the chunk's lock, never beside it).
   Piece layouts_piece(const Config& cfg, const fs::path& dir, const LayoutEvalOptions& opt, const Config* train = nullptr,
-                      std::vector<std::string> deps = {}) const;
+                      std::vector<std::string> deps = {}, std::vector<Piece> optima = {}) const;
   /// The pieces that solve the exact optima of opt's layouts into optima/, in chunks of about
   /// --piece-seconds each (at least one layout), for a layouts piece to depend on: one
   /// evaluation's optima then spread over the workers (and resume chunk by chunk). Empty when the

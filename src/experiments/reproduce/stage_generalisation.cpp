@@ -43,12 +43,9 @@ struct Item {
 /// which it then depends.
 void add_layouts(std::vector<Item>& out, const StageContext& ctx, const Config& cfg, const fs::path& dir,
                  const LayoutEvalOptions& o, const Config* train, Item item) {
-  std::vector<std::string> deps;
-  for (auto& p : ctx.optima_pieces(cfg, dir, o)) {
-    deps.push_back(p.id);
-    out.push_back({item.algo, item.seed, item.eval, item.users, std::move(p), true});
-  }
-  item.piece = ctx.layouts_piece(cfg, dir, o, train, std::move(deps));
+  auto optima = ctx.optima_pieces(cfg, dir, o);
+  for (const auto& p : optima) out.push_back({item.algo, item.seed, item.eval, item.users, p, true});
+  item.piece = ctx.layouts_piece(cfg, dir, o, train, {}, std::move(optima));
   out.push_back(std::move(item));
 }
 

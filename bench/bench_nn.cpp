@@ -64,7 +64,10 @@ void per_cluster(benchmark::State& state, const std::string& name) {
 
 /// Interference-aware GNN under the shared spectrum: one decision = one network (N = 3, K = 12),
 /// or `batch` networks in one design_networks call (the rate oracle's and the DP's batched path);
-/// torch = 1 serves it with LibTorch (the reference), 0 with the fused float32 path.
+/// torch = 1 serves it with LibTorch (the reference), 0 with the fused float32 path. rows = 0: every
+/// network new (4,096 networks of random users in turn, 147,456 user and edge rows, far beyond the
+/// fused path's row caches); rows = 1: the same 64 networks again and again, every user and edge
+/// row from the caches, as in the DP, where a million joint states hold a few thousand rows.
 void per_network(benchmark::State& state, const std::string& name) {
   set_torch_threads(bench_threads());
   Config cfg;
@@ -75,15 +78,20 @@ void per_network(benchmark::State& state, const std::string& name) {
   const auto bf = LearnedBeamformer::load(path, cfg);
   const SystemModel model(cfg);
   const auto batch = static_cast<std::size_t>(state.range(0));
+  const bool recurring = state.range(2) != 0;
   std::vector<Network> nets;
-  for (std::uint64_t s = 0; s < std::max<std::size_t>(batch, 64); ++s) nets.push_back(model.network(model.random_snapshot(3, 12, s)));
+  const std::size_t pool = recurring ? std::max<std::size_t>(batch, 64) : std::max<std::size_t>(batch, 4096);
+  for (std::uint64_t s = 0; s < pool; ++s) nets.push_back(model.network(model.random_snapshot(3, 12, s)));
   std::size_t i = 0;
   for (auto _ : state) {
     if (batch == 1) {
       auto W = bf->design_network(nets[i++ % nets.size()]);
       benchmark::DoNotOptimize(W.data());
     } else {
-      auto W = bf->design_networks(std::vector<Network>(nets.begin(), nets.begin() + static_cast<std::ptrdiff_t>(batch)));
+      const std::size_t first = recurring ? 0 : (i * batch) % (nets.size() - batch + 1);
+      ++i;
+      auto W = bf->design_networks(std::vector<Network>(nets.begin() + static_cast<std::ptrdiff_t>(first),
+                                                        nets.begin() + static_cast<std::ptrdiff_t>(first + batch)));
       benchmark::DoNotOptimize(W.data());
     }
   }
@@ -93,7 +101,10 @@ void per_network(benchmark::State& state, const std::string& name) {
 }  // namespace
 
 static void BM_IgnnNetwork(benchmark::State& s) { per_network(s, "ignn_structured"); }
-BENCHMARK(BM_IgnnNetwork)->ArgsProduct({{1, 64, 1024}, {0, 1}})->ArgNames({"batch", "torch"})->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_IgnnNetwork)
+    ->ArgsProduct({{1, 64, 1024}, {0, 1}, {0, 1}})
+    ->ArgNames({"batch", "torch", "rows"})
+    ->Unit(benchmark::kMicrosecond);
 
 static void BM_GnnDecision(benchmark::State& s) { per_decision(s, "gnn"); }
 static void BM_DeepSetsDecision(benchmark::State& s) { per_decision(s, "deepsets"); }

@@ -1,7 +1,10 @@
 #include "fast_model.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <initializer_list>
 #include <limits>
 #include <stdexcept>
@@ -412,17 +415,79 @@ struct Model::Impl {
   /// interference edges (xe; e's transmitter cluster row tx[e], its user row rx[e]) are given.
   void network_head(const Mat& x, const Mat& xe, const Segments& s, const std::vector<int>& tx, const std::vector<int>& rx,
                     Mat& y, Work& w) const;
+  /// ignn: what depends on one user row alone (u = user_enc(x), m_u of layer 0) and on one edge
+  /// row alone (its part e W_e of every interference and leakage message), from the row caches.
+  void user_rows(const Mat& x, const Segments& s, Work& w) const;
+  void edge_rows(const Mat& xe, const Segments& s, Work& w) const;
+  std::uint64_t id = 0;  // the row caches' owner: unique per model built in this process
 };
 
 namespace {
+
+/// Rows of a function of one input row, keyed by the row's bits: the interference-aware GNN's
+/// users and edges recur across the networks asked for (a UAV's channel to a user depends on their
+/// two positions alone: the exact optimum's million joint states hold a few thousand distinct
+/// rows). Every block is row-wise (LayerNorm), and a GEMM row's floats do not depend on the other
+/// rows of its batch, so a cached row is the row computed afresh, bit for bit. Bounded (per
+/// thread): full, it starts again empty, between two forward passes' lookups, never inside one.
+struct RowCache {
+  std::uint64_t owner = 0;
+  int kw = 0, vw = 0;                   // floats per key, per value
+  int used = 0, capacity = 0;
+  std::vector<std::uint32_t> keys;      // [capacity x kw]
+  std::vector<float> values;            // [capacity x vw]
+  std::vector<std::int32_t> table;      // open addressing: a slot or -1; a power of two >= 2 capacity
+  static constexpr int kCapacity = 4096;
+
+  /// Ready for a pass of `rows` rows of this owner's shape: room for all of them at least.
+  void prepare(std::uint64_t model, int key_floats, int value_floats, int rows) {
+    if (owner == model && kw == key_floats && vw == value_floats && rows <= capacity) return;
+    owner = model, kw = key_floats, vw = value_floats;
+    capacity = std::max(kCapacity, rows);
+    keys.resize(static_cast<std::size_t>(capacity) * static_cast<std::size_t>(kw));
+    values.resize(static_cast<std::size_t>(capacity) * static_cast<std::size_t>(vw));
+    std::size_t t = 1;
+    while (t < 2 * static_cast<std::size_t>(capacity)) t <<= 1;
+    table.resize(t);
+    clear();
+  }
+  void clear() {
+    used = 0;
+    std::fill(table.begin(), table.end(), -1);
+  }
+  /// The slot of the row's key and whether it was there (false: a new slot, to be filled); slot
+  /// -1 when the cache is full.
+  std::pair<int, bool> find_or_add(const float* row) {
+    const std::size_t bytes = sizeof(float) * static_cast<std::size_t>(kw);
+    std::uint64_t h = 0xcbf29ce484222325ULL;
+    for (int i = 0; i < kw; ++i) {
+      std::uint32_t word;
+      std::memcpy(&word, row + i, sizeof word);
+      h = (h ^ word) * 0x100000001b3ULL;
+    }
+    const std::size_t mask = table.size() - 1;
+    for (std::size_t t = (h ^ (h >> 29)) & mask;; t = (t + 1) & mask) {
+      const std::int32_t at = table[t];
+      if (at < 0) {
+        if (used == capacity) return {-1, false};
+        table[t] = used;
+        std::memcpy(&keys[static_cast<std::size_t>(used) * static_cast<std::size_t>(kw)], row, bytes);
+        return {used++, false};
+      }
+      if (std::memcmp(&keys[static_cast<std::size_t>(at) * static_cast<std::size_t>(kw)], row, bytes) == 0) return {at, true};
+    }
+  }
+  float* value(int slot) { return values.data() + static_cast<std::size_t>(slot) * static_cast<std::size_t>(vw); }
+};
 
 struct Buffers {
   Work w;
   Mat x, xin, u, a, mu, ma, mo, mean, u2, a2, y, pooled, per_antenna;
   // ignn
-  Mat xe, xein, e, he, heard, le, leaked;
-  std::vector<int> tx, rx;
+  Mat xe, xein, e, he, heard, le, leaked, miss, part;
+  std::vector<int> tx, rx, user_slot, edge_slot, missed;
   std::vector<float> to_user, to_uav;
+  RowCache users, edges;
 };
 
 Buffers& buffers() {
@@ -496,13 +561,98 @@ void Model::Impl::head(const Mat& x, const Segments& s, Mat& y, Work& w) const {
   run(head2, {{&B.a, nullptr}}, U, s, y, w);
 }
 
+/// The rows of `in` whose keys `cache` lacks, gathered into `miss`; slots[r] is row r's slot.
+/// Returns how many were missing (their rows of `in`, in `missed`, whose slots are to be filled).
+static int gather_misses(const Mat& in, RowCache& cache, std::vector<int>& slots, std::vector<int>& missed, Mat& miss) {
+  slots.resize(static_cast<std::size_t>(in.rows));
+  missed.clear();
+  for (int r = 0; r < in.rows; ++r) {
+    const auto [slot, found] = cache.find_or_add(in.row(r));
+    if (slot < 0) {  // full: empty, then this pass's rows again (prepare made room for them all)
+      cache.clear();
+      missed.clear();
+      r = -1;
+      continue;
+    }
+    slots[static_cast<std::size_t>(r)] = slot;
+    if (!found) missed.push_back(r);
+  }
+  miss.resize(static_cast<int>(missed.size()), in.cols);
+  for (std::size_t i = 0; i < missed.size(); ++i) std::copy(in.row(missed[i]), in.row(missed[i]) + in.cols, miss.row(static_cast<int>(i)));
+  return static_cast<int>(missed.size());
+}
+
+void Model::Impl::user_rows(const Mat& x, const Segments& s, Work& w) const {
+  Buffers& B = buffers();
+  const int d = user_enc.l2.out;
+  B.users.prepare(id, x.cols, 2 * d, x.rows);
+  const int n = gather_misses(x, B.users, B.user_slot, B.missed, B.miss);
+  if (n > 0) {  // u, then layer 0's m_u: row-wise blocks
+    run(user_enc, {{&B.miss, nullptr}}, n, s, B.u2, w);
+    run(user_msg[0], {{&B.u2, nullptr}}, n, s, B.part, w);
+    for (int i = 0; i < n; ++i) {
+      float* v = B.users.value(B.user_slot[static_cast<std::size_t>(B.missed[static_cast<std::size_t>(i)])]);
+      std::copy(B.u2.row(i), B.u2.row(i) + d, v);
+      std::copy(B.part.row(i), B.part.row(i) + d, v + d);
+    }
+  }
+  B.u.resize(x.rows, d);
+  B.mu.resize(x.rows, d);
+  for (int r = 0; r < x.rows; ++r) {
+    const float* v = B.users.value(B.user_slot[static_cast<std::size_t>(r)]);
+    std::copy(v, v + d, B.u.row(r));
+    std::copy(v + d, v + 2 * d, B.mu.row(r));
+  }
+}
+
+void Model::Impl::edge_rows(const Mat& xe, const Segments& s, Work& w) const {
+  // Per edge row: e = edge_enc(xe), then its part e W_e of the first linear layer of each layer's
+  // interference message and of each leakage message that is computed (not the last layer's).
+  Buffers& B = buffers();
+  const int d = edge_enc.l2.out, L = static_cast<int>(int_msg.size());
+  const int parts = 2 * L - 1;
+  B.edges.prepare(id, xe.cols, parts * d, xe.rows);
+  const int n = gather_misses(xe, B.edges, B.edge_slot, B.missed, B.miss);
+  if (n == 0) return;
+  run(edge_enc, {{&B.miss, nullptr}}, n, s, B.e, w);
+  B.part.resize(n, d);
+  for (int p = 0; p < parts; ++p) {
+    const Block& b = p < L ? int_msg[static_cast<std::size_t>(p)] : leak_msg[static_cast<std::size_t>(p - L)];
+    gemm(B.e.v.data(), B.e.ld, n, b.l1[1], B.part.v.data(), B.part.ld, false);  // no bias: part 0 holds it
+    for (int i = 0; i < n; ++i)
+      std::copy(B.part.row(i), B.part.row(i) + d, B.edges.value(B.edge_slot[static_cast<std::size_t>(B.missed[static_cast<std::size_t>(i)])]) + p * d);
+  }
+}
+
+/// An interference or leakage message over E edge rows: h = e W_e (its edge's cached part `p`)
+/// + (node W_node + bias)[gather[e]], then the block's norm, second layer and norm.
+static void run_edge_message(const Block& b, const Mat& node, const std::vector<int>& gather, RowCache& edges,
+                      const std::vector<int>& slot, int p, int E, const Segments& s, Mat& out, Work& w) {
+  const int hidden = b.l1.front().out;
+  w.tmp.resize(node.rows, hidden);
+  gemm(node.v.data(), node.ld, node.rows, b.l1[0], w.tmp.v.data(), w.tmp.ld, false);
+  w.h.resize(E, hidden);
+  for (int r = 0; r < E; ++r) {
+    float* __restrict o = w.h.row(r);
+    const float* __restrict e = edges.value(slot[static_cast<std::size_t>(r)]) + p * hidden;
+    const float* __restrict t = w.tmp.row(gather[static_cast<std::size_t>(r)]);
+    for (int j = 0; j < hidden; ++j) o[j] = e[j] + t[j];
+  }
+  norm_relu(w.h, b.n1, s, w);
+  out.resize(E, b.l2.out);
+  gemm(w.h.v.data(), w.h.ld, E, b.l2, out.v.data(), out.ld, false);
+  if (!b.final) norm_relu(out, b.n2, s, w);
+}
+
 void Model::Impl::network_head(const Mat& x, const Mat& xe, const Segments& s, const std::vector<int>& tx,
                                const std::vector<int>& rx, Mat& y, Work& w) const {
   // IgnnImpl::forward_network (models.cpp) on lists of the real users, clusters and edges: per
   // layer, m_u and m_a; an edge's message to its user phi([m_a of its UAV, e]) and to its UAV
-  // psi([m_u of its user, e]); the user's mean of what it hears, the UAV's of what it leaks.
+  // psi([m_u of its user, e]); the user's mean of what it hears, the UAV's of what it leaks. What
+  // depends on one user's or one edge's features alone comes from the row caches (user_rows,
+  // edge_rows): a message's first layer sums its edge part e W_e, then its node part.
   Buffers& B = buffers();
-  const int U = s.users(), C = s.clusters(), E = xe.rows;
+  const int U = s.users(), C = s.clusters(), E = xe.rows, L = static_cast<int>(user_msg.size());
   B.to_user.assign(static_cast<std::size_t>(U), 0.0f);
   B.to_uav.assign(static_cast<std::size_t>(C), 0.0f);
   for (int e = 0; e < E; ++e) {
@@ -511,22 +661,25 @@ void Model::Impl::network_head(const Mat& x, const Mat& xe, const Segments& s, c
   }
   for (float& c : B.to_user) c = std::max(c, 1.0f);
   for (float& c : B.to_uav) c = std::max(c, 1.0f);
-  run(edge_enc, {{&xe, nullptr}}, E, s, B.e, w);
-  encode_nodes(x, s, w);
-  for (std::size_t l = 0; l < user_msg.size(); ++l) {
-    node_messages(l, s, w);
-    run(int_msg[l], {{&B.ma, &tx}, {&B.e, nullptr}}, E, s, B.he, w);
+  edge_rows(xe, s, w);
+  user_rows(x, s, w);  // u and layer 0's m_u
+  segment_mean(B.u, s, B.mean);
+  run(uav_enc, {{&B.mean, nullptr}}, C, s, B.a, w);
+  for (int l = 0; l < L; ++l) {
+    if (l > 0) run(user_msg[static_cast<std::size_t>(l)], {{&B.u, nullptr}}, U, s, B.mu, w);
+    run(uav_msg[static_cast<std::size_t>(l)], {{&B.a, nullptr}}, C, s, B.ma, w);
+    run_edge_message(int_msg[static_cast<std::size_t>(l)], B.ma, tx, B.edges, B.edge_slot, l, E, s, B.he, w);
     scatter_mean(B.he, rx, B.to_user, U, B.heard);
     max_over_others(B.mu, s, B.mo, w.scratch);
-    run(user_upd[l], {{&B.u, nullptr}, {&B.ma, &s.seg}, {&B.mo, nullptr}, {&B.heard, nullptr}}, U, s, B.u2, w);
+    run(user_upd[static_cast<std::size_t>(l)], {{&B.u, nullptr}, {&B.ma, &s.seg}, {&B.mo, nullptr}, {&B.heard, nullptr}}, U, s, B.u2, w);
     std::swap(B.u, B.u2);
     // The readout reads the users' embeddings alone: the last layer's UAV update (and the
     // leaked messages and the mean it reads) would feed nothing.
-    if (l + 1 == user_msg.size()) break;
-    run(leak_msg[l], {{&B.mu, &rx}, {&B.e, nullptr}}, E, s, B.le, w);
+    if (l + 1 == L) break;
+    run_edge_message(leak_msg[static_cast<std::size_t>(l)], B.mu, rx, B.edges, B.edge_slot, L + l, E, s, B.le, w);
     scatter_mean(B.le, tx, B.to_uav, C, B.leaked);
     segment_mean(B.mu, s, B.mean);
-    run(uav_upd[l], {{&B.a, nullptr}, {&B.mean, nullptr}, {&B.leaked, nullptr}}, C, s, B.a2, w);
+    run(uav_upd[static_cast<std::size_t>(l)], {{&B.a, nullptr}, {&B.mean, nullptr}, {&B.leaked, nullptr}}, C, s, B.a2, w);
     std::swap(B.a, B.a2);
   }
   run(out, {{&B.u, nullptr}}, U, s, y, w);
@@ -536,7 +689,9 @@ Model::Model(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 Model::~Model() = default;
 
 std::unique_ptr<Model> Model::build(const ModelInfo& info, const Params& p) {
+  static std::atomic<std::uint64_t> models{0};
   auto m = std::make_unique<Impl>();
+  m->id = ++models;
   m->structured = info.readout == Readout::Structured;
   m->log_features = info.features == Features::Log;
   m->antennas = info.antennas;

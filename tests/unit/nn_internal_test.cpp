@@ -386,6 +386,45 @@ TEST(NnInternal, NetworkBatchesBeyondOnePassEqualOneByOne) {
   }
 }
 
+// The interference-aware GNN's user and edge rows come from a cache keyed by their features
+// (fast_model.cpp, RowCache): networks whose UAVs move among a few positions over fixed users
+// (the exact optimum's joint states) repeat their rows. A network's beams must not depend on what
+// the cache held before: cold, warm, in any batch, after the cache filled and started again.
+TEST(NnInternal, NetworkRowsFromTheCacheEqualRowsComputedAfresh) {
+  const Config cfg = test::tiny_nn_config("ignn+structured");
+  TrainOptions opt;
+  opt.out_dir = test::scratch_path("rowcache_ignn").string();
+  train_beamformer(cfg, opt);
+  const SystemModel model(cfg);
+  const Snapshot base = model.random_snapshot(3, 12, 4242);
+  std::vector<Network> nets;  // 3 UAVs over 4 positions each: 64 joint states, 12 rows of users' and edges' features each
+  for (int a = 0; a < 4; ++a)
+    for (int b = 0; b < 4; ++b)
+      for (int c = 0; c < 4; ++c) {
+        Snapshot s = base;
+        const int at[3] = {a, b, c};
+        for (int n = 0; n < 3; ++n) s.uavs(n, 0) = 20.0 + 40.0 * at[n], s.uavs(n, 1) = 30.0 + 50.0 * n;
+        nets.push_back(model.network(s));
+      }
+  // Each model instance its own cache: `cold` sees every network first in one batch; `warm` one by
+  // one in reverse order after the others filled its cache; `churned` after 2,000 random networks
+  // (72,000 rows: the caches, 4,096 rows each, fill and start again many times, inside a pass too).
+  const auto cold = LearnedBeamformer::load(opt.out_dir + "/model.pt", cfg);
+  const auto warm = LearnedBeamformer::load(opt.out_dir + "/model.pt", cfg);
+  const auto churned = LearnedBeamformer::load(opt.out_dir + "/model.pt", cfg);
+  ASSERT_TRUE(cold->fast() && warm->fast() && churned->fast());
+  const auto batch = cold->design_networks(nets, 1);
+  (void)warm->design_networks(nets, 1);
+  std::vector<Network> noise;
+  for (std::uint64_t seed = 0; seed < 2000; ++seed) noise.push_back(model.network(model.random_snapshot(3, 12, 7000 + seed)));
+  for (std::size_t i = 0; i < noise.size(); i += 50)
+    (void)churned->design_networks(std::vector<Network>(noise.begin() + static_cast<long>(i), noise.begin() + static_cast<long>(i) + 50), 1);
+  for (std::size_t i = nets.size(); i-- > 0;) {
+    ASSERT_EQ(warm->design_network(nets[i]), batch[i]) << "network " << i << " from a warm cache";
+    ASSERT_EQ(churned->design_network(nets[i]), batch[i]) << "network " << i << " after the cache started again";
+  }
+}
+
 // The fast path's vectorised tanh (the learners' fused MLPs) against the float64 tanh, on every
 // kernel variant (ATEN_CPU_CAPABILITY picks it). The rational fit's own error is 9.4e-9 relative
 // (fast_gemm_kernel.inl); its float32 evaluation, emulated over these points, stays within 1.5

@@ -116,14 +116,15 @@ double marl_cost(const Config& cfg) {
 /// The exact optimum of one layout: about 0.3 s per user on the paper's grid (1.77e6 joint
 /// states; `skyloop plan --planner optimal --users 12`: 3.8 s on the AVX2 VM, 2026-11-26), in
 /// proportion to the joint states; one shared-spectrum network per state (the interference-aware GNN's
-/// fused pass) costs about 34x more (`--set channel.spectrum=shared --set run.threads=1 --oracle
-/// ignn=models/ignn_structured` on configs/generalise.toml at K = 12, 2026-12-05 on a 2-core AVX2 VM:
-/// 241 s of CPU against 7.1 s under orthogonal bands; 642 s served by LibTorch).
+/// fused pass, its user and edge rows from its caches) costs about 28x more (`--set
+/// channel.spectrum=shared --set run.threads=1 --oracle ignn=models/ignn_structured` on
+/// configs/generalise.toml at K = 12, seed 3, 2026-12-05 on a 2-core AVX2 VM: 155 s of CPU against
+/// 5.7 s under orthogonal bands; 241 s without the row caches, 642 s served by LibTorch).
 double dp_cost(const Config& cfg, int users) {
   const double cells = (std::floor(cfg.scenario.area_x_m / cfg.trajectory.d_fly_m) + 1) *
                        (std::floor(cfg.scenario.area_y_m / cfg.trajectory.d_fly_m) + 1);
   const double states = std::pow(cells, static_cast<double>(cfg.trajectory.starts.size())) / std::pow(121.0, 3);
-  return 0.3 * users * states * (cfg.channel.spectrum == Spectrum::Shared ? 34.0 : 1.0) + 0.3;
+  return 0.3 * users * states * (cfg.channel.spectrum == Spectrum::Shared ? 28.0 : 1.0) + 0.3;
 }
 double planner_cost(const Config& cfg, const std::string& p) {
   const double shared = cfg.channel.spectrum == Spectrum::Shared ? 3.0 : 1.0;

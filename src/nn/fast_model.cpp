@@ -627,7 +627,7 @@ void Model::Impl::edge_rows(const Mat& xe, const Segments& s, Work& w) const {
 /// An interference or leakage message over E edge rows: h = e W_e (its edge's cached part `p`)
 /// + (node W_node + bias)[gather[e]], then the block's norm, second layer and norm.
 static void run_edge_message(const Block& b, const Mat& node, const std::vector<int>& gather, RowCache& edges,
-                      const std::vector<int>& slot, int p, int E, const Segments& s, Mat& out, Work& w) {
+                             const std::vector<int>& slot, int p, int E, const Segments& s, Mat& out, Work& w) {
   const int hidden = b.l1.front().out;
   w.tmp.resize(node.rows, hidden);
   gemm(node.v.data(), node.ld, node.rows, b.l1[0], w.tmp.v.data(), w.tmp.ld, false);

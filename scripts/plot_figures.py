@@ -241,23 +241,28 @@ def smooth(ys, w):
     return out
 
 
-def home_text(r):
-    """'3/3': the UAVs home of a run's evaluation (the fleet's size from the row, or 3)."""
-    return f"{r['arrivals']}/{r.get('uavs') or 3}"
+def stage_uavs(run, exp):
+    """The fleet size N of an experiment: scenario.uavs of the configuration it ran with."""
+    with open(os.path.join(run, exp["name"], "config.toml"), "rb") as f:
+        return int(tomllib.load(f)["scenario"]["uavs"])
 
 
-def failed(r):
+def home_text(r, n):
+    """'3/3': the UAVs home of a run's evaluation (the fleet's size from the row, else n)."""
+    return f"{r['arrivals']}/{r.get('uavs') or n}"
+
+
+def failed(r, n):
     """A run's evaluation is a failed mission: a UAV not home, a collision or a boundary event."""
-    n = int(r.get("uavs") or 3)
-    return int(r["arrivals"]) < n or int(r["collisions"]) > 0 or int(r["boundary_events"]) > 0
+    return int(r["arrivals"]) < int(r.get("uavs") or n) or int(r["collisions"]) > 0 or int(r["boundary_events"]) > 0
 
 
-def mission_text(rs):
+def mission_text(rs, n):
     """'complete', or 'FAILED on seed 2 (1/3 home)' naming every failed seed: never left to a reader."""
-    bad = [r for r in rs if failed(r)]
+    bad = [r for r in rs if failed(r, n)]
     if not bad:
         return "complete" if len(rs) == 1 else f"complete on all {len(rs)}"
-    what = [f"{home_text(r)} home, {r['collisions']} collisions, {r['boundary_events']} boundary events" for r in bad]
+    what = [f"{home_text(r, n)} home, {r['collisions']} collisions, {r['boundary_events']} boundary events" for r in bad]
     if "train_seed" not in bad[0]:  # a planner's single episode
         return f"FAILED ({what[0]})"
     return "FAILED on " + "; ".join(f"seed {r['train_seed']} ({w})" for r, w in zip(bad, what))
@@ -272,6 +277,7 @@ def trained_text(rs):
 def marl_training(run, exp):
     rows = read_csv(os.path.join(run, exp["name"], "curves.csv"))
     finals = read_csv(os.path.join(run, exp["files"][0]))
+    n = stage_uavs(run, exp)
     refs_path = os.path.join(run, exp["name"], "references.csv")
     refs = read_csv(refs_path) if os.path.exists(refs_path) else []
     figs = []
@@ -308,18 +314,20 @@ def marl_training(run, exp):
     for algo, rs in by.items():
         obj = [float(r["objective"]) for r in rs]
         body.append([style(algo)[0], trained_text(rs), str(len(rs)), fnum(mean(obj), 3), ", ".join(fnum(o, 3) for o in obj),
-                     ", ".join(home_text(r) for r in rs), mission_text(rs), ", ".join(r["collisions"] for r in rs),
+                     ", ".join(home_text(r, n) for r in rs), mission_text(rs, n), ", ".join(r["collisions"] for r in rs),
                      ", ".join(r["boundary_events"] for r in rs), fnum(mean([float(r["train_seconds"]) for r in rs]), 0),
                      fnum(mean([float(r["steps_per_second"]) for r in rs]), 0)])
     for r in refs:
-        body.append([style(r["planner"])[0], "not trained", "-", fnum(r["objective"], 3), "", home_text(r), mission_text([r]),
+        body.append([style(r["planner"])[0], "not trained", "-", fnum(r["objective"], 3), "", home_text(r, n), mission_text([r], n),
                      r["collisions"], r["boundary_events"], fnum(r["seconds"], 1), ""])
-    cap = "deterministic policies after training, on the training users (K = 12); references on the same users"
+    ks = ", ".join(str(k) for k in sorted({int(r["users"]) for r in finals + refs}))
+    cap = f"deterministic policies after training, on the training users (K = {ks}); references on the same users"
     return figs, [(cap, head, body)]
 
 
 def planning_users(run, exp):
     rows = read_csv(os.path.join(run, exp["files"][0]))
+    n = stage_uavs(run, exp)
     by = defaultdict(lambda: defaultdict(list))
     for r in rows:
         by[r["planner"]][int(r["users"])].append(r)
@@ -348,7 +356,7 @@ def planning_users(run, exp):
                 continue
             home = sum(int(r["arrivals"]) for r in rs)
             viol = sum(int(r["collisions"]) + int(r["boundary_events"]) for r in rs)
-            cells.append(f"{fnum(mean([float(r['objective']) for r in rs]), 3)} ({home}/{3 * len(rs)} home"
+            cells.append(f"{fnum(mean([float(r['objective']) for r in rs]), 3)} ({home}/{n * len(rs)} home"
                          + (f", {viol} violations" if viol else "") + ")")
         body.append([style(planner)[0]] + cells)
     cap = "average sum rate (P2.2 objective), mean over training seeds for learners; UAVs home and violations summed"
@@ -578,9 +586,10 @@ def reported(run, exp):
                 if item["metric"] == "objective":
                     rs = [r for r in read_csv(os.path.join(run, exp["files"][0])) if r["algo"] == item["algo"]]
                     value = ", ".join(fnum(r["objective"], 3) for r in rs) + " (per seed; "
-                    value += ", ".join(home_text(r) for r in rs) + " UAVs home; trained " + trained_text(rs) + ")"
-                    if any(failed(r) for r in rs):
-                        value += " MISSION " + mission_text(rs)
+                    n = stage_uavs(run, exp)
+                    value += ", ".join(home_text(r, n) for r in rs) + " UAVs home; trained " + trained_text(rs) + ")"
+                    if any(failed(r, n) for r in rs):
+                        value += " MISSION " + mission_text(rs, n)
                 else:
                     cs = curves(read_csv(os.path.join(run, exp["name"], "curves.csv")), "charts/episode_reward")
                     if item["algo"] in cs:

@@ -179,7 +179,7 @@ class Runner {
   void run_phase(int phase, const std::vector<const ExperimentSpec*>& specs) {
     std::vector<Piece> pieces = plan(specs);
     const bool scale_out = t_ || shard_;
-    if (rank_ == 0) announce(phase, pieces, scale_out ? std::max(1, ranks_) : std::max(1, jobs_));
+    if (rank_ == 0) announce(phase, pieces, scale_out ? std::max(1, ranks_) : std::max(1, jobs_), !scale_out);
     if (!scale_out) {
       // One process: MARL runs and evaluations go first, --jobs at a time; the assembly computes
       // the rest (a sweep's chunks, each on --threads cores) in turn.
@@ -254,14 +254,19 @@ class Runner {
   }
 
   /// One line before a phase's work: how many pieces are left, their estimated core-seconds
-  /// (`--plan`'s estimates) and the wall time and clock time that gives on `workers` cores.
-  void announce(int phase, const std::vector<Piece>& pieces, int workers) {
-    double work = 0;
+  /// (`--plan`'s estimates) and the wall time and clock time that gives on `workers` cores. In one
+  /// process (`in_turn`) only the MARL runs and evaluations share the workers; a sweep's chunks
+  /// follow one after another in the assembly (each on --threads cores, prefetch).
+  void announce(int phase, const std::vector<Piece>& pieces, int workers, bool in_turn) {
+    double work = 0, shared = 0;
     std::size_t left = 0;
     for (const auto& p : pieces)
-      if (!p.done()) work += p.cost, ++left;
+      if (!p.done()) {
+        work += p.cost, ++left;
+        if (!in_turn || p.kind == "marl" || p.kind == "eval") shared += p.cost;
+      }
     if (left == 0) return;
-    const double wall = work / workers;
+    const double wall = shared / workers + (work - shared);
     const std::time_t eta = std::time(nullptr) + static_cast<std::time_t>(wall);
     char at[16];
     std::strftime(at, sizeof at, "%H:%M", std::localtime(&eta));

@@ -377,6 +377,14 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   EXPECT_GE(links, 30);
   EXPECT_EQ(report.find("(missing)"), std::string::npos);
   EXPECT_NE(report.find("fig:power_sweep"), std::string::npos);
+  // UAVs home out of the experiment's own fleet: 25_scale_marl flies N = 16 (one seed per planner).
+  {
+    const auto at = report.find("<h2 id=\"scale_marl\">");
+    ASSERT_NE(at, std::string::npos);
+    const std::string table = report.substr(at, report.find("</table>", at) - at);
+    EXPECT_NE(table.find("/16 home"), std::string::npos) << table;
+    EXPECT_EQ(table.find("/3 home"), std::string::npos) << table;
+  }
 
   // A sweep over named channel models: every sample row names its point; the summary has a row
   // per model and method; a series sweep has one curve per series value.

@@ -92,26 +92,30 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
   run_planners(cfg, p, builtin_beamformers(), &quiet, &seconds);
 }
 
-// Rough seconds on one core (the farm's order, --plan, the ETA; never a result). The per-step
-// costs by learner, encoder and spectrum come from the quick profile's timings.csv on the 2-core
-// AVX-512 VM (2026-12-01, 16 runs two at a time: 720 s measured), in units of the slower AVX2-only
-// VM (x kMarlMachine = 2.4; 2026-11-26: 19 runs took 804 s against 306 s estimated): MAPPO / IPPO
-// 1.3e-5 s per environment step at N = 3 (the fast backend; 1.3e-4 on marl.backend = torch),
-// VDN / QMIX 1.2e-5 (the paper scenario's 2e6-step runs: 50-71 s each); the set encoder with its
-// validation layouts adds 5e-5 and the shared spectrum's interference-aware oracle 6e-6 (4e-5
-// when LibTorch served it; the fused pass is 6.4x faster on MAPPO with new users every episode,
-// whose 2^15 steps took 19.2 s under the shared spectrum and 21.6 s under orthogonal bands); the
-// per-step cost grows as N^1.3 (measured at N = 16); plus 3 s per run for the child process's
+// Rough seconds on one core (the farm's order, --plan, the ETA; never a result), fitted to the
+// quick profile's timings.csv on a 2-core AMD EPYC VM with AVX2 (2026-12-05: 16 runs two at a
+// time, one thread each, 2,210 s of training; the AVX-512 VM runs them in about 0.6x the time):
+// per environment step at N = 3, MAPPO / IPPO 9e-5 s on the fast backend (2e6 steps at K = 12:
+// 190-215 s; 10x that on marl.backend = torch), VDN 8.7e-5 and QMIX 1.1e-4 (LibTorch; 204 s and
+// 251 s), growing as N^1.3, plus 9.2e-7 per user (K = 24: 245 s; N = 16, K = 400 at 1.16e-3 a
+// step); the set encoder, its validation layouts and the larger networks it feeds add 4e-4 (2e5
+// steps: 274-613 us a step by oracle and mobility), its move gains (marl.lookahead) 1e-4 and each
+// cell of its radio map 1.2e-5 (marl.rate_map = 3 and the UAVs in turn: 959 us a step); the
+// shared spectrum's interference-aware oracle 3e-5; plus 3 s per run for the child process's
 // start, its models and the policy's last evaluation.
-constexpr double kMarlMachine = 2.4, kMarlRunSetup = 3.0;
+constexpr double kMarlRunSetup = 3.0;
 double marl_cost(const Config& cfg) {
-  const auto& learner = find_learner(cfg.marl.algo);
-  const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? 1.2e-5
-                      : cfg.marl.backend == PpoBackend::Torch                        ? 1.3e-4
-                                                                             : 1.3e-5;
-  const double per_step = base + (cfg.marl.encoder == ObservationKind::Set ? 5e-5 : 0.0) + (cfg.channel.spectrum == Spectrum::Shared ? 6e-6 : 0.0);
-  return kMarlRunSetup +
-         kMarlMachine * per_step * static_cast<double>(cfg.marl.total_steps) * std::pow(cfg.scenario.uavs / 3.0, 1.3);
+  const auto& m = cfg.marl;
+  const auto& learner = find_learner(m.algo);
+  const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? (m.algo == "qmix" ? 1.1e-4 : 8.7e-5)
+                      : m.backend == PpoBackend::Torch                    ? 9e-4
+                                                                           : 9e-5;
+  const bool set = m.encoder == ObservationKind::Set;
+  const double cells = 2.0 * m.rate_map * (m.rate_map + 1);
+  const double per_step = base * std::pow(cfg.scenario.uavs / 3.0, 1.3) + 9.2e-7 * cfg.scenario.users +
+                          (set ? 4e-4 + (m.lookahead ? 1e-4 : 0.0) + 1.2e-5 * cells : 0.0) +
+                          (cfg.channel.spectrum == Spectrum::Shared ? 3e-5 : 0.0);
+  return kMarlRunSetup + per_step * static_cast<double>(m.total_steps);
 }
 /// The exact optimum of one layout: about 0.3 s per user on the paper's grid (1.77e6 joint
 /// states; `skyloop plan --planner optimal --users 12`: 3.8 s on the AVX2 VM, 2026-11-26), in

@@ -241,10 +241,15 @@ def smooth(ys, w):
     return out
 
 
+def stage_config(run, exp):
+    """The configuration an experiment ran with (its resolved config.toml)."""
+    with open(os.path.join(run, exp["name"], "config.toml"), "rb") as f:
+        return tomllib.load(f)
+
+
 def stage_uavs(run, exp):
     """The fleet size N of an experiment: scenario.uavs of the configuration it ran with."""
-    with open(os.path.join(run, exp["name"], "config.toml"), "rb") as f:
-        return int(tomllib.load(f)["scenario"]["uavs"])
+    return int(stage_config(run, exp)["scenario"]["uavs"])
 
 
 def home_text(r, n):
@@ -368,6 +373,9 @@ def trajectories(run, exp):
     users = read_csv(os.path.join(run, exp["files"][1]))
     summary = read_csv(os.path.join(run, exp["files"][2]))
     ends = read_csv(os.path.join(run, exp["files"][3]))
+    cfg = stage_config(run, exp)
+    fleet = int(cfg["scenario"]["uavs"])
+    area = (float(cfg["scenario"]["area_x_m"]), float(cfg["scenario"]["area_y_m"]))
     ks = sorted({int(r["users"]) for r in traj})
     fig, axes = plt.subplots(1, len(ks), figsize=(4.2 * len(ks), 4.4), squeeze=False)
     colours = ["#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"]
@@ -388,8 +396,8 @@ def trajectories(run, exp):
                         va="center")
             ax.annotate("D", (float(e["dest_x"]), float(e["dest_y"])), color=c, fontsize=11, weight="bold", ha="center",
                         va="center")
-        ax.set_xlim(0, 200)
-        ax.set_ylim(0, 200)
+        ax.set_xlim(0, area[0])
+        ax.set_ylim(0, area[1])
         ax.set_aspect("equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
@@ -399,7 +407,7 @@ def trajectories(run, exp):
     fig.suptitle(exp["title"] + " (solid: MAPPO, dashed: optimum)", fontsize=9)
     figs = save(fig, run, exp["name"])
     head = ["K", "planner", "avg sum rate", "T", "UAVs home", "collisions", "boundary events"]
-    body = [[r["users"], style(r["planner"])[0], fnum(r["objective"], 3), r["T"], f"{r['arrivals']}/3", r["collisions"],
+    body = [[r["users"], style(r["planner"])[0], fnum(r["objective"], 3), r["T"], home_text(r, fleet), r["collisions"],
              r["boundary_events"]] for r in summary]
     return figs, [("the plotted episodes", head, body)]
 

@@ -377,14 +377,16 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
   EXPECT_GE(links, 30);
   EXPECT_EQ(report.find("(missing)"), std::string::npos);
   EXPECT_NE(report.find("fig:power_sweep"), std::string::npos);
-  // UAVs home out of the experiment's own fleet: 25_scale_marl flies N = 16 (one seed per planner).
-  {
-    const auto at = report.find("<h2 id=\"scale_marl\">");
-    ASSERT_NE(at, std::string::npos);
-    const std::string table = report.substr(at, report.find("</table>", at) - at);
-    EXPECT_NE(table.find("/16 home"), std::string::npos) << table;
-    EXPECT_EQ(table.find("/3 home"), std::string::npos) << table;
-  }
+  // UAVs home out of the experiment's own fleet: 25_scale_marl flies N = 16 (one seed per planner),
+  // 22_trajectories N = 3 (the optimum brings all three home).
+  const auto table_of = [&report](const std::string& id) {
+    const auto at = report.find("<h2 id=\"" + id + "\">");
+    return at == std::string::npos ? std::string() : report.substr(at, report.find("</table>", at) - at);
+  };
+  const std::string scale = table_of("scale_marl"), paths = table_of("trajectories");
+  EXPECT_NE(scale.find("/16 home"), std::string::npos) << scale;
+  EXPECT_EQ(scale.find("/3 home"), std::string::npos) << scale;
+  EXPECT_NE(paths.find("<td>3/3</td>"), std::string::npos) << paths;
 
   // A sweep over named channel models: every sample row names its point; the summary has a row
   // per model and method; a series sweep has one curve per series value.

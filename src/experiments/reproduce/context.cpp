@@ -14,6 +14,7 @@
 #include "skyloop/experiments/planning_run.hpp"
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/nn/learned.hpp"
+#include "../../nn/fast_gemm.hpp"
 
 namespace skyloop::repro {
 
@@ -102,8 +103,13 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 // steps: 274-613 us a step by oracle and mobility), its move gains (marl.lookahead) 1e-4 and each
 // cell of its radio map 1.2e-5 (marl.rate_map = 3 and the UAVs in turn: 959 us a step); the
 // shared spectrum's interference-aware oracle 3e-5; plus 3 s per run for the child process's
-// start, its models and the policy's last evaluation.
+// start, its models and the policy's last evaluation. Where the kernels run on AVX-512, 0.7x (the
+// AVX-512 VM trained the quick profile's 16 runs in 720 s two at a time, 2026-12-01).
 constexpr double kMarlRunSetup = 3.0;
+double marl_machine() {
+  static const double f = nn::fast::kernel_isa() == "avx512" ? 0.7 : 1.0;
+  return f;
+}
 double marl_cost(const Config& cfg) {
   const auto& m = cfg.marl;
   const auto& learner = find_learner(m.algo);
@@ -115,7 +121,7 @@ double marl_cost(const Config& cfg) {
   const double per_step = base * std::pow(cfg.scenario.uavs / 3.0, 1.3) + 9.2e-7 * cfg.scenario.users +
                           (set ? 4e-4 + (m.lookahead ? 1e-4 : 0.0) + 1.2e-5 * cells : 0.0) +
                           (cfg.channel.spectrum == Spectrum::Shared ? 3e-5 : 0.0);
-  return kMarlRunSetup + per_step * static_cast<double>(m.total_steps);
+  return kMarlRunSetup + marl_machine() * per_step * static_cast<double>(m.total_steps);
 }
 /// The exact optimum of one layout: about 0.3 s per user on the paper's grid (1.77e6 joint
 /// states; `skyloop plan --planner optimal --users 12`: 3.8 s on the AVX2 VM, 2026-11-26), in

@@ -587,7 +587,7 @@ def reported(run, exp):
                         if other in at:
                             d = float(r["mean"]) - float(at[other]["mean"])
                             value += f" vs {style(other)[0].split(' (')[0]} {fnum(at[other]['mean'])} ({d:+.2f})"
-                        if "wmmse" in at:
+                        if "wmmse" in at and "wmmse" not in (item["method"], other):
                             value += f"; WMMSE {fnum(at['wmmse']['mean'])}"
                     value += f" [x = {item['x']}]"
             elif exp["kind"] == "marl_training":

@@ -2,8 +2,9 @@
 of `skyloop bench baselines` committed under bench/leaderboard/<task>/, never by hand.
 
 Each task's folder holds what `skyloop bench baselines TASK --out bench/leaderboard/TASK` wrote
-(summary.csv, profile.csv, rows.csv, marl_eval.json, config.toml, not_run.txt) and run.txt: the
-command, its wall time, the date and the machine.
+(summary.csv, profile.csv, rows.csv, marl_eval.json, config.toml, not_run.txt, trainings.csv: a row per
+training run with its seconds and machine) and run.txt: the command, its wall time, the date and the
+machine.
 
   python3 scripts/bench_leaderboard.py              prints the page (docs/_generate.py writes it)
   python3 scripts/bench_leaderboard.py --plots DIR  also draws DIR/<task>.png (the profiles)
@@ -30,6 +31,26 @@ def _read(task, name):
 def _text(task, name):
     p = os.path.join(BOARD, task, name)
     return open(p).read().strip() if os.path.exists(p) else ""
+
+
+def trainings(task):
+    """What trainings.csv (written by `bench baselines`) says of the board's training runs: per
+    learner the runs and their seconds, how many ran at a time, the machines and the dates."""
+    if not os.path.exists(os.path.join(BOARD, task, "trainings.csv")):
+        return ""
+    rows = _read(task, "trainings.csv")
+    parts = []
+    for algo in dict.fromkeys(r["algo"] for r in rows):
+        rs = [r for r in rows if r["algo"] == algo]
+        sec = sorted(float(r["seconds"]) for r in rs)
+        jobs = "/".join(sorted({r["jobs"] for r in rs}, key=int))
+        resumed = sum(r["resumed"] == "1" for r in rs)
+        parts.append(f"{algo} {len(rs)} runs of {rs[0]['steps']} steps, {sec[0]:,.0f}-{sec[-1]:,.0f} s each ({jobs} at a time"
+                     + (f"; {resumed} resumed" if resumed else "") + ")")
+    machines = "; ".join(dict.fromkeys(r["machine"] for r in rows))
+    days = sorted({r["finished_utc"][:10] for r in rows})
+    when = days[0] if len(days) == 1 else f"{days[0]} to {days[-1]}"
+    return f"Trainings (trainings.csv): {'; '.join(parts)}; on {machines}, {when}."
 
 
 def plot(task, path):
@@ -62,7 +83,8 @@ def page(plots=None):
     for task in tasks():
         summary = sorted(_read(task, "summary.csv"), key=lambda r: -float(r["iqm"]))
         ref = summary[0]["reference"] if summary else ""
-        out += [f"## {task}", "", _text(task, "run.txt"), "",
+        made = trainings(task)
+        out += [f"## {task}", "", _text(task, "run.txt"), ""] + ([made, ""] if made else []) + [
                 f"| policy | seeds | layouts | IQM % of {ref} | 95% interval | mean % | p5 % | complete | protocol |",
                 "|---|---:|---:|---:|---|---:|---:|---:|---|"]
         for r in summary:

@@ -2,6 +2,7 @@
 // scoring planners and trained policies under the task's protocol.
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <filesystem>
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -240,6 +241,22 @@ int bench_baselines(const BenchCliOptions& o) {
     }
   const int jobs = static_cast<int>(std::min<std::size_t>(max_jobs, std::max<std::size_t>(pending.size(), 1)));
   const int threads = std::max(1, resolve_threads(0) / jobs);
+  // OUT/trainings.csv: a row per training this command ran, kept across invocations (a board
+  // trained over several sessions lists each part): how long it took, beside what, and where.
+  const std::string record = o.out + "/trainings.csv";
+  const std::string machine = machine_label();
+  auto record_training = [&](const Job& j, double seconds, bool resumed) {
+    std::string csv = fs::exists(record) ? read_file(record, "training record")
+                                         : "task,algo,seed,steps,seconds,resumed,jobs,threads,finished_utc,machine,skyloop\n";
+    const std::time_t now = std::time(nullptr);
+    std::tm utc{};
+    gmtime_r(&now, &utc);
+    char at[32];
+    std::strftime(at, sizeof at, "%Y-%m-%dT%H:%M:%SZ", &utc);
+    csv += fmt::format("{},{},{},{},{:.1f},{},{},{},{},\"{}\",{}\n", t.id, j.algo, j.seed, steps, seconds, resumed ? 1 : 0, jobs,
+                       threads, at, machine, SKYLOOP_VERSION);
+    write_file_atomic(record, csv);
+  };
   std::mutex mu;
   std::vector<std::string> failed;
   std::size_t finished = 0;
@@ -264,6 +281,7 @@ int bench_baselines(const BenchCliOptions& o) {
     std::lock_guard<std::mutex> hold(mu);
     ++finished;
     if (rc != 0) failed.push_back(fmt::format("{} seed {} (exit status {}; see {})", j.algo, j.seed, rc, log));
+    else record_training(j, sec, resume);
     std::cerr << fmt::format("bench baselines {}: {} seed {} {} in {:.0f} s ({}/{} runs)\n", t.id, j.algo, j.seed,
                              rc == 0 ? "trained" : "failed", sec, finished, pending.size());
   });

@@ -174,6 +174,12 @@ def test_baselines_train_score_and_label_a_short_budget(tmp_path):
     r = run_cli("bench", "baselines", "paper-v1", "--learners", "mappo", "--seeds", "1,2", "--steps", "2048", "--jobs", "2",
                 "--out", str(par))
     assert r.returncode == 0 and "training" not in r.stderr, r.stderr[-2000:]
+    # trainings.csv: one row per training the command ran (the rerun trained none, so added none),
+    # with its time, how many ran at a time, and the machine, as the leaderboard page states them.
+    made = list(csv.DictReader(open(par / "trainings.csv")))
+    assert sorted((m["algo"], m["seed"], m["steps"], m["resumed"], m["jobs"]) for m in made) == \
+        [("mappo", "1", "2048", "0", "2"), ("mappo", "2", "2048", "0", "2")]
+    assert all(float(m["seconds"]) > 0 and "-core " in m["machine"] and m["task"] == "paper-v1" for m in made)
 
 
 def test_baselines_say_which_learner_cannot_run_a_task(tmp_path):

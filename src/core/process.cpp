@@ -7,12 +7,33 @@
 #include <cstring>
 #include <fcntl.h>
 #include <filesystem>
+#include <thread>
+#include <string>
+#include <fstream>
 #include <stdexcept>
 #include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 namespace skyloop {
+
+std::string machine_label() {
+  std::string model = "x86-64", flags;
+  std::ifstream info("/proc/cpuinfo");
+  for (std::string line; std::getline(info, line);) {
+    const auto colon = line.find(':');
+    if (colon == std::string::npos) continue;
+    const auto start = line.find_first_not_of(" \t", colon + 1);
+    const std::string value = start == std::string::npos ? "" : line.substr(start);
+    if (line.rfind("model name", 0) == 0 && model == "x86-64") model = value;
+    if (line.rfind("flags", 0) == 0 && flags.empty()) flags = " " + value + " ";
+  }
+  if (flags.find(" avx512f ") != std::string::npos) model += " (AVX-512)";
+  else if (flags.find(" avx2 ") != std::string::npos) model += " (AVX2)";
+  const unsigned hw = std::thread::hardware_concurrency();
+  return std::to_string(hw == 0 ? 1u : hw) + "-core " + model;
+}
+
 
 namespace {
 

@@ -13,6 +13,11 @@
 
 namespace skyloop {
 
+/// This machine as the benchmark rows name it (the words of scripts/bench_report.py): its hardware
+/// threads, the CPU's model name and its widest vector extension, e.g. "2-core AMD EPYC (AVX2)".
+/// It goes beside a long run's time in the records that state it (bench baselines' trainings.csv).
+std::string machine_label();
+
 /// Installs the handlers described above (idempotent). The CLI calls it first thing.
 void install_interrupt_handlers();
 

@@ -7,10 +7,10 @@
 #include <cstring>
 #include <fcntl.h>
 #include <filesystem>
-#include <thread>
-#include <string>
 #include <fstream>
 #include <stdexcept>
+#include <string>
+#include <thread>
 #include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -33,7 +33,6 @@ std::string machine_label() {
   const unsigned hw = std::thread::hardware_concurrency();
   return std::to_string(hw == 0 ? 1u : hw) + "-core " + model;
 }
-
 
 namespace {
 

@@ -99,11 +99,9 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 // per environment step at N = 3, MAPPO / IPPO 9e-5 s on the fast backend (2e6 steps at K = 12:
 // 190-215 s; 10x that on marl.backend = torch), VDN 8.7e-5 and QMIX 1.1e-4 (LibTorch; 204 s and
 // 251 s), growing as N^1.3, plus 9.2e-7 per user (K = 24: 245 s; N = 16, K = 400 at 1.16e-3 a
-// step); the set encoder, its validation layouts and the larger networks it feeds add 4e-4 on
-// average over a run of 2e5 steps (274-613 us a step by oracle and mobility) and 8e-4 over 2e6 (a
-// step costs more as training goes on, new users every episode keeping the oracle's cache cold:
-// the paper profile's 2e6-step runs with 20 validation layouts averaged 935 us a step, their
-// running average falling from 2,237 to 1,070 steps/s), its move gains (marl.lookahead) 1e-4 and each
+// step); the set encoder, its validation layouts and the larger networks it feeds add 4.5e-4 (2e5
+// steps: 274-613 us a step by oracle and mobility; the paper profile's 2e6-step runs with new users
+// every episode and 20 validation layouts: 1,157 s, 579 us a step), its move gains (marl.lookahead) 1e-4 and each
 // cell of its radio map 1.2e-5 (marl.rate_map = 3 and the UAVs in turn: 959 us a step); the
 // shared spectrum's interference-aware oracle 3e-5; plus 3 s per run for the child process's
 // start, its models and the policy's last evaluation. Where the kernels run on AVX-512, 0.7x (the
@@ -120,10 +118,9 @@ double marl_cost(const Config& cfg) {
                       : m.backend == PpoBackend::Torch                    ? 9e-4
                                                                            : 9e-5;
   const bool set = m.encoder == ObservationKind::Set;
-  const double set_step = 4e-4 * (1.0 + std::min(static_cast<double>(m.total_steps), 2e6) / 2e6);
   const double cells = 2.0 * m.rate_map * (m.rate_map + 1);
   const double per_step = base * std::pow(cfg.scenario.uavs / 3.0, 1.3) + 9.2e-7 * cfg.scenario.users +
-                          (set ? set_step + (m.lookahead ? 1e-4 : 0.0) + 1.2e-5 * cells : 0.0) +
+                          (set ? 4.5e-4 + (m.lookahead ? 1e-4 : 0.0) + 1.2e-5 * cells : 0.0) +
                           (cfg.channel.spectrum == Spectrum::Shared ? 3e-5 : 0.0);
   return kMarlRunSetup + marl_machine() * per_step * static_cast<double>(m.total_steps);
 }

@@ -98,11 +98,18 @@ def test_killed_rank_resumes_from_the_cache(single, tmp_path):
     out = tmp_path / "run"
     job = subprocess.Popen(mpirun(2) + [BIN, *ARGS, "--out", str(out)], stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
-    # Kill rank 1 once it is into the MARL runs (phase 1, some pieces done, others not).
+    # Kill rank 1 once it is into the MARL runs (phase 1) and a phase-1 piece is sealed: some pieces
+    # done, others not. The farm hands out the costliest ready piece first, so both ranks may start
+    # on MARL runs and finish nothing for a while; a seal written after rank 1's first MARL run began
+    # is a finished phase-1 piece (phase 0 ends before phase 1 starts).
     log = out / "farm" / "rank1.log"
+    seals = lambda: len(list((out / "seals").glob("*.json"))) if (out / "seals").is_dir() else 0
+    at_marl = None
     deadline = time.time() + 300
     while time.time() < deadline and job.poll() is None:
-        if log.exists() and "steps) in" in log.read_text():  # "training mappo (K = 12, seed 1, 1024 steps) in ..."
+        if at_marl is None and log.exists() and "steps) in" in log.read_text():  # "training mappo (K = 12, ...) in"
+            at_marl = seals()
+        if at_marl is not None and seals() > at_marl:
             break
         time.sleep(0.05)
     assert job.poll() is None, "the job ended before rank 1 was killed: " + job.communicate()[1][-2000:]

@@ -12,7 +12,7 @@ namespace skyloop::cli {
 namespace {
 struct Opts {
   ReproduceOptions r;
-  std::string only, shard;
+  std::string only, shard, time_limit;
   bool mpi = false, plan = false;
 };
 
@@ -54,6 +54,10 @@ void add_reproduce_command(CLI::App& app, Action& action) {
                   "run only slice i of n of the pieces and assemble nothing (a Slurm array task: "
                   "--shard $((SLURM_ARRAY_TASK_ID+1))/$SLURM_ARRAY_TASK_COUNT); a later run without --shard assembles")
       ->type_name("I/N");
+  cmd->add_option("--time-limit", o->time_limit,
+                  "start no piece that its estimate (x1.3) says would end after this long from the start, e.g. 2h50m, "
+                  "45m or a Slurm job's HH:MM:SS; pieces left: exit status 75, and the same command goes on from the cache")
+      ->type_name("DURATION");
   cmd->add_flag("--mpi", o->mpi, "use MPI even when no MPI launcher is detected (under mpirun it is on by itself)");
   cmd->add_flag("--plan", o->plan,
                 "compute nothing: print every piece (phase, id, kind, estimated seconds, done, dependencies) as CSV");
@@ -65,6 +69,7 @@ void add_reproduce_command(CLI::App& app, Action& action) {
       set_interrupt_hint(kReproduceInterruptHint);
       if (!o->only.empty()) o->r.only = split_methods(o->only, "--only");
       if (!o->shard.empty()) parse_shard(o->shard, o->r.shard_index, o->r.shard_count);
+      if (!o->time_limit.empty()) o->r.time_limit = parse_time_limit(o->time_limit);
       const auto transport = open_transport(o->mpi);
       const int rank = transport ? transport->rank() : 0;
       o->r.transport = transport.get();
@@ -74,7 +79,7 @@ void add_reproduce_command(CLI::App& app, Action& action) {
         return reproduce(o->r);
       }
       const int rc = on_every_rank(transport.get(), [&] { return reproduce(o->r); });
-      if (rank != 0) return rc;
+      if (rank != 0 || rc == kTimeLimitExit) return rc;
       const std::string out = o->r.out_dir.empty() ? "results/" + o->r.profile : o->r.out_dir;
       if (o->r.shard_count > 0)
         std::cout << "reproduce (" << o->r.profile << "): shard " << o->r.shard_index << "/" << o->r.shard_count

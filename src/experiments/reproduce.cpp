@@ -13,6 +13,7 @@
 #include "skyloop/experiments/reproduce.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <condition_variable>
 #include <exception>
@@ -86,20 +87,26 @@ class Runner {
 
     if (opt_.force && ctx_.write_outputs) forget(models);
     if (t_) t_->barrier();  // workers start once rank 0 has cleaned up
-    run_phase(0, models);
-    if (failed_) throw_failures();  // rank 0; under MPI the CLI then ends every rank
-    for (const auto* s : models) stage_kind(s->kind).assemble(ctx_, *s);  // every process loads the models
-    if (opt_.force && ctx_.write_outputs) forget(others);
-    if (t_) t_->barrier();
-    run_phase(1, others);
-    if (shard_) {
-      log_ << fmt::format("shard {}/{} done in {:.1f} s; assemble with the same command without --shard\n", opt_.shard_index,
-                          opt_.shard_count, since(t_all));
-      return failed_ ? 1 : 0;
+    try {
+      run_phase(0, models);
+      if (failed_) throw_failures();  // rank 0; under MPI the CLI then ends every rank
+      for (const auto* s : models) stage_kind(s->kind).assemble(ctx_, *s);  // every process loads the models
+      models_ready_ = true;
+      if (opt_.force && ctx_.write_outputs) forget(others);
+      if (t_) t_->barrier();
+      run_phase(1, others);
+      if (!time_left_.empty()) return stop_at_time_limit(models, others, time_left_);
+      if (shard_) {
+        log_ << fmt::format("shard {}/{} done in {:.1f} s; assemble with the same command without --shard\n", opt_.shard_index,
+                            opt_.shard_count, since(t_all));
+        return failed_ ? 1 : 0;
+      }
+      if (rank_ != 0) return 0;
+      if (failed_) throw_failures();
+      assemble(selected, since(t_all), t_all);
+    } catch (const TimeLimitReached& e) {
+      return stop_at_time_limit(models, others, e.what());
     }
-    if (rank_ != 0) return 0;
-    if (failed_) throw_failures();
-    assemble(selected, since(t_all), t_all);
     return 0;
   }
 
@@ -113,6 +120,26 @@ class Runner {
   bool shard_;
   std::size_t failed_ = 0;
   std::string first_failure_;
+  bool models_ready_ = false;  // phase 1's pieces can be planned (their keys hold the models' bytes)
+  std::string time_left_;      // the first piece --time-limit kept the pool from starting
+
+  /// --time-limit left pieces: one line (how many, their estimated core-seconds, the next one)
+  /// and kTimeLimitExit. Nothing is assembled; every finished piece is cached.
+  int stop_at_time_limit(const std::vector<const ExperimentSpec*>& models, const std::vector<const ExperimentSpec*>& others,
+                         const std::string& next) {
+    if (rank_ != 0 && !shard_) return kTimeLimitExit;
+    std::size_t left = 0;
+    double cost = 0;
+    for (const auto& p : plan(models_ready_ ? others : models))
+      if (!p.done()) ++left, cost += p.cost;
+    log_ << fmt::format("time limit: stopped after {:.0f} s of --time-limit {:.0f} s with {} pieces{} left (about {:.0f} "
+                        "core-s by their estimates), the next being {}; the finished ones are cached: run the same command "
+                        "again to go on\n",
+                        ctx_.elapsed(), opt_.time_limit, left, models_ready_ ? "" : " of the models stage and the figures'",
+                        cost, next)
+         << std::flush;
+    return kTimeLimitExit;
+  }
   nlohmann::json farm_ = nlohmann::json::array();
 
   std::vector<const ExperimentSpec*> select(const std::vector<ExperimentSpec>& specs) const {
@@ -214,12 +241,19 @@ class Runner {
            << std::flush;
       std::size_t n = 0;
       for (std::size_t t : mine) {
+        if (!ctx_.fits(tasks[t].cost) && !pieces[open_pieces[t]].done()) {  // --time-limit: a later piece may fit
+          if (time_left_.empty()) time_left_ = tasks[t].label;
+          ++n;
+          continue;
+        }
         const auto t0 = Clock::now();
         try {
           work(t);
           log_ << fmt::format("  piece {}/{} done: {} {} ({:.1f} s)\n", ++n, mine.size(), tasks[t].kind, tasks[t].label, since(t0))
                << std::flush;
         } catch (const InputError&) {
+          throw;
+        } catch (const TimeLimitReached&) {
           throw;
         } catch (const std::exception& e) {
           note_failure(tasks[t].id, e.what());
@@ -371,16 +405,24 @@ class Runner {
     std::streambuf* const shown = ctx_.log.rdbuf(&locked);
     std::ostream out(&locked);
     pool.out = &out;
-    pool.taken.assign(pool.evals.size(), 0);
+    pool.run_taken.assign(pool.runs.size(), kOpen);
+    pool.taken.assign(pool.evals.size(), kOpen);
     pool.t0 = Clock::now();
     std::vector<std::thread> threads;
     for (int j = 0; j < jobs_; ++j) threads.emplace_back([this, &pool] { work(pool); });
     for (auto& t : threads) t.join();
     ctx_.log.rdbuf(shown);
+    // --time-limit: the first piece the pool could not start (the run stops before the assembly).
+    for (std::size_t r = 0; r < pool.runs.size() && time_left_.empty(); ++r)
+      if (pool.run_taken[r] == kSkipped) time_left_ = pool.runs[r]->label;
+    for (std::size_t e = 0; e < pool.evals.size() && time_left_.empty(); ++e)
+      if (pool.taken[e] == kSkipped) time_left_ = pool.evals[e]->label;
     if (!pool.failed.empty())
       throw std::runtime_error(fmt::format("{} of {} MARL runs failed; see {}", pool.failed.size(), pool.runs.size(), pool.failed.front()));
     if (pool.error) std::rethrow_exception(pool.error);
   }
+
+  enum : char { kOpen = 0, kTaken = 1, kSkipped = 2 };
 
   /// What prefetch's workers share; everything after `mu` is guarded by it.
   struct Pool {
@@ -390,8 +432,8 @@ class Runner {
     Clock::time_point t0;
     std::mutex mu;
     std::condition_variable changed;
-    std::size_t next_run = 0, running = 0, runs_done = 0, evals_done = 0;
-    std::vector<char> taken;                         // per evaluation: a worker has it
+    std::size_t running = 0, runs_done = 0, evals_done = 0;
+    std::vector<char> run_taken, taken;              // per run and evaluation: kOpen, kTaken or kSkipped
     std::unordered_map<std::string, char> finished;  // ids of pieces this pool completed
     double busy = 0;
     std::vector<std::string> failed;
@@ -461,7 +503,7 @@ class Runner {
   void evaluate_piece(Pool& pool, const Piece& piece, bool counted) {
     const auto te = Clock::now();
     try {
-      ctx_.ensure(piece);
+      ctx_.ensure(piece, false);  // the pool admitted it under --time-limit
     } catch (...) {
       std::lock_guard<std::mutex> lock(pool.mu);
       if (!pool.error) pool.error = std::current_exception();
@@ -476,7 +518,8 @@ class Runner {
               << std::flush;
   }
 
-  /// One worker: the runs first, in order, then any evaluation whose inputs are ready.
+  /// One worker: the runs first, in order, then any evaluation whose inputs are ready. Under
+  /// --time-limit a piece that no longer fits is skipped for good (the time left only shrinks).
   void work(Pool& pool) {
     set_torch_threads(1);  // one core per worker, denormals flushed as on the main thread
     std::unique_lock<std::mutex> lock(pool.mu);
@@ -484,14 +527,25 @@ class Runner {
       if (pool.error) return;
       const Piece* run = nullptr;
       const Piece* eval = nullptr;
-      if (pool.next_run < pool.runs.size()) {
-        run = pool.runs[pool.next_run++];
-      } else {
+      bool runs_open = false;
+      for (std::size_t r = 0; r < pool.runs.size() && !run; ++r) {
+        if (pool.run_taken[r] != kOpen) continue;
+        if (!ctx_.fits(pool.runs[r]->cost) && !trained(*pool.runs[r])) {
+          pool.run_taken[r] = kSkipped;
+          continue;
+        }
+        pool.run_taken[r] = kTaken, run = pool.runs[r], runs_open = true;
+      }
+      if (!runs_open) {
         std::size_t open = 0;
         for (std::size_t e = 0; e < pool.evals.size() && !eval; ++e) {
-          if (pool.taken[e]) continue;
+          if (pool.taken[e] != kOpen) continue;
+          if (ready(pool, e) && !ctx_.fits(pool.evals[e]->cost) && !pool.evals[e]->done()) {
+            pool.taken[e] = kSkipped;
+            continue;
+          }
           ++open;
-          if (ready(pool, e)) pool.taken[e] = 1, eval = pool.evals[e];
+          if (ready(pool, e)) pool.taken[e] = kTaken, eval = pool.evals[e];
         }
         if (!eval) {
           // Nothing to start: done, or wait for a running piece that may make one ready.
@@ -586,6 +640,11 @@ int reproduce(const ReproduceOptions& o) {
     throw InputError("--shard under an MPI job of several ranks: allowed one or the other");
   if (opt.shard_count > 0 && opt.force)
     throw InputError("--force with --shard: allowed only in a run without --shard (shards would delete each other's work)");
+  if (!std::isfinite(opt.time_limit) || opt.time_limit < 0)
+    throw InputError(fmt::format("--time-limit = {} s is out of range: allowed a finite duration above 0", opt.time_limit));
+  if (opt.time_limit > 0 && opt.transport && opt.transport->size() > 1)
+    throw InputError("--time-limit under an MPI job of several ranks: allowed in one process or with --shard (one rank "
+                     "cannot stop alone; a Slurm array gives each task its own limit)");
   if (opt.out_dir.empty()) opt.out_dir = "results/" + opt.profile;
   check_output_dir(opt.out_dir);
   if (opt.experiments_dir.empty()) opt.experiments_dir = (fs::path(source_dir()) / "configs" / "experiments").string();
@@ -605,13 +664,72 @@ int reproduce(const ReproduceOptions& o) {
     rank_log << fmt::format("rank {} of {}, pid {}\n", rank, ranks, static_cast<long>(::getpid())) << std::flush;
   }
   const int rc = Runner(opt, *log, threads, jobs).run(specs);
-  if (rank != 0 || opt.shard_count > 0 || opt.plan_out || !opt.plots) return rc;
+  if (rank != 0 || opt.shard_count > 0 || opt.plan_out || !opt.plots || rc != 0) return rc;
   const std::string script = (fs::path(source_dir()) / "scripts" / "plot_figures.py").string();
   const std::string cmd = fmt::format("'{}' '{}' '{}'", opt.python, script, opt.out_dir);
   if (opt.progress) *opt.progress << "plots and report: " << cmd << "\n" << std::flush;
   const int prc = run_process({opt.python, script, opt.out_dir});
   if (prc != 0) throw std::runtime_error("the plot step failed (" + cmd + "); the CSVs under " + opt.out_dir + " are complete");
   return 0;
+}
+
+double parse_time_limit(const std::string& text, const std::string& what) {
+  const auto bad = [&] {
+    return InputError(fmt::format("{} = '{}' is not a duration: allowed hours, minutes and seconds with their units (2h50m, "
+                                  "45m, 600s, 1.5h) or [D-]HH:MM:SS / MM:SS, above 0 and at most 365 days",
+                                  what, text));
+  };
+  // A non-negative decimal number at text[i...], advancing i; false if there is none.
+  const auto number = [&](std::size_t& i, double& v, bool integer) {
+    const std::size_t start = i;
+    while (i < text.size() && (std::isdigit(static_cast<unsigned char>(text[i])) || (!integer && text[i] == '.'))) ++i;
+    if (i == start || i - start > 12 || std::count(text.begin() + static_cast<std::ptrdiff_t>(start), text.begin() + static_cast<std::ptrdiff_t>(i), '.') > 1 ||
+        text[i - 1] == '.' || text[start] == '.')
+      return false;
+    v = std::stod(text.substr(start, i - start));
+    return true;
+  };
+  double seconds = 0;
+  std::size_t i = 0;
+  if (text.find(':') != std::string::npos) {
+    // Slurm's forms: [D-]HH:MM:SS, [D-]HH:MM, MM:SS (its bare minutes are not taken: units say which).
+    double days = 0, v = 0;
+    const auto dash = text.find('-');
+    if (dash != std::string::npos) {
+      if (!number(i, days, true) || i != dash) throw bad();
+      ++i;
+    }
+    std::vector<double> fields;
+    for (;;) {
+      if (!number(i, v, true)) throw bad();
+      fields.push_back(v);
+      if (i == text.size()) break;
+      if (text[i++] != ':') throw bad();
+    }
+    if (fields.size() < 2 || fields.size() > 3) throw bad();
+    for (std::size_t f = 1; f < fields.size(); ++f)
+      if (fields[f] >= 60) throw bad();
+    if (dash != std::string::npos)  // D-HH:MM[:SS]
+      seconds = days * 86400 + fields[0] * 3600 + fields[1] * 60 + (fields.size() == 3 ? fields[2] : 0);
+    else if (fields.size() == 3)
+      seconds = fields[0] * 3600 + fields[1] * 60 + fields[2];
+    else
+      seconds = fields[0] * 60 + fields[1];
+  } else {
+    const std::string units = "dhms";
+    const double scale[] = {86400, 3600, 60, 1};
+    std::size_t last_unit = 0;  // units in order, each at most once: 1d2h3m4s
+    while (i < text.size()) {
+      double v = 0;
+      if (!number(i, v, false) || i == text.size()) throw bad();
+      const auto u = units.find(text[i++]);
+      if (u == std::string::npos || u + 1 <= last_unit) throw bad();
+      last_unit = u + 1;
+      seconds += v * scale[u];
+    }
+  }
+  if (!(seconds > 0) || seconds > 365.0 * 86400) throw bad();
+  return seconds;
 }
 
 }  // namespace skyloop

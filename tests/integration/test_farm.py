@@ -150,6 +150,40 @@ def test_shards_then_assembly_match_one_process(single, tmp_path):
     same(single, out)
 
 
+def plan(out: Path):
+    """reproduce --plan on `out`: {piece id: (estimated core-seconds, done)}."""
+    r = run([BIN, *ARGS, "--plan", "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    return {p["piece"]: (float(p["cost_estimate"]), p["done"] == "1") for p in csv.DictReader(r.stdout.splitlines())}
+
+
+def test_time_limit_stops_cleanly_and_the_same_command_goes_on(single, tmp_path):
+    """--time-limit 6s: a piece starts only while 1.3 x its estimate fits in what is left, so the
+    tiny profile's pieces estimated above 6 / 1.3 s never start (in the pool of two workers, in the
+    assembly of one, or in a shard); the run stops with exit status 75 and one line, assembles
+    nothing, and the same command without the limit finishes with the numbers of an unlimited run."""
+    out = tmp_path / "run"
+    for extra in (["--jobs", "1"], ["--jobs", "2"], ["--shard", "1/2"]):
+        r = run([BIN, *ARGS, "--threads", "2", *extra, "--time-limit", "6s", "--out", str(out)])
+        assert r.returncode == 75, (extra, r.stderr[-2000:])
+        last = r.stderr.strip().splitlines()[-1]
+        assert last.startswith("time limit: stopped after") and "the next being" in last and "run the same command" in last, last
+        assert "results in" not in r.stdout and not (out / "manifest.json").exists(), "nothing is assembled"
+        big = [pid for pid, (cost, done) in plan(out).items() if 1.3 * cost > 6]
+        assert big, "the tiny profile holds no piece the limit keeps out: the test proves nothing"
+        assert not any(plan(out)[pid][1] for pid in big), "a piece estimated beyond the limit was started"
+    r = run([BIN, *ARGS, "--threads", "2", "--out", str(out)])
+    assert r.returncode == 0, r.stderr
+    same(single, out)
+
+
+@pytest.mark.parametrize("limit", ["90", "0s", "-5m", "2m3h", "3:61:00", "400d", "abc"])
+def test_bad_time_limit_is_one_line(tmp_path, limit):
+    r = run([BIN, *ARGS, "--time-limit", limit, "--out", str(tmp_path / "o")])
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--time-limit" in r.stderr and limit in r.stderr, r.stderr
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
 @pytest.mark.parametrize("shard", ["0/2", "3/2", "1/0", "x", "1/2/3", "1-2"])
 def test_bad_shard_is_one_line(tmp_path, shard):
     r = run([BIN, *ARGS, "--shard", shard, "--out", str(tmp_path / "o")])

@@ -86,6 +86,12 @@ struct ReproduceOptions {
   double piece_seconds = 600;          // an evaluation's exact optima in pieces of about this many estimated
                                        // core-seconds (at least one layout each), spread over the workers
   bool plots = true;                   // run scripts/plot_figures.py at the end
+  /// Seconds from the start (0 = none) past which no piece may run by its estimate: a piece starts
+  /// only while the time left is at least its estimated core-seconds times kTimeLimitMargin. When
+  /// pieces are left for that reason the run stops before the assembly (or at the assembly's next
+  /// piece) with exit status kTimeLimitExit and one line; what finished is cached, and the same
+  /// command goes on from there. For a batch job's wall-time limit (a Slurm job, a lent machine).
+  double time_limit = 0;
   // Scale-out (farm.hpp). Under an MPI transport of several ranks every rank calls reproduce()
   // with the same options: the pieces run on all of them and rank 0 assembles. With shard_count
   // > 0 this process runs only slice shard_index (1-based) of the pieces and assembles nothing;
@@ -98,6 +104,15 @@ struct ReproduceOptions {
   std::string python = "/usr/bin/python3";
   std::ostream* progress = nullptr;
 };
+
+/// `reproduce`'s exit status when --time-limit left pieces to do (EX_TEMPFAIL: run it again).
+constexpr int kTimeLimitExit = 75;
+/// How much longer than its estimate a piece is allowed to take (the estimates' stated error is 30%).
+constexpr double kTimeLimitMargin = 1.3;
+
+/// Parses a --time-limit: seconds ("5400", "90.5"), a sum of hours, minutes and seconds ("2h50m",
+/// "45m", "30s"), or Slurm's [D-]HH:MM:SS / MM:SS; throws InputError naming `what` otherwise.
+double parse_time_limit(const std::string& text, const std::string& what = "--time-limit");
 
 /// Runs the experiments, writes manifest.json, config.toml and every CSV under out_dir, then the
 /// figures and report.html. Returns the process exit code of the plot step (0 if skipped).

@@ -280,7 +280,14 @@ StageContext::RunInfo StageContext::run_info(const Config& cfg) const {
   return info;
 }
 
-bool StageContext::ensure(const Piece& p) const {
+double StageContext::elapsed() const { return std::chrono::duration<double>(Clock::now() - started).count(); }
+
+bool StageContext::fits(double cost) const {
+  return opt.time_limit <= 0 || elapsed() + kTimeLimitMargin * cost <= opt.time_limit;
+}
+
+bool StageContext::ensure(const Piece& p, bool limited) const {
+  if (limited && !fits(p.cost) && !p.done()) throw TimeLimitReached(p.label);
   // The piece's own time (what it computed, less the pieces it ensured first) goes to
   // timings.csv beside its estimate: what calibrates the estimates of `reproduce --plan`.
   thread_local double nested = 0;

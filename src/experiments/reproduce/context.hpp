@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 #include <ostream>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -41,6 +42,11 @@ struct Piece {
   Config train_config;             // marl pieces: what a child `skyloop train` process gets
 };
 
+/// Thrown where --time-limit leaves no time for a piece that must run next (its label).
+struct TimeLimitReached : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
 /// The log line of a MARL run that was interrupted and starts again from scratch: the cache
 /// holds only results equal to an uninterrupted run's (a resumed beamformer training is exact and
 /// resumes; a resumed MARL run is not).
@@ -62,6 +68,7 @@ class StageContext {
   mutable std::ostream log;        // progress of the pieces and the assembly (its buffer can be redirected)
   const int threads;
   const PieceCache cache;
+  const Clock::time_point started = Clock::now();
   bool write_outputs = true;       // false on MPI ranks other than 0: they compute, rank 0 assembles
 
   // Filled by the models stage: label -> absolute path, hash of the bytes, path shown in reports.
@@ -114,8 +121,15 @@ class StageContext {
   /// A finished run's directory and timing (computing it first if needed).
   RunInfo run_info(const Config& cfg) const;
 
-  /// Runs a piece now (if it is not done) and says whether it computed anything.
-  bool ensure(const Piece& p) const;
+  /// Runs a piece now (if it is not done) and says whether it computed anything. `limited`:
+  /// throws TimeLimitReached instead of starting a piece that does not fit() (a piece the pool
+  /// admitted already, or whose training it has finished, is not judged again).
+  bool ensure(const Piece& p, bool limited = true) const;
+  /// Whether a piece of `cost` estimated core-seconds may start now under --time-limit (always
+  /// without one): the time left is at least kTimeLimitMargin times its cost.
+  bool fits(double cost) const;
+  /// Seconds since this run started.
+  double elapsed() const;
   /// Appends (piece, kind, estimate, seconds) to OUT/timings.csv (one process's pieces).
   void record_timing(const std::string& id, const std::string& kind, double estimate, double seconds) const;
 

@@ -642,9 +642,9 @@ int reproduce(const ReproduceOptions& o) {
     throw InputError("--force with --shard: allowed only in a run without --shard (shards would delete each other's work)");
   if (!std::isfinite(opt.time_limit) || opt.time_limit < 0)
     throw InputError(fmt::format("--time-limit = {} s is out of range: allowed a finite duration above 0", opt.time_limit));
-  if (opt.time_limit > 0 && opt.transport && opt.transport->size() > 1)
-    throw InputError("--time-limit under an MPI job of several ranks: allowed in one process or with --shard (one rank "
-                     "cannot stop alone; a Slurm array gives each task its own limit)");
+  if (opt.time_limit > 0 && opt.transport)
+    throw InputError("--time-limit under MPI: allowed in one process or with --shard (one rank cannot stop alone; a "
+                     "Slurm array gives each task its own limit)");
   if (opt.out_dir.empty()) opt.out_dir = "results/" + opt.profile;
   check_output_dir(opt.out_dir);
   if (opt.experiments_dir.empty()) opt.experiments_dir = (fs::path(source_dir()) / "configs" / "experiments").string();

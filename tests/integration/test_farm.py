@@ -177,6 +177,13 @@ def test_time_limit_stops_cleanly_and_the_same_command_goes_on(single, tmp_path)
     same(single, out)
 
 
+@needs_mpi
+def test_time_limit_under_mpi_is_refused(tmp_path):
+    r = run(mpirun(2) + [BIN, *ARGS, "--time-limit", "1h", "--out", str(tmp_path / "o")])
+    assert r.returncode == 2 and "skyloop: error: --time-limit under MPI" in r.stderr, r.stderr
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize("limit", ["90", "0s", "-5m", "2m3h", "3:61:00", "400d", "abc"])
 def test_bad_time_limit_is_one_line(tmp_path, limit):
     r = run([BIN, *ARGS, "--time-limit", limit, "--out", str(tmp_path / "o")])

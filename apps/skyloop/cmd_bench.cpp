@@ -21,6 +21,7 @@
 #include "skyloop/env/layouts.hpp"
 #include "skyloop/env/spec.hpp"
 #include "skyloop/experiments/builtin.hpp"
+#include "skyloop/experiments/reproduce.hpp"
 #include "skyloop/marl/learners.hpp"
 #include "skyloop/marl/marl.hpp"
 #include "skyloop/nn/learned.hpp"
@@ -82,7 +83,7 @@ bool trained_to(const std::string& dir, std::int64_t steps) {
 }
 
 struct BenchCliOptions {
-  std::string task, sample = "5", planners, seeds, label, out, threads, learners, steps, jobs;
+  std::string task, sample = "5", planners, seeds, label, out, threads, learners, steps, jobs, time_limit;
   std::vector<std::string> policies;
   bool all = false, write = false, force = false;
 };
@@ -199,6 +200,8 @@ int bench_baselines(const BenchCliOptions& o) {
     for (int s = 1; s <= t.protocol.seeds; ++s) seeds.push_back(static_cast<std::uint64_t>(s));
   const std::int64_t steps = o.steps.empty() ? t.protocol.budget_steps
                                               : static_cast<std::int64_t>(parse_count("--steps", o.steps, 1, std::uint64_t{1} << 40));
+  const double time_limit = o.time_limit.empty() ? 0.0 : parse_time_limit(o.time_limit);
+  const auto started = std::chrono::steady_clock::now();
   check_output_dir(o.out);  // every argument checked before anything is written
   RunDirLock lock(o.out);
   BenchRunOptions planners;
@@ -208,7 +211,6 @@ int bench_baselines(const BenchCliOptions& o) {
     if (why.empty()) planners.planners.push_back(p);
     else skipped += fmt::format("{}: not run ({})\n", p, why);
   }
-  std::vector<BenchRow> rows = run_bench(t, planners, &std::cerr);
   // Each learner's configuration is checked first: one that cannot run the task's settings is a
   // row of its own, saying why (and is not trained).
   auto learner_config = [&](const std::string& algo, std::uint64_t seed) {
@@ -245,6 +247,26 @@ int bench_baselines(const BenchCliOptions& o) {
   // trained over several sessions lists each part): how long it took, beside what, and where.
   const std::string record = o.out + "/trainings.csv";
   const std::string machine = machine_label();
+  // --time-limit: a training starts only while 1.3 x its expected seconds fit in the time left.
+  // Expected: the longest uninterrupted training of the same learner and budget this board has
+  // recorded (beside as many others, if any such), else reproduce's estimate for one core.
+  auto expected = [&](const Job& j, const Config& cfg) {
+    double same_jobs = 0, any = 0;
+    if (fs::exists(record)) {
+      const auto table = CsvTable::parse(read_file(record, "training record"), record);
+      for (std::size_t r = 0; r < table.size(); ++r) {
+        if (table.at(r, "task") != t.id || table.at(r, "algo") != j.algo || table.at(r, "steps") != std::to_string(steps) ||
+            table.at(r, "resumed") != "0")
+          continue;
+        const double sec = table.number(r, "seconds");
+        any = std::max(any, sec);
+        if (table.at(r, "jobs") == std::to_string(jobs)) same_jobs = std::max(same_jobs, sec);
+      }
+    }
+    return same_jobs > 0 ? same_jobs : any > 0 ? any : marl_run_estimate(cfg);
+  };
+  auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count(); };
+  std::vector<std::string> left;  // trainings the time limit kept from starting
   auto record_training = [&](const Job& j, double seconds, bool resumed) {
     std::string csv = fs::exists(record) ? read_file(record, "training record")
                                          : "task,algo,seed,steps,seconds,resumed,jobs,threads,finished_utc,machine,skyloop\n";
@@ -264,6 +286,15 @@ int bench_baselines(const BenchCliOptions& o) {
     const Job& j = pending[i];
     Config cfg = learner_config(j.algo, j.seed);
     cfg.run.threads = threads;
+    if (time_limit > 0) {
+      std::lock_guard<std::mutex> hold(mu);
+      const double need = expected(j, cfg);
+      if (elapsed() + kTimeLimitMargin * need > time_limit) {
+        left.push_back(fmt::format("{} seed {} (about {:.0f} s)", j.algo, j.seed, need));
+        ++finished;
+        return;
+      }
+    }
     fs::create_directories(fs::path(j.dir).parent_path());
     const std::string request = j.dir + ".request.toml", log = j.dir + ".log";
     write_file_atomic(request, to_toml(cfg));
@@ -288,6 +319,15 @@ int bench_baselines(const BenchCliOptions& o) {
   if (!failed.empty())
     throw std::runtime_error(fmt::format("bench baselines {}: {} of {} trainings failed: {}; a rerun resumes every run", t.id,
                                          failed.size(), pending.size(), fmt::join(failed, ", ")));
+  if (!left.empty()) {
+    std::cerr << fmt::format("time limit: stopped after {:.0f} s of --time-limit {:.0f} s with {} of {} trainings left ({}); "
+                             "nothing is scored yet: run the same command again to go on\n",
+                             elapsed(), time_limit, left.size(), pending.size(), fmt::join(left, ", "));
+    return kTimeLimitExit;
+  }
+  // The planners are scored once every training is done (a board trained over several calls
+  // scores them once, last).
+  std::vector<BenchRow> rows = run_bench(t, planners, &std::cerr);
   for (const auto& algo : runnable) {
     BenchRunOptions p;
     for (const auto seed : seeds) p.policies.push_back(fmt::format("{}/train/{}-s{}", o.out, algo, seed));
@@ -339,6 +379,10 @@ void add_bench_command(CLI::App& app, Action& action) {
   base->add_option("--seeds", o->seeds, "training seeds (default 1..the protocol's seeds)");
   base->add_option("--steps", o->steps, "training steps (default the protocol's budget; another is labelled off-protocol)");
   base->add_option("--jobs", o->jobs, "trainings at a time, each a child process on its share of the hardware threads (default 1)");
+  base->add_option("--time-limit", o->time_limit,
+                   "start no training that would end after this long (e.g. 2h45m, or HH:MM:SS), judged by the board's "
+                   "trainings.csv (else reproduce's estimate) x1.3; trainings left: exit status 75, nothing scored")
+      ->type_name("DURATION");
   base->final_callback([&action, o] { action = [o] { return bench_baselines(*o); }; });
 }
 

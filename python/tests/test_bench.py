@@ -180,6 +180,19 @@ def test_baselines_train_score_and_label_a_short_budget(tmp_path):
     assert sorted((m["algo"], m["seed"], m["steps"], m["resumed"], m["jobs"]) for m in made) == \
         [("mappo", "1", "2048", "0", "2"), ("mappo", "2", "2048", "0", "2")]
     assert all(float(m["seconds"]) > 0 and "-core " in m["machine"] and m["task"] == "paper-v1" for m in made)
+    # --time-limit: a training starts only while 1.3 x the board's longest recorded one of the same
+    # learner and budget fits in what is left; a third seed cannot fit in 0.1 s, so nothing is
+    # trained or scored (the board's files stay as they were) and the command exits 75 saying so.
+    rows_before = (par / "rows.csv").read_text()
+    r = run_cli("bench", "baselines", "paper-v1", "--learners", "mappo", "--seeds", "1,2,3", "--steps", "2048", "--jobs", "2",
+                "--time-limit", "0.1s", "--out", str(par))
+    assert r.returncode == 75, r.stderr[-2000:]
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.startswith("time limit: stopped after") and "1 of 1 trainings left (mappo seed 3" in last, last
+    assert not (par / "train" / "mappo-s3").exists() and (par / "rows.csv").read_text() == rows_before
+    assert len(list(csv.DictReader(open(par / "trainings.csv")))) == 2
+    r = run_cli("bench", "baselines", "paper-v1", "--time-limit", "90", "--out", str(par))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--time-limit = '90'" in r.stderr, r.stderr
 
 
 def test_baselines_say_which_learner_cannot_run_a_task(tmp_path):

@@ -114,6 +114,10 @@ constexpr double kTimeLimitMargin = 1.3;
 /// "45m", "30s"), or Slurm's [D-]HH:MM:SS / MM:SS; throws InputError naming `what` otherwise.
 double parse_time_limit(const std::string& text, const std::string& what = "--time-limit");
 
+/// Reproduce's estimate of one MARL training run of `cfg` on one core, in seconds (its cost model,
+/// fitted to the quick profile's runs; the order of its pieces, --plan and --time-limit use it).
+double marl_run_estimate(const Config& cfg);
+
 /// Runs the experiments, writes manifest.json, config.toml and every CSV under out_dir, then the
 /// figures and report.html. Returns the process exit code of the plot step (0 if skipped).
 int reproduce(const ReproduceOptions& opt);

@@ -337,3 +337,7 @@ void StageContext::write(const fs::path& relative_path, const std::string& text)
 }
 
 }  // namespace skyloop::repro
+
+namespace skyloop {
+double marl_run_estimate(const Config& cfg) { return repro::marl_cost(cfg); }
+}  // namespace skyloop

@@ -289,7 +289,7 @@ int bench_baselines(const BenchCliOptions& o) {
     if (time_limit > 0) {
       std::lock_guard<std::mutex> hold(mu);
       const double need = expected(j, cfg);
-      if (elapsed() + kTimeLimitMargin * need > time_limit) {
+      if (!fits_time_limit(elapsed(), need, time_limit)) {
         left.push_back(fmt::format("{} seed {} (about {:.0f} s)", j.algo, j.seed, need));
         ++finished;
         return;

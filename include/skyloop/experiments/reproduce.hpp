@@ -109,6 +109,11 @@ struct ReproduceOptions {
 constexpr int kTimeLimitExit = 75;
 /// How much longer than its estimate a piece is allowed to take (the estimates' stated error is 30%).
 constexpr double kTimeLimitMargin = 1.3;
+/// Whether work estimated at `cost` seconds may start `elapsed` seconds into a run limited to
+/// `limit` seconds (0: no limit): the rule of every --time-limit.
+inline bool fits_time_limit(double elapsed, double cost, double limit) {
+  return limit <= 0 || elapsed + kTimeLimitMargin * cost <= limit;
+}
 
 /// Parses a --time-limit: seconds ("5400", "90.5"), a sum of hours, minutes and seconds ("2h50m",
 /// "45m", "30s"), or Slurm's [D-]HH:MM:SS / MM:SS; throws InputError naming `what` otherwise.

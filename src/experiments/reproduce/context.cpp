@@ -283,7 +283,7 @@ StageContext::RunInfo StageContext::run_info(const Config& cfg) const {
 double StageContext::elapsed() const { return std::chrono::duration<double>(Clock::now() - started).count(); }
 
 bool StageContext::fits(double cost) const {
-  return opt.time_limit <= 0 || elapsed() + kTimeLimitMargin * cost <= opt.time_limit;
+  return fits_time_limit(elapsed(), cost, opt.time_limit);
 }
 
 bool StageContext::ensure(const Piece& p, bool limited) const {

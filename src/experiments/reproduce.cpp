@@ -683,10 +683,11 @@ double parse_time_limit(const std::string& text, const std::string& what) {
   const auto number = [&](std::size_t& i, double& v, bool integer) {
     const std::size_t start = i;
     while (i < text.size() && (std::isdigit(static_cast<unsigned char>(text[i])) || (!integer && text[i] == '.'))) ++i;
-    if (i == start || i - start > 12 || std::count(text.begin() + static_cast<std::ptrdiff_t>(start), text.begin() + static_cast<std::ptrdiff_t>(i), '.') > 1 ||
-        text[i - 1] == '.' || text[start] == '.')
+    const std::string digits = text.substr(start, i - start);
+    if (digits.empty() || digits.size() > 12 || std::count(digits.begin(), digits.end(), '.') > 1 || digits.front() == '.' ||
+        digits.back() == '.')
       return false;
-    v = std::stod(text.substr(start, i - start));
+    v = std::stod(digits);
     return true;
   };
   double seconds = 0;

@@ -431,13 +431,24 @@ TEST(Reproduce, TinyRunWritesEveryFigureAndReport) {
     for (const auto& [x, m] : mean) EXPECT_GE(m.at("nwmmse"), m.at("wmmse")) << "x = " << x;
   }
 
-  // Second run: nothing is recomputed (no training, every sweep point cached), same CSVs.
+  // Second run, on the directory as a copy without its lock files would have it (a git clone, an
+  // rsync that leaves them out): nothing is recomputed (no training, every sweep point cached),
+  // same CSVs. The seals used to list the runs' .skyloop.lock, so every MARL run trained again.
+  {
+    std::vector<fs::path> locks;
+    for (const auto& e : fs::recursive_directory_iterator(out))
+      if (e.path().filename() == ".skyloop.lock") locks.push_back(e.path());
+    ASSERT_FALSE(locks.empty());
+    for (const auto& p : locks) fs::remove(p);
+    fs::remove_all(out / "locks");
+  }
   const std::string before = slurp(out / "power_sweep" / "power_sweep.csv");
   const std::string curves = slurp(out / "marl_training" / "curves.csv");
   const auto again = run("reproduce --profile tiny --threads 2 --no-plots --out " + out.string(), out / "logs2");
   ASSERT_EQ(again.code, 0) << again.err;
   EXPECT_EQ(again.err.find("  training "), std::string::npos) << again.err;
   EXPECT_EQ(again.err.find("MARL runs"), std::string::npos) << again.err;
+  EXPECT_EQ(again.err.find("changed on disk"), std::string::npos) << again.err;
   EXPECT_NE(again.err.find("channel.p_max_dbm = 10 (cached)"), std::string::npos) << again.err;
   EXPECT_EQ(slurp(out / "power_sweep" / "power_sweep.csv"), before);
   EXPECT_EQ(slurp(out / "marl_training" / "curves.csv"), curves);

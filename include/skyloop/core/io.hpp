@@ -30,6 +30,8 @@ void check_output_dir(const std::string& dir, const std::string& flag = "--out")
 /// of a process that dies, so a killed run never blocks the next.
 class RunDirLock {
  public:
+  /// The lock file's name in the directory: bookkeeping, never part of a run's results.
+  static constexpr const char* kFile = ".skyloop.lock";
   RunDirLock() = default;
   /// Creates `dir` if needed and takes its lock, or throws InputError naming `flag` and the
   /// directory when another process (or another run in this one) holds it.

@@ -69,14 +69,20 @@ class FileLock {
 }  // namespace
 
 namespace {
+/// A run directory's lock file: bookkeeping, not a result. A seal neither lists one nor checks one
+/// an earlier version listed, so a piece copied without its lock files (a clone, an rsync that
+/// leaves them out) still holds.
+bool is_run_lock(const fs::path& p) { return p.filename() == RunDirLock::kFile; }
+
 /// Every regular file under `at` (itself, when a file), as paths relative to `at`, sorted; the
-/// temporaries of atomic writes (NAME.tmp.PID, NAME.bak.PID) left out.
+/// temporaries of atomic writes (NAME.tmp.PID, NAME.bak.PID) and the run directories' lock files
+/// left out.
 std::vector<std::string> files_under(const fs::path& at) {
   std::vector<std::string> out;
   std::error_code ec;
   auto keep = [](const fs::path& p) {
     const std::string n = p.filename().string();
-    return n.find(".tmp.") == std::string::npos && n.find(".bak.") == std::string::npos;
+    return n.find(".tmp.") == std::string::npos && n.find(".bak.") == std::string::npos && !is_run_lock(p);
   };
   if (fs::is_regular_file(at, ec)) {
     if (keep(at)) out.push_back("");
@@ -115,7 +121,7 @@ bool PieceCache::sealed(const std::string& id) const {
     if (j.value("id", std::string()) != id || !j.contains("files") || !j.at("files").is_object()) return false;
     const fs::path at = root_ / id;
     for (const auto& [rel, stamp] : j.at("files").items())
-      if (file_stamp(rel.empty() ? at : at / rel) != stamp) return false;
+      if (!is_run_lock(rel) && file_stamp(rel.empty() ? at : at / rel) != stamp) return false;
   } catch (const std::exception&) {
     return false;  // an unreadable seal: the piece is computed again
   }

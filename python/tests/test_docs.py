@@ -215,3 +215,27 @@ def test_one_version_everywhere():
     assert re.search(rf"^version: {re.escape(version)}$", (ROOT / "CITATION.cff").read_text(), re.M)
     releases = re.findall(r"^## \[(\d+\.\d+\.\d+)\]", (ROOT / "CHANGELOG.md").read_text(), re.M)
     assert releases and releases[0] == version
+
+
+@pytest.mark.parametrize("args, expected", [
+    ([], "--profile quick --out results/quick"),
+    (["--force"], "--profile quick --out results/quick --force"),
+    (["paper", "--time-limit", "2h"], "--profile paper --out results/paper --time-limit 2h"),
+    (["tiny"], "--profile tiny --out results/tiny"),
+])
+def test_the_main_job_takes_a_profile_then_reproduces_options(tmp_path, args, expected):
+    """`scripts/reproduce [PROFILE] [OPTIONS]`, as the README and the benchmark page's row
+    (`scripts/reproduce --force`) call it: an option in first place is passed on, not read as the
+    profile. Run in a copy whose install, build and binary only echo what they are given."""
+    (tmp_path / "scripts").mkdir()
+    (tmp_path / "build").mkdir()
+    script = tmp_path / "scripts" / "reproduce"
+    script.write_text((ROOT / "scripts" / "reproduce").read_text())
+    for stub, body in ((tmp_path / "scripts" / "install-deps", "true"), (tmp_path / "scripts" / "build", "true"),
+                       (tmp_path / "build" / "skyloop", 'echo "$*"')):
+        stub.write_text(f"#!/usr/bin/env bash\n{body}\n")
+    for f in (script, tmp_path / "scripts" / "install-deps", tmp_path / "scripts" / "build", tmp_path / "build" / "skyloop"):
+        f.chmod(0o755)
+    r = subprocess.run([str(script), *args], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "reproduce " + expected

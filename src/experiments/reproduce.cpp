@@ -290,7 +290,7 @@ class Runner {
   /// One line before a phase's work: how many pieces are left, their estimated core-seconds
   /// (`--plan`'s estimates) and the wall time and clock time that gives on `workers` cores. In one
   /// process (`in_turn`) only the MARL runs and evaluations share the workers; a sweep's chunks
-  /// follow one after another in the assembly (each on --threads cores, prefetch).
+  /// follow one after another in the assembly, each on --threads cores (prefetch).
   void announce(int phase, const std::vector<Piece>& pieces, int workers, bool in_turn) {
     double work = 0, shared = 0;
     std::size_t left = 0;
@@ -300,7 +300,7 @@ class Runner {
         if (!in_turn || p.kind == "marl" || p.kind == "eval") shared += p.cost;
       }
     if (left == 0) return;
-    const double wall = shared / workers + (work - shared);
+    const double wall = shared / workers + (work - shared) / std::max(1, ctx_.threads);
     const std::time_t eta = std::time(nullptr) + static_cast<std::time_t>(wall);
     char at[16];
     std::strftime(at, sizeof at, "%H:%M", std::localtime(&eta));

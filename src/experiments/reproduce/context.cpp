@@ -93,19 +93,19 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
   run_planners(cfg, p, builtin_beamformers(), &quiet, &seconds);
 }
 
-// Rough seconds on one core (the farm's order, --plan, the ETA; never a result), fitted to the
-// quick profile's timings.csv on a 2-core AMD EPYC VM with AVX2 (2026-12-05: 16 runs two at a
-// time, one thread each, 2,210 s of training; the AVX-512 VM runs them in about 0.6x the time):
-// per environment step at N = 3, MAPPO / IPPO 9e-5 s on the fast backend (2e6 steps at K = 12:
-// 190-215 s; 10x that on marl.backend = torch), VDN 8.7e-5 and QMIX 1.1e-4 (LibTorch; 204 s and
-// 251 s), growing as N^1.3, plus 9.2e-7 per user (K = 24: 245 s; N = 16, K = 400 at 1.16e-3 a
-// step); the set encoder, its validation layouts and the larger networks it feeds add 4.5e-4 (2e5
-// steps: 274-613 us a step by oracle and mobility; the paper profile's 2e6-step runs with new users
-// every episode and 20 validation layouts: 1,157 s, 579 us a step), its move gains (marl.lookahead) 1e-4 and each
-// cell of its radio map 1.2e-5 (marl.rate_map = 3 and the UAVs in turn: 959 us a step); the
-// shared spectrum's interference-aware oracle 3e-5; plus 3 s per run for the child process's
-// start, its models and the policy's last evaluation. Where the kernels run on AVX-512, 0.7x (the
-// AVX-512 VM trained the quick profile's 16 runs in 720 s two at a time, 2026-12-01).
+// Rough seconds on one core (the farm's order, --plan, the ETA, --time-limit; never a result),
+// fitted to the paper profile's 63 runs in results/paper-next/timings.csv on a 2-core AMD EPYC VM
+// with AVX2 (2026-12-05/06, two at a time, one thread each, 2e6 steps): per environment step at
+// N = 3, MAPPO / IPPO 4e-5 s on the fast backend (K = 12: 77-98 s; 10x that on marl.backend =
+// torch), VDN 4.2e-5 and QMIX 5.7e-5 (LibTorch; 94-95 s and 123-126 s), growing as N^1.3, plus
+// 2.9e-7 per user (K = 8: 86-87 s, K = 24: 93-99 s; N = 16, K = 400: 897-931 s); the set encoder,
+// its validation layouts and the larger networks it feeds add 1.4e-4 (354-431 s with the GNN as
+// the oracle and new users every episode; 241-245 s behind WMMSE), its move gains
+// (marl.lookahead) 8e-5 and each cell of its radio map 1e-5 (marl.rate_map = 3 and the UAVs in
+// turn: 1,005-1,008 s); the shared spectrum's interference-aware oracle 6e-6 (84-134 s beside
+// 77-126 s); plus 3 s per run for the child process's start, its models and the policy's last
+// evaluation. Where the kernels run on AVX-512, 0.7x (the AVX-512 VM trained the quick profile's
+// 16 runs in 720 s two at a time, 2026-12-01).
 constexpr double kMarlRunSetup = 3.0;
 double marl_machine() {
   static const double f = nn::fast::kernel_isa() == "avx512" ? 0.7 : 1.0;
@@ -114,14 +114,14 @@ double marl_machine() {
 double marl_cost(const Config& cfg) {
   const auto& m = cfg.marl;
   const auto& learner = find_learner(m.algo);
-  const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? (m.algo == "qmix" ? 1.1e-4 : 8.7e-5)
-                      : m.backend == PpoBackend::Torch                    ? 9e-4
-                                                                           : 9e-5;
+  const double base = learner.core == LearnerInfo::Core::ValueDecomposition ? (m.algo == "qmix" ? 5.7e-5 : 4.2e-5)
+                      : m.backend == PpoBackend::Torch                    ? 4e-4
+                                                                           : 4e-5;
   const bool set = m.encoder == ObservationKind::Set;
   const double cells = 2.0 * m.rate_map * (m.rate_map + 1);
-  const double per_step = base * std::pow(cfg.scenario.uavs / 3.0, 1.3) + 9.2e-7 * cfg.scenario.users +
-                          (set ? 4.5e-4 + (m.lookahead ? 1e-4 : 0.0) + 1.2e-5 * cells : 0.0) +
-                          (cfg.channel.spectrum == Spectrum::Shared ? 3e-5 : 0.0);
+  const double per_step = base * std::pow(cfg.scenario.uavs / 3.0, 1.3) + 2.9e-7 * cfg.scenario.users +
+                          (set ? 1.4e-4 + (m.lookahead ? 8e-5 : 0.0) + 1e-5 * cells : 0.0) +
+                          (cfg.channel.spectrum == Spectrum::Shared ? 6e-6 : 0.0);
   return kMarlRunSetup + marl_machine() * per_step * static_cast<double>(m.total_steps);
 }
 /// The exact optimum of one layout: about 0.3 s per user on the paper's grid (1.77e6 joint

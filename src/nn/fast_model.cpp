@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <complex>
 #include <cstdint>
 #include <cstring>
 #include <initializer_list>
@@ -370,8 +371,19 @@ MatrixXcd structured_beams(const MatrixXcd& H, int own, int K, const Mat& y, int
   VectorXd lambda(H.cols());
   for (Eigen::Index j = 0; j < H.cols(); ++j)
     lambda(j) = std::exp(std::clamp(static_cast<double>(y.row(first_row + static_cast<int>(j))[0]), -30.0, 30.0));
+  // A += lambda_j h_j h_j^H column by column, each entry conj(h_j[c]) (lambda_j h_j[r]) added in
+  // j order: the products and sums of Eigen's outer product (A.noalias() += lambda_j h_j h_j^H),
+  // bit for bit, without its per-term temporaries.
   MatrixXcd A = MatrixXcd::Identity(L, L);
-  for (Eigen::Index j = 0; j < H.cols(); ++j) A.noalias() += lambda(j) * H.col(j) * H.col(j).adjoint();
+  for (Eigen::Index j = 0; j < H.cols(); ++j) {
+    const double lj = lambda(j);
+    const std::complex<double>* h = H.col(j).data();
+    for (Eigen::Index c = 0; c < L; ++c) {
+      const std::complex<double> s = std::conj(h[c]);
+      std::complex<double>* a = A.col(c).data();
+      for (Eigen::Index r = 0; r < L; ++r) a[r] += s * (lj * h[r]);
+    }
+  }
   const MatrixXcd V = A.llt().solve(H.middleCols(own, K));
   double top = -std::numeric_limits<double>::infinity();
   for (int k = 0; k < K; ++k) top = std::max(top, static_cast<double>(y.row(first_row + own + k)[1]));
@@ -895,6 +907,52 @@ std::vector<std::vector<MatrixXcd>> Model::forward_networks(const std::vector<co
       out[i].push_back(structured_beams(H, own, K, B.y, user0));
     }
     user0 += Un;
+  }
+  return out;
+}
+
+namespace {
+/// p[j] = |g . w_j|^2 for one user's channel row g (real and imaginary parts gr, gi: L each) and
+/// the beams in split form (wr, wi: L rows of K), summed over the antennas in order.
+SKYLOOP_CLONES void received_powers(const double* __restrict gr, const double* __restrict gi, const double* __restrict wr,
+                                    const double* __restrict wi, int L, int K, double* __restrict re, double* __restrict im,
+                                    double* __restrict p) {
+  std::fill(re, re + K, 0.0);
+  std::fill(im, im + K, 0.0);
+  for (int l = 0; l < L; ++l) {
+    const double a = gr[l], b = gi[l];
+    const double* __restrict xr = wr + static_cast<std::size_t>(l) * static_cast<std::size_t>(K);
+    const double* __restrict xi = wi + static_cast<std::size_t>(l) * static_cast<std::size_t>(K);
+    for (int j = 0; j < K; ++j) {
+      re[j] += a * xr[j] - b * xi[j];
+      im[j] += a * xi[j] + b * xr[j];
+    }
+  }
+  for (int j = 0; j < K; ++j) p[j] = re[j] * re[j] + im[j] * im[j];
+}
+}  // namespace
+
+VectorXd served_rates(const Cluster& c, const MatrixXcd& W) {
+  const Eigen::Index K = c.G.rows(), L = c.G.cols();
+  if (W.rows() != L || W.cols() != K)
+    throw std::invalid_argument("served_rates: beamformer shape " + std::to_string(W.rows()) + "x" + std::to_string(W.cols()) +
+                                " does not match the cluster: expected " + std::to_string(L) + "x" + std::to_string(K));
+  const auto k = static_cast<std::size_t>(K), l = static_cast<std::size_t>(L);
+  thread_local std::vector<double> wr, wi, re, im, p, gr, gi;
+  wr.resize(l * k), wi.resize(l * k), re.resize(k), im.resize(k), p.resize(k), gr.resize(l), gi.resize(l);
+  for (Eigen::Index j = 0; j < K; ++j)
+    for (Eigen::Index a = 0; a < L; ++a) {
+      const auto at = static_cast<std::size_t>(a) * k + static_cast<std::size_t>(j);
+      wr[at] = W(a, j).real(), wi[at] = W(a, j).imag();
+    }
+  VectorXd out(K);
+  for (Eigen::Index i = 0; i < K; ++i) {
+    for (Eigen::Index a = 0; a < L; ++a) gr[static_cast<std::size_t>(a)] = c.G(i, a).real(), gi[static_cast<std::size_t>(a)] = c.G(i, a).imag();
+    received_powers(gr.data(), gi.data(), wr.data(), wi.data(), static_cast<int>(L), static_cast<int>(K), re.data(), im.data(), p.data());
+    double interference = 0.0;
+    for (Eigen::Index j = 0; j < K; ++j)
+      if (j != i) interference += p[static_cast<std::size_t>(j)];
+    out[i] = c.bandwidth * std::log2(1.0 + p[static_cast<std::size_t>(i)] / (interference + c.noise));
   }
   return out;
 }

@@ -53,4 +53,10 @@ class Model {
   std::unique_ptr<Impl> impl_;
 };
 
+/// Every user's rate b log2(1 + SINR) under the beams W [L x K_n], as skyloop::rates gives it, in
+/// split real arithmetic vectorised over the beams (no K_n x K_n temporary): equal to rates(c, W)
+/// to rounding (the antenna sums run in another order). The ranked selection's input
+/// (nn.selection = "ranked"), which orders the users by it.
+VectorXd served_rates(const Cluster& c, const MatrixXcd& W);
+
 }  // namespace skyloop::nn::fast

@@ -51,7 +51,7 @@ struct LearnedBeamformer::Impl {
     if (!ranked || c.size() == 0) return W;
     std::vector<int> order(static_cast<std::size_t>(c.size()));
     std::iota(order.begin(), order.end(), 0);
-    const VectorXd rate = rates(c, W);
+    const VectorXd rate = nn::fast::served_rates(c, W);  // rates(c, W) to rounding, without its K x K product
     std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return rate[a] > rate[b]; });
     std::vector<int> chosen;
     MatrixXcd Z = zf_ranked(c, order, &chosen);

@@ -10,6 +10,7 @@
 #include "../../src/nn/batch.hpp"
 #include "../../src/nn/checkpoint.hpp"
 #include "../../src/nn/fast_gemm.hpp"
+#include "../../src/nn/fast_model.hpp"
 #include "skyloop/channel/rates.hpp"
 #include "skyloop/core/rng.hpp"
 #include "skyloop/nn/learned.hpp"
@@ -134,6 +135,33 @@ TEST(NnInternal, BatchedRateEqualsDoublePrecisionRate) {
   const auto got = cluster_sum_rates(scale_to_budget(w, b, PowerScaling::Full), b);
   for (std::size_t i = 0; i < clusters.size(); ++i)
     EXPECT_NEAR(got[static_cast<int64_t>(i)].item<double>(), expect[i], 2e-3 * expect[i] + 1e-3) << "cluster " << i;
+}
+
+// The ranked selection orders the users by served_rates: skyloop::rates to rounding, over
+// clusters with fewer and more users than antennas (1, 3, 4, 6, 64), under MRT beams
+// (interference-limited), ZF (interference nulled: noise-limited) and random beams, with every
+// antenna count the vectorised kernel sees (a remainder of 0-3 beams past its packets).
+TEST(NnInternal, RankingRatesEqualTheClusterRatesToRounding) {
+  Rng rng(11);
+  for (int antennas : {1, 4, 8}) {
+    Config cfg;
+    cfg.channel.antennas = antennas;
+    for (int k : {1, 3, 4, 6, 64})
+      for (const auto& c : test::clusters_of_size(cfg, k, 2, static_cast<std::uint64_t>(k + antennas))) {
+        MatrixXcd random(antennas, k);
+        for (Eigen::Index i = 0; i < random.size(); ++i) random(i) = {rng.normal(), rng.normal()};
+        for (const MatrixXcd& W : {mrt(c), zf(c, true), MatrixXcd(scale_to_budget(random, c.p_max, PowerScaling::Full))}) {
+          const VectorXd want = rates(c, W), got = fast::served_rates(c, W);
+          ASSERT_EQ(got.size(), want.size());
+          for (Eigen::Index i = 0; i < want.size(); ++i)
+            EXPECT_NEAR(got[i], want[i], 1e-9 * (1.0 + want[i])) << "L = " << antennas << ", K = " << k << ", user " << i;
+        }
+      }
+  }
+  const auto c = test::clusters_of_size(Config{}, 3, 1, 5).front();
+  EXPECT_THROW(fast::served_rates(c, MatrixXcd::Zero(4, 2)), std::invalid_argument);
+  const Cluster empty{};
+  EXPECT_EQ(fast::served_rates(empty, MatrixXcd(0, 0)).size(), 0);
 }
 
 // The structured readout spans the classical precoders: lambda -> 0 gives MRT directions,

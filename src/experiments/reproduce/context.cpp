@@ -94,7 +94,7 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 }
 
 // Rough seconds on one core (the farm's order, --plan, the ETA, --time-limit; never a result),
-// fitted to the paper profile's 63 runs in results/paper-next/timings.csv on a 2-core AMD EPYC VM
+// fitted to the paper profile's 63 runs in results/paper/timings.csv on a 2-core AMD EPYC VM
 // with AVX2 (2026-12-05/06, two at a time, one thread each, 2e6 steps): per environment step at
 // N = 3, MAPPO / IPPO 4e-5 s on the fast backend (K = 12: 77-98 s; 10x that on marl.backend =
 // torch), VDN 4.2e-5 and QMIX 5.7e-5 (LibTorch; 94-95 s and 123-126 s), growing as N^1.3, plus

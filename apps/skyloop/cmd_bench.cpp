@@ -281,7 +281,7 @@ int bench_baselines(const BenchCliOptions& o) {
   };
   std::mutex mu;
   std::vector<std::string> failed;
-  std::size_t finished = 0;
+  std::size_t finished = 0;  // trainings that ran to their end (trained or failed)
   parallel_for(pending.size(), jobs, [&](std::size_t i) {
     const Job& j = pending[i];
     Config cfg = learner_config(j.algo, j.seed);
@@ -291,8 +291,7 @@ int bench_baselines(const BenchCliOptions& o) {
       const double need = expected(j, cfg);
       if (!fits_time_limit(elapsed(), need, time_limit)) {
         left.push_back(fmt::format("{} seed {} (about {:.0f} s)", j.algo, j.seed, need));
-        ++finished;
-        return;
+        return;  // not started: not counted in the progress below
       }
     }
     fs::create_directories(fs::path(j.dir).parent_path());

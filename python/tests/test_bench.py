@@ -169,6 +169,7 @@ def test_baselines_train_score_and_label_a_short_budget(tmp_path):
                 "--out", str(par))
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stderr.count("training mappo seed") == 2 and (par / "train" / "mappo-s2.log").exists()
+    assert "(1/2 runs)" in r.stderr and "(2/2 runs)" in r.stderr, r.stderr  # progress counts the ended trainings
     seed1 = [r for r in csv.DictReader(open(par / "rows.csv")) if r["policy"] == "mappo" and r["seed"] == "1"]
     assert [(r["layout"], r["objective"]) for r in seed1] == [(r["layout"], r["objective"]) for r in rows]
     r = run_cli("bench", "baselines", "paper-v1", "--learners", "mappo", "--seeds", "1,2", "--steps", "2048", "--jobs", "2",

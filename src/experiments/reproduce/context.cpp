@@ -102,7 +102,9 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 // its validation layouts and the larger networks it feeds add 1.4e-4 (354-431 s with the GNN as
 // the oracle and new users every episode; 241-245 s behind WMMSE), its move gains
 // (marl.lookahead) 8e-5 and each cell of its radio map 1e-5 (marl.rate_map = 3 and the UAVs in
-// turn: 1,005-1,008 s); the shared spectrum's interference-aware oracle 6e-6 (84-134 s beside
+// turn: 1,005-1,008 s), all three growing as N^1.4 above N = 3 (fleet16-v1's recipe, N = 16,
+// K = 400, set encoder, move gains and the UAVs in turn: 1,702-1,727 s at 6e5 steps, 2026-12-06;
+// at N = 2 they cost what they do at 3); the shared spectrum's interference-aware oracle 6e-6 (84-134 s beside
 // 77-126 s); plus 3 s per run for the child process's start, its models and the policy's last
 // evaluation. Where the kernels run on AVX-512, 0.7x (the AVX-512 VM trained the quick profile's
 // 16 runs in 720 s two at a time, 2026-12-01).
@@ -119,8 +121,9 @@ double marl_cost(const Config& cfg) {
                                                                            : 4e-5;
   const bool set = m.encoder == ObservationKind::Set;
   const double cells = 2.0 * m.rate_map * (m.rate_map + 1);
+  const double fleet = std::max(1.0, cfg.scenario.uavs / 3.0);
   const double per_step = base * std::pow(cfg.scenario.uavs / 3.0, 1.3) + 2.9e-7 * cfg.scenario.users +
-                          (set ? 1.4e-4 + (m.lookahead ? 8e-5 : 0.0) + 1e-5 * cells : 0.0) +
+                          (set ? (1.4e-4 + (m.lookahead ? 8e-5 : 0.0) + 1e-5 * cells) * std::pow(fleet, 1.4) : 0.0) +
                           (cfg.channel.spectrum == Spectrum::Shared ? 6e-6 : 0.0);
   return kMarlRunSetup + marl_machine() * per_step * static_cast<double>(m.total_steps);
 }

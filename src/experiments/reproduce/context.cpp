@@ -10,6 +10,7 @@
 #include "skyloop/core/config_io.hpp"
 #include "skyloop/core/error.hpp"
 #include "skyloop/core/io.hpp"
+#include "skyloop/env/dynamics.hpp"
 #include "skyloop/experiments/builtin.hpp"
 #include "skyloop/experiments/planning_run.hpp"
 #include "skyloop/marl/marl.hpp"
@@ -105,9 +106,12 @@ void evaluate(const Config& cfg, const fs::path& dir, const std::vector<std::str
 // turn: 1,005-1,008 s), all three growing as N^1.4 above N = 3 (fleet16-v1's recipe, N = 16,
 // K = 400, set encoder, move gains and the UAVs in turn: 1,702-1,727 s at 6e5 steps, 2026-12-06;
 // at N = 2 they cost what they do at 3); the shared spectrum's interference-aware oracle 6e-6 (84-134 s beside
-// 77-126 s); plus 3 s per run for the child process's start, its models and the policy's last
-// evaluation. Where the kernels run on AVX-512, 0.7x (the AVX-512 VM trained the quick profile's
-// 16 runs in 720 s two at a time, 2026-12-01).
+// 77-126 s); velocity commands 7e-5, growing as N^1.3 (positions off the lattice rarely repeat,
+// so the oracle's rate cache seldom holds them: continuous-v1's recipe, N = 3, set encoder, took
+// 469-573 s, two at a time, against 370-404 s estimated on the lattice, 2026-12-06); plus 3 s per
+// run for the child process's start, its models and the policy's last evaluation. Where the
+// kernels run on AVX-512, 0.7x (the AVX-512 VM trained the quick profile's 16 runs in 720 s two
+// at a time, 2026-12-01).
 constexpr double kMarlRunSetup = 3.0;
 double marl_machine() {
   static const double f = nn::fast::kernel_isa() == "avx512" ? 0.7 : 1.0;
@@ -124,7 +128,8 @@ double marl_cost(const Config& cfg) {
   const double fleet = std::max(1.0, cfg.scenario.uavs / 3.0);
   const double per_step = base * std::pow(cfg.scenario.uavs / 3.0, 1.3) + 2.9e-7 * cfg.scenario.users +
                           (set ? (1.4e-4 + (m.lookahead ? 8e-5 : 0.0) + 1e-5 * cells) * std::pow(fleet, 1.4) : 0.0) +
-                          (cfg.channel.spectrum == Spectrum::Shared ? 6e-6 : 0.0);
+                          (cfg.channel.spectrum == Spectrum::Shared ? 6e-6 : 0.0) +
+                          (make_dynamics(cfg)->commands_velocities() ? 7e-5 * std::pow(cfg.scenario.uavs / 3.0, 1.3) : 0.0);
   return kMarlRunSetup + marl_machine() * per_step * static_cast<double>(m.total_steps);
 }
 /// The exact optimum of one layout: about 0.3 s per user on the paper's grid (1.77e6 joint

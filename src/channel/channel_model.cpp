@@ -197,11 +197,6 @@ bool ChannelModel::paper() const { return free_space_ && !fading_->random(); }
 
 int ChannelModel::fast_slots() const { return fading_->fast_slots(); }
 
-double ChannelModel::distance(double ux, double uy, double uz, double x, double y) const {
-  const double dx = ux - x, dy = uy - y, dz = uz - user_height_;
-  return std::sqrt(dx * dx + dy * dy + dz * dz);
-}
-
 LinkGeometry ChannelModel::geometry(double ux, double uy, double uz, double x, double y) const {
   const double dx = ux - x, dy = uy - y, dz = uz - user_height_;
   LinkGeometry g;

@@ -25,6 +25,7 @@
 //   - small-scale g(m): i.i.d. per (seed, UAV position (with its altitude where it is not H), user
 //     position, fast slot m, antenna), as
 //     multipath decorrelates within a wavelength. Revisiting a cell sees the same realisations.
+#include <cmath>
 #include <memory>
 #include <string>
 #include <utility>
@@ -91,8 +92,12 @@ class ChannelModel {
   const FadingModel& fading() const { return *fading_; }
   int antennas() const { return antennas_; }
 
-  /// d_3D from a UAV at (ux, uy, uz) to the user at (x, y, h_u) (the association's distance).
-  double distance(double ux, double uy, double uz, double x, double y) const;
+  /// d_3D from a UAV at (ux, uy, uz) to the user at (x, y, h_u) (the association's distance;
+  /// inline: the association asks it for every user and UAV).
+  double distance(double ux, double uy, double uz, double x, double y) const {
+    const double dx = ux - x, dy = uy - y, dz = uz - user_height_;
+    return std::sqrt(dx * dx + dy * dy + dz * dz);
+  }
   /// The same at the scenario's altitude H (uz = scenario.altitude_m).
   double distance(double ux, double uy, double x, double y) const { return distance(ux, uy, altitude_, x, y); }
   /// H - h_u: the height of the UAVs above the users' antennas at the scenario's altitude.

@@ -6,7 +6,8 @@
 - the generated reference lists every configuration field (Config.keys(), the table itself) and
   every command and option the CLI's sources define (apps/skyloop/*.cpp, read here independently
   of the generator), so removing one from the generator fails here;
-- every relative link between pages resolves to a page that exists.
+- every relative link between pages resolves to a page that exists;
+- the MARL page's results of the paper scenario are the committed paper profile's.
 
 The site itself is built with warnings as errors by scripts/docs (in CI), which also renders it
 in headless Chromium."""
@@ -118,6 +119,32 @@ def test_every_relative_link_between_pages_resolves():
             if "://" not in target and not (page.parent / target).resolve().exists():
                 broken.append(f"{page.relative_to(DOCS)} -> {target}")
     assert not broken, f"links to no page: {broken}"
+
+
+def test_marl_page_states_the_paper_profiles_results():
+    """The MARL page's table of the paper scenario (objective and UAVs home per learner and seed)
+    and its reference line are the committed paper profile's (results/paper/marl_training), so a
+    new paper profile that moves them fails here until the page says what it now holds."""
+    import csv
+    data = ROOT / "results" / "paper" / "marl_training"
+    page = (DOCS / "concepts" / "marl.md").read_text()
+    with open(data / "marl_training.csv", newline="") as f:
+        runs = list(csv.DictReader(f))
+    names = {"mappo": "MAPPO", "ippo": "IPPO", "vdn": "VDN", "qmix": "QMIX"}
+    for algo, label in names.items():
+        row = re.search(r"^\| " + label + r" \| (.*)$", page, re.M)
+        assert row, f"docs/concepts/marl.md has no table row for {label}"
+        cells = [c.strip() for c in row.group(1).split("|")]
+        mine = sorted((r for r in runs if r["algo"] == algo), key=lambda r: int(r["train_seed"]))
+        assert len(mine) == 3, f"{algo}: {len(mine)} runs in marl_training.csv, the table has 3 seeds"
+        for r, cell in zip(mine, cells):
+            want = f"{float(r['objective']):.3f}, {r['arrivals']}/{r['uavs']}"
+            assert cell.startswith(want), f"{label} seed {r['train_seed']}: the page says '{cell}', the data {want}"
+    with open(data / "references.csv", newline="") as f:
+        refs = {r["planner"]: r for r in csv.DictReader(f)}
+    for planner, label in (("greedy", "Greedy scores"), ("random", "Random"), ("optimal", "the exact optimum")):
+        want = f"{label} {float(refs[planner]['objective']):.3f} ({refs[planner]['arrivals']}/"
+        assert want in page.replace("\n", " "), f"docs/concepts/marl.md should say '{want}...'"
 
 
 def test_benchmark_page_is_made_from_its_data():
